@@ -1,0 +1,77 @@
+"""The public entry points: :func:`build` and :func:`load`."""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+
+import numpy as np
+
+from .errors import InputError
+from .source import SourceMesh
+from .staticmesh import StaticMesh
+from .staticmesh import load as _load_file
+
+HEIGHTFIELD_SUFFIXES = {".npy", ".png", ".tif", ".tiff"}
+DEFAULT_SIZE = 256
+
+
+def build(source, *, cell_size: float = 1.0, z_scale: float = 1.0, materials=None,
+          crease_angle: float = 30.0, size: int = DEFAULT_SIZE, seed: int = 7,
+          progress: bool = False) -> StaticMesh:
+    """Build the static CAVECLOD mesh of ``source``.
+
+    Args:
+        source: ``"default"`` (the built-in procedural terrain), a path to a
+            mesh file (anything trimesh loads) or a heightfield (``.npy``,
+            16-bit ``.png``/``.tif``), a ``trimesh.Trimesh``/``Scene``, or a
+            :class:`~caveclod.source.SourceMesh`.
+        cell_size, z_scale: heightfield grid spacing and height scale.
+        materials: heightfield material map: a path to ``.npy`` or an (r, c)
+            / (r-1, c-1) integer array, one class per cell.
+        crease_angle: degrees; normals are computed with it where the input
+            has none.
+        size: cells per side of the default terrain.
+        seed: seed of the default terrain.
+        progress: draw a progress bar on stderr.
+    """
+    from .hierarchy import build_static_mesh
+    src = to_source(source, cell_size=cell_size, z_scale=z_scale, materials=materials, size=size, seed=seed)
+    return build_static_mesh(src, crease_angle=crease_angle, progress=progress)
+
+
+def load(path: str | os.PathLike) -> StaticMesh:
+    """Open a ``.cvc`` file built by :func:`build` (memory-mapped)."""
+    return _load_file(path)
+
+
+def to_source(source, *, cell_size=1.0, z_scale=1.0, materials=None, size=DEFAULT_SIZE, seed=7) -> SourceMesh:
+    """Turn any accepted ``source`` into a validated :class:`SourceMesh`."""
+    from . import meshfile, terrain
+    if isinstance(source, SourceMesh):
+        source.validate()
+        return source
+    if isinstance(source, str) and source == "default":
+        if not isinstance(size, (int, np.integer)) or not 2 <= size <= 8192:
+            raise InputError(f"--size must be an integer between 2 and 8192 cells, got {size!r}")
+        return terrain.default_terrain(size=int(size), seed=seed)
+    if isinstance(source, (str, os.PathLike)):
+        path = Path(source)
+        if path.suffix.lower() in HEIGHTFIELD_SUFFIXES:
+            heights = terrain.load_heightfield(path)
+            classes = None
+            if materials is not None:
+                classes = terrain.load_material_map(materials) if isinstance(materials, (str, os.PathLike)) \
+                    else np.asarray(materials)
+            return terrain.heightfield_to_source(heights, cell_size=cell_size, z_scale=z_scale, materials=classes)
+        return meshfile.load_mesh_file(path)
+    if isinstance(source, np.ndarray):
+        return terrain.heightfield_to_source(source, cell_size=cell_size, z_scale=z_scale,
+                                             materials=None if materials is None else np.asarray(materials))
+    try:
+        import trimesh
+    except ImportError:  # pragma: no cover - trimesh is a dependency
+        trimesh = None
+    if trimesh is not None and isinstance(source, (trimesh.Trimesh, trimesh.Scene)):
+        return meshfile.source_from_trimesh(source)
+    raise InputError(f"cannot build from a {type(source).__name__}; give a path, 'default', a trimesh mesh or a heightfield array")

@@ -1,0 +1,444 @@
+"""The build: half-edge collapses chosen by quadric error, recorded as nodes.
+
+Garland & Heckbert quadrics pick the collapses; Hoppe (1997) says what each
+node must remember; Kram & Shaw section 3.3 says which collapses are allowed.
+Work proceeds in passes (as meshoptimizer does): each pass ranks the best
+legal collapse of every vertex, then performs them cheapest first, skipping
+any whose ends an earlier collapse of the same pass moved or grew, and
+checking legality again on the current mesh. Passes keep the hierarchy
+shallow, which keeps the runtime's forced-split chains short.
+
+Collapse of the floating position ``u`` into the stationary position ``t``::
+
+        vl                      vl
+       /  \\                   /  \\
+      / fl \\                 /    \\
+     t ---- u     ==>        s      (u gone; its faces now use s = t)
+      \\ fr /                 \\    /
+       \\  /                   \\  /
+        vr                      vr
+
+``fl = (t, u, vl)`` holds the directed edge t->u, ``fr = (u, t, vr)`` holds
+u->t. Their outer neighbours are recorded per node as ``fn = (fl_u, fl_t,
+fr_u, fr_t)``: ``fl_u`` across fl's edge u->vl, ``fl_t`` across vl->t,
+``fr_u`` across vr->u and ``fr_t`` across t->vr.
+"""
+
+import math
+
+import numba as nb
+import numpy as np
+
+from .bounds import cone_add_cone, quadric_add_plane, quadric_eval, sphere_add_sphere
+from .fans import collect_fan, corner_of
+
+FREE, SHARP, RIGID = 0, 1, 2
+BOUNDARY_WEIGHT = 4.0   # keep borders and seams in place, relative to area
+
+
+@nb.njit(cache=True, nogil=True)
+def init_leaves(P, F, N, fgroup, vface, Q, sphere, cone):
+    """Per-position quadrics, point spheres and normal cones of leaves.
+
+    Args:
+        P: (e, 3) float64 positions. F: (p, 3) int32 faces over positions.
+        N: (p, 3) int32 neighbours. fgroup: (p,) int32 surface groups.
+        vface: (e,) int32 out: one face at each position (-1 if none).
+        Q: (e, 10) float64 out. sphere, cone: (>= e, 4) float64 out.
+    """
+    e = P.shape[0]
+    for x in range(e):
+        vface[x] = -1
+        sphere[x, 0], sphere[x, 1], sphere[x, 2], sphere[x, 3] = P[x, 0], P[x, 1], P[x, 2], 0.0
+    for f in range(F.shape[0]):
+        a, b, c = F[f, 0], F[f, 1], F[f, 2]
+        e1 = P[b] - P[a]
+        e2 = P[c] - P[a]
+        n0 = e1[1] * e2[2] - e1[2] * e2[1]
+        n1 = e1[2] * e2[0] - e1[0] * e2[2]
+        n2 = e1[0] * e2[1] - e1[1] * e2[0]
+        ln = math.sqrt(n0 * n0 + n1 * n1 + n2 * n2)
+        for k in range(3):
+            if vface[F[f, k]] == -1:
+                vface[F[f, k]] = f
+        if ln == 0.0:
+            continue
+        n0, n1, n2 = n0 / ln, n1 / ln, n2 / ln
+        d = -(n0 * P[a, 0] + n1 * P[a, 1] + n2 * P[a, 2])
+        w = 0.5 * ln
+        for k in range(3):
+            x = F[f, k]
+            quadric_add_plane(Q[x], n0, n1, n2, d, w)
+            cone_add_cone(cone[x], n0, n1, n2, 0.0)
+            h = N[f, k]
+            if h >= 0 and fgroup[h] == fgroup[f]:
+                continue
+            # Border or seam edge: a plane through the edge, perpendicular
+            # to the face, so moving along the edge is free and off it costs.
+            xa, xb = F[f, k], F[f, (k + 1) % 3]
+            ex, ey, ez = P[xb, 0] - P[xa, 0], P[xb, 1] - P[xa, 1], P[xb, 2] - P[xa, 2]
+            m0, m1, m2 = ey * n2 - ez * n1, ez * n0 - ex * n2, ex * n1 - ey * n0
+            ml = math.sqrt(m0 * m0 + m1 * m1 + m2 * m2)
+            if ml == 0.0:
+                continue
+            m0, m1, m2 = m0 / ml, m1 / ml, m2 / ml
+            md = -(m0 * P[xa, 0] + m1 * P[xa, 1] + m2 * P[xa, 2])
+            wb = BOUNDARY_WEIGHT * (ex * ex + ey * ey + ez * ez)
+            quadric_add_plane(Q[xa], m0, m1, m2, md, wb)
+            quadric_add_plane(Q[xb], m0, m1, m2, md, wb)
+
+
+@nb.njit(cache=True, nogil=True, inline="always")
+def _has_group(pg_start, pg_groups, x, g):
+    for i in range(pg_start[x], pg_start[x + 1]):
+        if pg_groups[i] == g:
+            return True
+    return False
+
+
+@nb.njit(cache=True, nogil=True, inline="always")
+def _normal(P, a, b, c):
+    e10, e11, e12 = P[b, 0] - P[a, 0], P[b, 1] - P[a, 1], P[b, 2] - P[a, 2]
+    e20, e21, e22 = P[c, 0] - P[a, 0], P[c, 1] - P[a, 1], P[c, 2] - P[a, 2]
+    return (e11 * e22 - e12 * e21, e12 * e20 - e10 * e22, e10 * e21 - e11 * e20)
+
+
+@nb.njit(cache=True, nogil=True)
+def check_collapse(u, t, P, F, N, vface, fgroup, pclass, fixed, pg_start, pg_groups,
+                   fan_u, fan_t, mark, stamp):
+    """Whether collapsing position ``u`` into ``t`` is legal (see module doc).
+
+    ``mark`` (e,) int64 and ``stamp`` (never used before) find shared neighbours;
+    callers draw stamps from a counter kept for the whole build.
+    Returns (legal, fl, fr, nu): ``fan_u[:nu]`` then holds u's faces.
+    """
+    if pclass[u] == RIGID or fixed[u] or fixed[t]:
+        return False, -1, -1, 0
+    nu, border_u = collect_fan(F, N, vface[u], u, fan_u)
+    nt, border_t = collect_fan(F, N, vface[t], t, fan_t)
+    if nu >= fan_u.shape[0] or nt >= fan_t.shape[0]:
+        return False, -1, -1, 0
+    fl, fr = -1, -1
+    for i in range(nu):
+        f = fan_u[i]
+        ku = corner_of(F, f, u)
+        if F[f, (ku + 2) % 3] == t:      # ... t -> u ...
+            fl = f
+        elif F[f, (ku + 1) % 3] == t:    # ... u -> t ...
+            fr = f
+    if fl == -1 and fr == -1:
+        return False, -1, -1, 0
+    interior = fl != -1 and fr != -1
+    if interior and border_u and border_t:
+        return False, -1, -1, 0              # would pinch the surface into a bow-tie
+    if pclass[u] == SHARP:
+        # Paper 3.3: a SHARP position only slides along its own boundary.
+        if interior and fgroup[fl] == fgroup[fr]:
+            return False, -1, -1, 0
+    vl, vr = -1, -1
+    fn0 = fn1 = fn2 = fn3 = -1
+    if fl != -1:
+        k = corner_of(F, fl, u)
+        vl = F[fl, (k + 1) % 3]
+        fn0 = N[fl, k]                    # across u -> vl
+        fn1 = N[fl, (k + 1) % 3]          # across vl -> t
+        if fn0 == -1 and fn1 == -1:
+            return False, -1, -1, 0          # vl would be left without faces
+    if fr != -1:
+        k = corner_of(F, fr, u)
+        vr = F[fr, (k + 2) % 3]
+        fn2 = N[fr, (k + 2) % 3]          # across vr -> u
+        fn3 = N[fr, (k + 1) % 3]          # across t -> vr
+        if fn2 == -1 and fn3 == -1:
+            return False, -1, -1, 0
+    if vl != -1 and vl == vr:
+        return False, -1, -1, 0
+    for g in (fn0, fn1, fn2, fn3):
+        if g != -1 and (g == fl or g == fr):
+            return False, -1, -1, 0
+    # The two faces that become neighbours must not be the same triangle.
+    if fn0 != -1 and fn1 != -1:
+        if F[fn0, 0] + F[fn0, 1] + F[fn0, 2] - u == F[fn1, 0] + F[fn1, 1] + F[fn1, 2] - t:
+            return False, -1, -1, 0
+    if fn2 != -1 and fn3 != -1:
+        if F[fn2, 0] + F[fn2, 1] + F[fn2, 2] - u == F[fn3, 0] + F[fn3, 1] + F[fn3, 2] - t:
+            return False, -1, -1, 0
+    # Link condition: the only positions next to both u and t are vl and vr.
+    for i in range(nt):
+        f = fan_t[i]
+        for k in range(3):
+            mark[F[f, k]] = stamp
+    for i in range(nu):
+        f = fan_u[i]
+        for k in range(3):
+            w = F[f, k]
+            if w != u and w != t and w != vl and w != vr and mark[w] == stamp:
+                return False, -1, -1, 0
+    # Surface groups, orientation and degeneracy of every face that moves.
+    sx = sy = sz = 0.0
+    for i in range(nu):
+        f = fan_u[i]
+        n = _normal(P, F[f, 0], F[f, 1], F[f, 2])
+        sx += n[0]
+        sy += n[1]
+        sz += n[2]
+    for i in range(nu):
+        f = fan_u[i]
+        if f == fl or f == fr:
+            continue
+        if not _has_group(pg_start, pg_groups, t, fgroup[f]):
+            return False, -1, -1, 0
+        k = corner_of(F, f, u)
+        a, b = F[f, (k + 1) % 3], F[f, (k + 2) % 3]
+        old = _normal(P, u, a, b)
+        new = _normal(P, t, a, b)
+        new_len2 = new[0] * new[0] + new[1] * new[1] + new[2] * new[2]
+        old_len2 = old[0] * old[0] + old[1] * old[1] + old[2] * old[2]
+        if new_len2 <= 1e-30 * (old_len2 + 1e-300) or new_len2 == 0.0:
+            return False, -1, -1, 0
+        ref0, ref1, ref2 = old[0], old[1], old[2]
+        if old_len2 == 0.0:               # a sliver: compare with the fan
+            ref0, ref1, ref2 = sx, sy, sz
+        if ref0 * new[0] + ref1 * new[1] + ref2 * new[2] <= 0.0:
+            return False, -1, -1, 0
+    return True, fl, fr, nu
+
+
+@nb.njit(cache=True, nogil=True)
+def _replace_nbr(N, f, old, new):
+    for k in range(3):
+        if N[f, k] == old:
+            N[f, k] = new
+            return
+
+
+@nb.njit(cache=True, nogil=True)
+def do_collapse(u, t, fl, fr, P, F, N, vface, alive, Q, cur_node, parent, child, npos,
+                nfaces, nfn, sphere, cone, err, creator, m, e, fan_u, nu, fan_t):
+    """Perform a legal collapse and record node ``e + m``. Returns the node.
+
+    ``fan_u[:nu]`` are u's faces, as :func:`check_collapse` left them.
+    """
+    s = e + m
+    tn, un = cur_node[t], cur_node[u]
+    parent[tn] = s
+    parent[un] = s
+    child[m, 0], child[m, 1] = tn, un
+    npos[m] = t
+    nfaces[m, 0], nfaces[m, 1] = fl, fr
+    fn0 = fn1 = fn2 = fn3 = -1
+    vl = vr = -1
+    if fl != -1:
+        k = corner_of(F, fl, u)
+        vl = F[fl, (k + 1) % 3]
+        fn0, fn1 = N[fl, k], N[fl, (k + 1) % 3]
+    if fr != -1:
+        k = corner_of(F, fr, u)
+        vr = F[fr, (k + 2) % 3]
+        fn2, fn3 = N[fr, (k + 2) % 3], N[fr, (k + 1) % 3]
+    nfn[m, 0], nfn[m, 1], nfn[m, 2], nfn[m, 3] = fn0, fn1, fn2, fn3
+    # Deviation of u from the new surface, measured before faces move.
+    dev = 0.0
+    for i in range(nu):
+        f = fan_u[i]
+        if f == fl or f == fr:
+            continue
+        k = corner_of(F, f, u)
+        a, b = F[f, (k + 1) % 3], F[f, (k + 2) % 3]
+        n = _normal(P, t, a, b)
+        ln = math.sqrt(n[0] * n[0] + n[1] * n[1] + n[2] * n[2])
+        if ln > 0.0:
+            d = abs(n[0] * (P[u, 0] - P[t, 0]) + n[1] * (P[u, 1] - P[t, 1]) + n[2] * (P[u, 2] - P[t, 2])) / ln
+            if d > dev:
+                dev = d
+    # Re-link the outer neighbours of fl and fr to each other.
+    if fl != -1:
+        if fn0 != -1:
+            _replace_nbr(N, fn0, fl, fn1)
+        if fn1 != -1:
+            _replace_nbr(N, fn1, fl, fn0)
+        alive[fl] = False
+        creator[fl] = s
+    if fr != -1:
+        if fn2 != -1:
+            _replace_nbr(N, fn2, fr, fn3)
+        if fn3 != -1:
+            _replace_nbr(N, fn3, fr, fn2)
+        alive[fr] = False
+        creator[fr] = s
+    for i in range(nu):
+        f = fan_u[i]
+        if f != fl and f != fr:
+            F[f, corner_of(F, f, u)] = t
+    # Keep a live face at t, vl and vr.
+    keep = -1
+    for i in range(nu):
+        if fan_u[i] != fl and fan_u[i] != fr:
+            keep = fan_u[i]
+            break
+    for cand in (fn1, fn3, fn0, fn2):
+        if keep == -1 and cand != -1:
+            keep = cand
+    if vface[t] == fl or vface[t] == fr:
+        vface[t] = keep
+    vface[u] = -1
+    if vl != -1 and vface[vl] == fl:
+        vface[vl] = fn0 if fn0 != -1 else fn1
+    if vr != -1 and vface[vr] == fr:
+        vface[vr] = fn2 if fn2 != -1 else fn3
+    for j in range(10):
+        Q[t, j] += Q[u, j]
+    cur_node[t] = s
+    cur_node[u] = -1
+    # Node bounds: children's, plus the coarse faces around s.
+    sphere[s, 3] = -1.0
+    sphere_add_sphere(sphere[s], sphere[tn, 0], sphere[tn, 1], sphere[tn, 2], sphere[tn, 3])
+    sphere_add_sphere(sphere[s], sphere[un, 0], sphere[un, 1], sphere[un, 2], sphere[un, 3])
+    cone[s, 3] = -1.0
+    cone_add_cone(cone[s], cone[tn, 0], cone[tn, 1], cone[tn, 2], cone[tn, 3])
+    cone_add_cone(cone[s], cone[un, 0], cone[un, 1], cone[un, 2], cone[un, 3])
+    nt, open_fan = collect_fan(F, N, vface[t], t, fan_t)
+    sphere_add_sphere(sphere[s], P[t, 0], P[t, 1], P[t, 2], 0.0)
+    cos_cone = math.cos(cone[s, 3]) if cone[s, 3] < math.pi else -2.0
+    for i in range(nt):
+        f = fan_t[i]
+        k = corner_of(F, f, t)
+        # Each ring position is the "next" corner of one fan face; an open
+        # fan also ends on the "previous" corner of its first face.
+        x = F[f, (k + 1) % 3]
+        sphere_add_sphere(sphere[s], P[x, 0], P[x, 1], P[x, 2], 0.0)
+        if i == 0 and open_fan:
+            x = F[f, (k + 2) % 3]
+            sphere_add_sphere(sphere[s], P[x, 0], P[x, 1], P[x, 2], 0.0)
+        n = _normal(P, F[f, 0], F[f, 1], F[f, 2])
+        ln = math.sqrt(n[0] * n[0] + n[1] * n[1] + n[2] * n[2])
+        if ln == 0.0:
+            continue
+        n0, n1, n2 = n[0] / ln, n[1] / ln, n[2] / ln
+        if cone[s, 0] * n0 + cone[s, 1] * n1 + cone[s, 2] * n2 >= cos_cone + 1e-12:
+            continue                      # already inside: skip the trigonometry
+        cone_add_cone(cone[s], n0, n1, n2, 0.0)
+        cos_cone = math.cos(cone[s, 3]) if cone[s, 3] < math.pi else -2.0
+    err[s] = max(err[tn], err[un] + dev)
+    return s
+
+
+@nb.njit(cache=True, nogil=True)
+def rank_collapses(P, F, N, vface, fgroup, pclass, fixed, pg_start, pg_groups, Q, lock, mark,
+                   best_t, best_c, pass_id, lo, hi, counter):
+    """Rank the cheapest legal collapse of positions ``lo .. hi-1``.
+
+    Writes ``best_t`` (target t, -1 if none) and ``best_c`` (cost), both (e,),
+    for those positions. The ranking is redone only where the last pass moved
+    something nearby. Reads the mesh only, so two threads may rank disjoint
+    ranges at once, each with its own ``mark`` and ``counter``.
+    """
+    fan_u = np.empty(4096, np.int32)
+    fan_t = np.empty(4096, np.int32)
+    ring = np.empty(4096, np.int32)
+    cand_t = np.empty(4096, np.int32)
+    cand_c = np.empty(4096)
+    for u in range(lo, hi):
+        if vface[u] == -1 or pclass[u] == RIGID or fixed[u]:
+            continue
+        nu, _ = collect_fan(F, N, vface[u], u, ring)
+        if nu >= ring.shape[0]:
+            best_t[u] = -1
+            continue
+        stale = pass_id == 0 or lock[u] == pass_id - 1
+        for i in range(nu):
+            for kk in range(3):
+                if lock[F[ring[i], kk]] == pass_id - 1:
+                    stale = True
+        if stale:
+            best_t[u] = -1
+            # Neighbour positions of u, each once, with their collapse cost.
+            k = 0
+            for i in range(nu):
+                f = ring[i]
+                ku = corner_of(F, f, u)
+                for w in (F[f, (ku + 1) % 3], F[f, (ku + 2) % 3]):
+                    dup = False
+                    for j in range(k):
+                        if cand_t[j] == w:
+                            dup = True
+                            break
+                    if not dup and k < cand_t.shape[0]:
+                        cand_t[k] = w
+                        # (Q_u + Q_w)(p_w): quadrics are linear, so sum the two errors.
+                        cand_c[k] = (quadric_eval(Q[u], P[w, 0], P[w, 1], P[w, 2])
+                                     + quadric_eval(Q[w], P[w, 0], P[w, 1], P[w, 2]))
+                        k += 1
+            # Try neighbours cheapest first (selection: k is small).
+            for _ in range(k):
+                j = 0
+                for jj in range(1, k):
+                    if cand_c[jj] < cand_c[j]:
+                        j = jj
+                if cand_c[j] == np.inf:
+                    break
+                w = cand_t[j]
+                counter[0] += 1
+                ok, _, _, _ = check_collapse(u, w, P, F, N, vface, fgroup, pclass, fixed,
+                                          pg_start, pg_groups, fan_u, fan_t, mark, counter[0])
+                if ok:
+                    best_t[u] = w
+                    best_c[u] = cand_c[j]
+                    break
+                cand_c[j] = np.inf
+
+
+@nb.njit(cache=True, nogil=True)
+def gather_candidates(vface, best_t, best_c, cost, target, src):
+    """Collect ranked collapses of live positions; returns their number."""
+    nc = 0
+    for u in range(best_t.shape[0]):
+        if vface[u] != -1 and best_t[u] >= 0:
+            cost[nc] = best_c[u]
+            target[nc] = best_t[u]
+            src[nc] = u
+            nc += 1
+    return nc
+
+
+@nb.njit(cache=True, nogil=True)
+def perform_collapses(P, F, N, vface, alive, fgroup, pclass, fixed, pg_start, pg_groups, Q,
+                      cur_node, parent, child, npos, nfaces, nfn, sphere, cone, err, creator,
+                      m, lock, mark, pass_id, fraction, cost, target, src, nc, counter):
+    """Perform ranked collapses cheapest first; returns the new node count m.
+
+    At most ``fraction`` of the ranked ones are tried unless none of those
+    could be made. Each is checked again on the current mesh.
+    """
+    e = P.shape[0]
+    fan_u = np.empty(4096, np.int32)
+    fan_t = np.empty(4096, np.int32)
+    if nc == 0:
+        return m
+    order = np.argsort(cost[:nc])
+    limit = max(1, int(nc * fraction))
+    made = 0
+    for attempt in range(2):
+        lo = 0 if attempt == 0 else limit
+        hi = limit if attempt == 0 else nc
+        for idx in range(lo, hi):
+            i = order[idx]
+            u, t = src[i], target[i]
+            if lock[u] == pass_id or lock[t] == pass_id:
+                continue
+            counter[0] += 1
+            ok, fl, fr, nu = check_collapse(u, t, P, F, N, vface, fgroup, pclass, fixed,
+                                        pg_start, pg_groups, fan_u, fan_t, mark, counter[0])
+            if not ok:
+                continue
+            # Lock both ends: a position moves at most once a pass and nothing
+            # collapses onto a position whose quadric changed since ranking.
+            lock[u] = pass_id
+            lock[t] = pass_id
+            do_collapse(u, t, fl, fr, P, F, N, vface, alive, Q, cur_node, parent, child, npos,
+                        nfaces, nfn, sphere, cone, err, creator, m, e, fan_u, nu, fan_t)
+            m += 1
+            made += 1
+        if made > 0:
+            break
+    return m

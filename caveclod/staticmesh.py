@@ -1,0 +1,284 @@
+"""The static CAVECLOD mesh and its memory-mapped ``.cvc`` file.
+
+One static mesh is shared, read-only, by every camera (paper section 3.4).
+Node ids: ``0 .. e-1`` are the leaves, one per position (leaf ``x`` sits at
+position ``x``); ``e .. e+m-1`` are the nodes made by the build's collapses,
+and arrays prefixed ``node_`` other than ``node_parent`` are indexed by
+``node - e``.
+
+File layout (version 1, little-endian)::
+
+    b"CAVECLOD" | uint32 version | uint32 header length | header JSON | pad
+    arrays, each aligned to 64 bytes at the offset the header gives
+
+Loading reads only the header; arrays are ``np.memmap`` views, so a server
+can open a multi-gigabyte mesh at once and share its pages between processes.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import os
+import struct
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from .errors import FileFormatError
+
+MAGIC = b"CAVECLOD"
+VERSION = 1
+ALIGN = 64
+
+# name: (dtype, trailing shape) for every array; counts come from the data.
+ARRAYS = {
+    "vertex_positions": ("<f4", (3,)),   # (d, 3) the vertex buffer ...
+    "vertex_normals": ("<f4", (3,)),     # (d, 3)
+    "vertex_uvs": ("<f4", (2,)),         # (d, 2)
+    "vertex_colors": ("u1", (4,)),       # (d, 4) RGBA; (0, 4) when absent
+    "vertex_sgid": ("<u2", ()),          # (d,) surface group id of each entry
+    "vertex_surface": ("<u2", ()),       # (d,) material of each entry
+    "pos_vstart": ("<i4", ()),           # (e+1,) CSR: vertices of position x
+    "position_class": ("u1", ()),        # (e,) FREE / SHARP / RIGID
+    "face_material": ("<u2", ()),        # (p,) the paper's surface identifier
+    "face_sgid": ("<u2", ()),            # (p,) surface group id
+    "face_creator": ("<i4", ()),         # (p,) node whose split makes it, -1: base
+    "node_parent": ("<i4", ()),          # (n,) -1 for roots
+    "node_children": ("<i4", (2,)),      # (m, 2) stationary t, floating u
+    "node_position": ("<i4", ()),        # (m,) = position of t
+    "node_faces": ("<i4", (2,)),         # (m, 2) fl, fr (-1 if absent)
+    "node_fn": ("<i4", (4,)),            # (m, 4) fl_u, fl_t, fr_u, fr_t
+    "node_sphere": ("<f4", (4,)),        # (m, 4) centre, radius of the subtree
+    "node_error": ("<f4", ()),           # (m,) object-space error bound
+    "node_cone": ("<f4", (4,)),          # (m, 4) normal cone axis, half-angle
+    "base_faces": ("<i4", ()),           # (k,) faces of the coarsest mesh
+    "base_face_nodes": ("<i4", (3,)),    # (k, 3) their nodes
+    "base_face_nbrs": ("<i4", (3,)),     # (k, 3) their neighbour faces
+}
+VERTEX_BUFFER = ("vertex_positions", "vertex_normals", "vertex_uvs", "vertex_colors")
+
+
+@dataclass
+class StaticMesh:
+    """A built CAVECLOD hierarchy; see the module docstring for node ids.
+
+    Attributes are the arrays of :data:`ARRAYS` (numpy arrays or memmaps)
+    plus ``materials`` (names), ``info`` (build report) and ``path``.
+    """
+
+    arrays: dict
+    materials: list
+    info: dict = field(default_factory=dict)
+    path: str | None = None
+    content_hash: str = ""
+    vertex_buffer_hash: str = ""
+
+    def __post_init__(self):
+        missing = set(ARRAYS) - set(self.arrays)
+        if missing:
+            raise FileFormatError(f"static mesh lacks arrays {sorted(missing)}")
+        if not self.content_hash:
+            self.content_hash, self.vertex_buffer_hash = _hashes(self.arrays)
+
+    def __getattr__(self, name):
+        arrays = self.__dict__.get("arrays")
+        if arrays is not None and name in arrays:
+            return arrays[name]
+        raise AttributeError(name)
+
+    # -- counts -----------------------------------------------------------
+    @property
+    def n_positions(self) -> int:
+        return len(self.arrays["pos_vstart"]) - 1
+
+    @property
+    def n_vertices(self) -> int:
+        return len(self.arrays["vertex_positions"])
+
+    @property
+    def n_faces(self) -> int:
+        return len(self.arrays["face_material"])
+
+    @property
+    def n_nodes(self) -> int:
+        return len(self.arrays["node_parent"])
+
+    @property
+    def n_internal(self) -> int:
+        return len(self.arrays["node_position"])
+
+    @property
+    def n_sgids(self) -> int:
+        return int(self.arrays["vertex_sgid"].max()) + 1 if self.n_vertices else 0
+
+    @property
+    def n_materials(self) -> int:
+        return len(self.materials)
+
+    @property
+    def nbytes(self) -> int:
+        """Bytes of all static arrays (what every camera shares)."""
+        return int(sum(a.nbytes for a in self.arrays.values()))
+
+    @property
+    def equation1_bytes(self) -> int:
+        """The paper's Equation 1 static term 44n + 12p + 32d + 2se."""
+        return (44 * self.n_nodes + 12 * self.n_faces + 32 * self.n_vertices
+                + 2 * self.n_sgids * self.n_positions)
+
+    @property
+    def positions(self) -> np.ndarray:
+        """(e, 3) float32 position of each node position id."""
+        return self.arrays["vertex_positions"][self.arrays["pos_vstart"][:-1]]
+
+    def node_positions(self, nodes: np.ndarray) -> np.ndarray:
+        """(k,) position ids of ``nodes`` (leaves or internal)."""
+        nodes = np.asarray(nodes)
+        e = self.n_positions
+        out = nodes.copy()
+        internal = nodes >= e
+        out[internal] = self.arrays["node_position"][nodes[internal] - e]
+        return out
+
+    def lookup_vertices(self, sgid: np.ndarray, pos: np.ndarray) -> np.ndarray:
+        """Vertex-buffer index for each (surface group id, position) pair.
+
+        The paper's D3Dindex array. Raises ``KeyError`` when a pair has no
+        vertex, which a correct hierarchy never asks for.
+        """
+        start = self.arrays["pos_vstart"]
+        vsg = self.arrays["vertex_sgid"]
+        sgid, pos = np.asarray(sgid), np.asarray(pos)
+        out = np.full(sgid.shape, -1, np.int64)
+        lo, hi = start[pos], start[pos + 1]
+        width = int((hi - lo).max(initial=0))
+        for j in range(width):
+            idx = np.minimum(lo + j, len(vsg) - 1)
+            hit = (lo + j < hi) & (vsg[idx] == sgid)
+            out[hit] = idx[hit]
+        if (out < 0).any():
+            raise KeyError("a (surface group id, position) pair has no vertex")
+        return out
+
+    def class_tally(self) -> dict:
+        from .surfaces import CLASS_NAMES
+        counts = np.bincount(np.asarray(self.arrays["position_class"]), minlength=3)
+        return {name: int(c) for name, c in zip(CLASS_NAMES, counts)}
+
+    def summary(self) -> dict:
+        """Counts for ``caveclod build/inspect --json``."""
+        out = {
+            "nodes": self.n_nodes,
+            "internal_nodes": self.n_internal,
+            "faces": self.n_faces,
+            "vertices": self.n_vertices,
+            "positions": self.n_positions,
+            "surface_group_ids": self.n_sgids,
+            "materials": self.n_materials,
+            "base_faces": len(self.arrays["base_faces"]),
+            "static_bytes": self.nbytes,
+            "equation1_static_bytes": self.equation1_bytes,
+            "content_hash": self.content_hash,
+            "vertex_buffer_hash": self.vertex_buffer_hash,
+        }
+        out.update({k: v for k, v in self.info.items() if k not in out})
+        return out
+
+    def new_camera(self):
+        """A fresh per-camera refinement state showing the base mesh."""
+        from .camera import CameraState
+        return CameraState(self)
+
+    # -- file -------------------------------------------------------------
+    def save(self, path: str | os.PathLike) -> None:
+        """Write the versioned ``.cvc`` file (atomically: temp file + rename)."""
+        path = Path(path)
+        table, offset = {}, 0
+        for name in ARRAYS:
+            a = self.arrays[name]
+            table[name] = {"dtype": ARRAYS[name][0], "shape": list(a.shape), "offset": offset,
+                           "nbytes": int(a.nbytes)}
+            offset += _aligned(a.nbytes)
+        header = {"format": "caveclod-static", "version": VERSION, "materials": list(self.materials),
+                  "info": self.info, "content_hash": self.content_hash,
+                  "vertex_buffer_hash": self.vertex_buffer_hash, "arrays": table}
+        blob = json.dumps(header, sort_keys=True).encode()
+        data_start = _aligned(len(MAGIC) + 8 + len(blob))
+        tmp = path.with_name(path.name + ".tmp")
+        with open(tmp, "wb") as fh:
+            fh.write(MAGIC + struct.pack("<II", VERSION, len(blob)) + blob)
+            fh.write(b"\0" * (data_start - fh.tell()))
+            for name in ARRAYS:
+                a = np.ascontiguousarray(self.arrays[name], dtype=ARRAYS[name][0])
+                fh.write(a.tobytes())
+                fh.write(b"\0" * (_aligned(a.nbytes) - a.nbytes))
+        os.replace(tmp, path)
+        self.path = str(path)
+
+    def verify(self) -> None:
+        """Re-hash every array (reads the whole file); raise if it changed."""
+        content, _ = _hashes(self.arrays)
+        if content != self.content_hash:
+            raise FileFormatError(f"{self.path}: content hash mismatch; the file is corrupt, rebuild it")
+
+
+def load(path: str | os.PathLike) -> StaticMesh:
+    """Open a ``.cvc`` file; arrays are memory-mapped, nothing big is read."""
+    path = Path(path)
+    try:
+        size = path.stat().st_size
+        with open(path, "rb") as fh:
+            head = fh.read(len(MAGIC) + 8)
+            if len(head) < len(MAGIC) + 8 or head[:len(MAGIC)] != MAGIC:
+                raise FileFormatError(f"{path}: not a caveclod .cvc file (bad magic); build one with 'caveclod build'")
+            version, hlen = struct.unpack("<II", head[len(MAGIC):])
+            if version != VERSION:
+                raise FileFormatError(f"{path}: .cvc version {version}, this caveclod reads {VERSION}; rebuild the file")
+            blob = fh.read(hlen)
+    except FileNotFoundError:
+        raise FileFormatError(f"{path}: no such file; build it with 'caveclod build INPUT -o {path.name}'") from None
+    except IsADirectoryError:
+        raise FileFormatError(f"{path}: is a directory, not a .cvc file") from None
+    try:
+        header = json.loads(blob)
+        table = header["arrays"]
+    except (ValueError, KeyError):
+        raise FileFormatError(f"{path}: header is truncated or corrupt; rebuild the file") from None
+    data_start = _aligned(len(MAGIC) + 8 + hlen)
+    arrays = {}
+    for name, (dtype, _) in ARRAYS.items():
+        if name not in table:
+            raise FileFormatError(f"{path}: array {name} missing; rebuild the file")
+        t = table[name]
+        shape = tuple(t["shape"])
+        start = data_start + t["offset"]
+        if start + t["nbytes"] > size:
+            raise FileFormatError(f"{path}: file is truncated ({size} bytes, needs {start + t['nbytes']}); rebuild or copy it again")
+        if t["nbytes"] == 0:
+            arrays[name] = np.zeros(shape, dtype)
+        else:
+            arrays[name] = np.memmap(path, dtype=dtype, mode="r", offset=start, shape=shape)
+    return StaticMesh(arrays=arrays, materials=header.get("materials", []), info=header.get("info", {}),
+                      path=str(path), content_hash=header.get("content_hash", ""),
+                      vertex_buffer_hash=header.get("vertex_buffer_hash", ""))
+
+
+def _aligned(n: int) -> int:
+    return (n + ALIGN - 1) // ALIGN * ALIGN
+
+
+def _hashes(arrays: dict) -> tuple[str, str]:
+    """(content hash of every array, hash of the vertex buffer alone)."""
+    content, vb = hashlib.blake2b(digest_size=16), hashlib.blake2b(digest_size=16)
+    for name in ARRAYS:
+        a = np.ascontiguousarray(arrays[name], dtype=ARRAYS[name][0])
+        tag = f"{name}{a.shape}".encode()
+        content.update(tag)
+        raw = a.reshape(-1).view(np.uint8)   # the bytes, without a copy
+        content.update(raw)
+        if name in VERTEX_BUFFER:
+            vb.update(tag)
+            vb.update(raw)
+    return content.hexdigest(), vb.hexdigest()

@@ -1,0 +1,587 @@
+"""Heightfield terrain: loading, material classification, triangulation, and
+the built-in default terrain.
+
+A heightfield of ``(rows, cols)`` samples becomes a regular triangle mesh of
+``(rows - 1) * (cols - 1)`` cells with two triangles each. Sample ``(r, c)``
+sits at ``x = c * cell_size``, ``y = r * cell_size``, ``z = height * z_scale``,
+so rows grow along +y and columns along +x; cell ``(r, c)`` spans samples
+``(r, c)`` (its lower-left corner) to ``(r + 1, c + 1)``.
+
+Every cell carries one material class (both of its triangles share it). The
+texture coordinates tile each material at its own scale, so where materials
+meet a position has one vertex per material: those texture seams are the
+surface-group boundaries of the paper's Three Lakes model (Kram & Shaw,
+section 4.1), while the Cliff model's seam, a sharp crease, comes from the
+crease-angle normals the builder computes (``vertex_normal`` is left None).
+
+The default terrain mimics both models in one landscape: lakes with flat water
+surfaces, hills, snowy peaks, and a straight-ish escarpment whose top edge is a
+sharp crease, on a fixed 10 km square at any resolution.
+"""
+
+from __future__ import annotations
+
+import os
+from collections.abc import Sequence
+
+import numpy as np
+
+from .errors import InputError
+from .source import SourceMesh
+
+MATERIALS = ("water", "grass", "rock", "snow")
+"""Default class names, indexed by class id (what :func:`classify_terrain` returns)."""
+
+WATER, GRASS, ROCK, SNOW = range(4)
+
+TILE_SIZES = {"water": 50.0, "grass": 20.0, "rock": 8.0, "snow": 32.0}
+"""World units one texture repeat covers, per material name. They differ so
+that UVs differ across every material boundary (a texture seam)."""
+
+TERRAIN_EXTENT = 10_000.0
+"""Side of the default terrain square in metres, whatever its resolution."""
+
+LAKE_LEVEL = 300.0
+"""Elevation (m) of every lake surface of the default terrain; the lowest point."""
+
+ROCK_SLOPE_DEG = 35.0
+"""Cells steeper than this are rock (unless under water)."""
+
+SNOW_FRACTION = 0.8
+"""Cells above this fraction of the elevation range are snow (unless steep)."""
+
+
+# --------------------------------------------------------------------------
+# loading
+
+
+def load_heightfield(path: str | os.PathLike) -> np.ndarray:
+    """Read a heightfield file into a (rows, cols) float64 array.
+
+    ``.npy`` (any real 2-D array), ``.png`` (16- or 8-bit greyscale, read with
+    Pillow) and ``.tif``/``.tiff`` (integer or float greyscale, read with
+    tifffile). Values come back as stored (0..65535 for a 16-bit image): pass
+    ``z_scale`` to :func:`heightfield_to_source` to turn them into heights.
+    NaN samples are kept (they become holes).
+    """
+    array = _read_grid(path, what="heightfield")
+    if array.dtype.kind not in "biuf":
+        raise InputError(f"heightfield {path} holds {array.dtype} values; give real numbers")
+    return np.asarray(array, dtype=np.float64)
+
+
+def load_material_map(path: str | os.PathLike) -> np.ndarray:
+    """Read a material map into a (rows, cols) or (rows-1, cols-1) int32 array.
+
+    ``.npy`` with integer class ids (floats are accepted when they are whole
+    numbers); 8/16-bit greyscale or palette PNG/TIFF work as well. The shape is
+    checked against the heightfield by :func:`heightfield_to_source`.
+    """
+    classes = _integral_classes(_read_grid(path, what="material map", palette=True), f"material map {path}")
+    return classes.astype(np.int32)
+
+
+def _read_grid(path: str | os.PathLike, what: str, palette: bool = False) -> np.ndarray:
+    """The 2-D array stored in ``path`` (.npy, .png, .tif/.tiff).
+
+    ``palette``: accept palette PNGs (their indices are classes, not heights).
+    """
+    path = os.fspath(path)
+    if not os.path.isfile(path):
+        raise InputError(f"{what} file {path} does not exist; check the path")
+    ext = os.path.splitext(path)[1].lower()
+    try:
+        if ext == ".npy":
+            array = np.load(path, allow_pickle=False)
+        elif ext == ".png":
+            array = _read_png(path, what, palette)
+        elif ext in (".tif", ".tiff"):
+            import tifffile
+            # Single-channel TIFFs sometimes carry a length-1 page or sample axis.
+            array = np.squeeze(tifffile.imread(path))
+        else:
+            raise InputError(f"{what} {path}: unknown file type {ext!r}; use .npy, .png, .tif or .tiff")
+    except InputError:
+        raise
+    except Exception as exc:  # corrupt files surface as many exception types
+        raise InputError(f"cannot read {what} {path} ({type(exc).__name__}: {_one_line(exc)}); "
+                         "check that the file is intact") from exc
+    if array.ndim != 2:
+        raise InputError(f"{what} {path} has shape {array.shape}; give a single-channel 2-D grid")
+    return array
+
+
+def _read_png(path: str, what: str, palette: bool) -> np.ndarray:
+    """Pixels of a greyscale (or palette) PNG as numbers, 16-bit kept intact."""
+    from PIL import Image
+
+    with Image.open(path) as image:
+        # "I;16*" is 16-bit greyscale, "I" the 32-bit mode older Pillows use for it.
+        modes = ("L", "I", "F", "P") if palette else ("L", "I", "F")
+        if image.mode not in modes and not image.mode.startswith("I;16"):
+            raise InputError(f"{what} {path} is a {image.mode} image; save it as 8- or 16-bit greyscale")
+        return np.array(image)
+
+
+def _one_line(exc: Exception) -> str:
+    return " ".join(str(exc).split())
+
+
+# --------------------------------------------------------------------------
+# classification
+
+
+def classify_terrain(heights: np.ndarray, cell_size: float, z_scale: float, *,
+                     water_level: float | None = None,
+                     snow_level: float | None = None,
+                     rock_slope_deg: float = ROCK_SLOPE_DEG) -> np.ndarray:
+    """Material class of every cell from its elevation and slope.
+
+    Args:
+        heights: (rows, cols) samples; NaN marks holes.
+        cell_size, z_scale: as in :func:`heightfield_to_source`.
+        water_level: world elevation (``height * z_scale``); a cell whose four
+            corners all lie at or below it is water. Default: the lowest
+            sample, i.e. water is where the terrain is flat at its lowest level
+            (lakes or sea already flattened in the data, as in the default
+            terrain).
+        snow_level: world elevation above which a cell (mean of its corners) is
+            snow. Default: 80 % of the way from the lowest to the highest sample.
+        rock_slope_deg: cells steeper than this are rock.
+
+    Returns:
+        (rows-1, cols-1) int32 class ids into :data:`MATERIALS`: water, then
+        rock where steep, then snow where high, grass otherwise. Cells touching
+        a NaN sample get -1.
+    """
+    h = _checked_heights(heights)
+    cell_size = _positive_finite("cell_size", cell_size)
+    z_scale = _positive_finite("z_scale", z_scale)
+    z = h * z_scale
+    finite = z[np.isfinite(z)]
+    if finite.size == 0:
+        raise InputError("every heightfield sample is NaN; give at least one 2x2 block of finite heights")
+    lo, hi = float(finite.min()), float(finite.max())
+    if water_level is None:
+        water_level = lo
+    if snow_level is None:
+        snow_level = lo + SNOW_FRACTION * (hi - lo)
+
+    a, b, c, d = _cell_corners(z)
+    with np.errstate(invalid="ignore"):
+        highest = np.maximum(np.maximum(a, b), np.maximum(c, d))
+        mean = (a + b + c + d) / 4.0
+        slope = _cell_slope_deg(a, b, c, d, cell_size)
+        classes = np.full(a.shape, GRASS, dtype=np.int32)
+        # Later assignments win: snow < rock < water in precedence, because
+        # steep faces shed snow and a lake surface is flat whatever its height.
+        classes[mean > snow_level] = SNOW
+        classes[slope > rock_slope_deg] = ROCK
+        classes[highest <= water_level] = WATER
+    classes[~np.isfinite(mean)] = -1
+    return classes
+
+
+def _cell_corners(grid: np.ndarray) -> tuple[np.ndarray, ...]:
+    """The four (rows-1, cols-1) corner views of every cell, counter-clockwise
+    from the lower-left: (r, c), (r, c+1), (r+1, c+1), (r+1, c)."""
+    return grid[:-1, :-1], grid[:-1, 1:], grid[1:, 1:], grid[1:, :-1]
+
+
+def _cell_slope_deg(a, b, c, d, cell_size: float) -> np.ndarray:
+    """Slope (degrees from horizontal) of each cell's best-fit plane."""
+    gx = ((b - a) + (c - d)) / (2.0 * cell_size)
+    gy = ((d - a) + (c - b)) / (2.0 * cell_size)
+    return np.degrees(np.arctan(np.hypot(gx, gy)))
+
+
+# --------------------------------------------------------------------------
+# triangulation
+
+
+def heightfield_to_source(heights: np.ndarray, cell_size: float = 1.0, z_scale: float = 1.0,
+                          materials: np.ndarray | None = None,
+                          material_names: Sequence[str] | None = None) -> SourceMesh:
+    """Triangulate a heightfield into a validated :class:`SourceMesh`.
+
+    Args:
+        heights: (rows, cols) samples, rows, cols >= 2. NaN samples are holes:
+            every cell touching one is dropped. Infinite values are an error.
+        cell_size: spacing of the samples in world units (x and y).
+        z_scale: world units per height unit.
+        materials: class id per cell, (rows-1, cols-1), or per sample,
+            (rows, cols), in which case a cell takes the class of its
+            lower-left sample ``(r, c)``. Ids must be >= 0 on the cells that are
+            kept. None: classify with :func:`classify_terrain`.
+        material_names: name of each class id (indexed by the ids in
+            ``materials``). Default: :data:`MATERIALS`, then ``"material N"``.
+
+    Returns:
+        A mesh with (e, 3) float64 positions (the finite samples some kept
+        cell uses), 2 CCW triangles per kept cell split along the
+        (r, c)-(r+1, c+1) diagonal, materials renumbered 0..k-1 over the
+        classes present, one vertex per (sample, material of an adjacent cell)
+        with UV = (x, y) / tile size of the material (see :data:`TILE_SIZES`),
+        and no normals or colours.
+    """
+    h = _checked_heights(heights)
+    cell_size = _positive_finite("cell_size", cell_size)
+    z_scale = _positive_finite("z_scale", z_scale)
+    kept = _cells_with_finite_corners(h)
+    if materials is None:
+        cell_class = classify_terrain(h, cell_size, z_scale)
+    else:
+        cell_class = _cell_classes(materials, h.shape)
+    if (cell_class[kept] < 0).any():
+        raise InputError("the materials map has negative class ids; use ids 0, 1, 2, ... for every cell")
+
+    present, material_of_cell = _compact_classes(cell_class[kept])
+    names = _material_names(present, material_names, classified=materials is None)
+    rows, cols = h.shape
+    cell_r, cell_c = np.nonzero(kept)
+    corners = _corner_samples(cell_r, cell_c, cols)
+    vertex_sample, vertex_material, corner_vertex = _split_vertices(corners, material_of_cell,
+                                                                    rows * cols, len(present))
+    sample_ids, vertex_position = _compact_positions(vertex_sample, rows * cols)
+
+    notes = []
+    dropped = kept.size - int(np.count_nonzero(kept))
+    if dropped:
+        notes.append(f"dropped {dropped} cells touching NaN samples")
+    source = SourceMesh(
+        positions=_sample_positions(h, sample_ids, cell_size, z_scale),
+        vertex_position=vertex_position,
+        faces=_cell_triangles(corner_vertex),
+        face_material=np.repeat(material_of_cell, 2).astype(np.int32),
+        materials=names,
+        vertex_normal=None,
+        vertex_uv=_tiled_uvs(vertex_sample, vertex_material, cols, cell_size, names),
+        vertex_color=None,
+        notes=notes,
+    )
+    source.validate()
+    return source
+
+
+def _checked_heights(heights) -> np.ndarray:
+    """``heights`` as a (rows, cols) float64 array, rows, cols >= 2, no infinities."""
+    try:
+        h = np.asarray(heights, dtype=np.float64)
+    except (TypeError, ValueError) as exc:
+        raise InputError(f"heights must be a 2-D array of numbers ({_one_line(exc)})") from exc
+    if h.ndim != 2:
+        raise InputError(f"heights must be a 2-D (rows, cols) grid, got shape {h.shape}")
+    if h.shape[0] < 2 or h.shape[1] < 2:
+        raise InputError(f"heights of shape {h.shape} has no cell; give at least 2x2 samples")
+    if np.isinf(h).any():
+        raise InputError("heights contain infinity; replace those samples with finite values or NaN (a hole)")
+    return h
+
+
+def _positive_finite(name: str, value) -> float:
+    try:
+        value = float(value)
+    except (TypeError, ValueError):
+        raise InputError(f"{name} must be a positive number, got {value!r}") from None
+    if not np.isfinite(value) or value <= 0.0:
+        raise InputError(f"{name} must be a positive finite number, got {value}")
+    return value
+
+
+def _cells_with_finite_corners(h: np.ndarray) -> np.ndarray:
+    """(rows-1, cols-1) bool: the cells whose four samples are all finite."""
+    finite = np.isfinite(h)
+    if not finite.any():
+        raise InputError("every heightfield sample is NaN; give at least one 2x2 block of finite heights")
+    a, b, c, d = _cell_corners(finite)
+    kept = a & b & c & d
+    if not kept.any():
+        raise InputError("no cell has four finite samples (NaN holes everywhere); "
+                         "give at least one 2x2 block of finite heights")
+    return kept
+
+
+def _cell_classes(materials, shape: tuple[int, int]) -> np.ndarray:
+    """Per-cell (rows-1, cols-1) int64 classes from a per-cell or per-sample map."""
+    m = _integral_classes(materials, "the materials map")
+    rows, cols = shape
+    if m.shape == (rows - 1, cols - 1):
+        return m
+    if m.shape == (rows, cols):
+        return m[:-1, :-1]  # the lower-left sample of each cell decides
+    raise InputError(f"the materials map has shape {m.shape}; give one class per cell "
+                     f"{(rows - 1, cols - 1)} or per sample {(rows, cols)}")
+
+
+def _integral_classes(materials, what: str) -> np.ndarray:
+    """``materials`` as a 2-D int64 array, refusing fractions and non-numbers."""
+    m = np.asarray(materials)
+    if m.ndim != 2:
+        raise InputError(f"{what} must be a 2-D grid of class ids, got shape {m.shape}")
+    if m.dtype.kind == "f":
+        if not np.isfinite(m).all() or (m != np.round(m)).any():
+            raise InputError(f"{what} holds non-integer values; give whole-number class ids")
+    elif m.dtype.kind not in "biu":
+        raise InputError(f"{what} holds {m.dtype} values; give integer class ids")
+    if m.size and (m.max() > np.iinfo(np.int32).max or m.min() < np.iinfo(np.int32).min):
+        raise InputError(f"{what} has class ids beyond int32; renumber them 0, 1, 2, ...")
+    return m.astype(np.int64)
+
+
+def _compact_classes(kept_classes: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The class ids present (sorted) and each kept cell's compact id 0..k-1."""
+    present, compact = np.unique(kept_classes, return_inverse=True)
+    return present, compact.reshape(-1).astype(np.int64)
+
+
+def _material_names(present: np.ndarray, material_names, classified: bool) -> list[str]:
+    """Names of the present classes, in compact-id order."""
+    if material_names is None:
+        return [MATERIALS[i] if i < len(MATERIALS) else f"material {i}" for i in present.tolist()]
+    names = [str(n) for n in material_names]
+    needed = len(MATERIALS) if classified else int(present.max()) + 1
+    if len(names) < needed:
+        raise InputError(f"material_names has {len(names)} names but class ids go up to {needed - 1}; "
+                         "give one name per class id")
+    return [names[i] for i in present.tolist()]
+
+
+def _corner_samples(cell_r: np.ndarray, cell_c: np.ndarray, cols: int) -> np.ndarray:
+    """(n, 4) int64 flat sample ids of each cell's corners, CCW from lower-left."""
+    lower_left = cell_r.astype(np.int64) * cols + cell_c
+    return np.stack([lower_left, lower_left + 1, lower_left + cols + 1, lower_left + cols], axis=1)
+
+
+_DENSE_TABLE_LIMIT = 1 << 26  # (sample, material) entries, 64 MiB of bools
+
+
+def _split_vertices(corners: np.ndarray, material: np.ndarray, n_samples: int, k: int):
+    """One vertex per (sample, material) pair that some cell corner uses.
+
+    Returns (vertex_sample (v,), vertex_material (v,), corner_vertex (n, 4)),
+    vertices ordered by sample, then material.
+    """
+    key = corners * k + material[:, None]
+    if n_samples * k <= _DENSE_TABLE_LIMIT:
+        # A dense (sample, material) table is linear time, and for a handful of
+        # classes smaller than the sort np.unique needs on the 4n keys.
+        used = np.zeros(n_samples * k, dtype=bool)
+        used[key] = True
+        vertex_of_key = np.cumsum(used, dtype=np.int64) - 1
+        keys = np.flatnonzero(used)
+        corner_vertex = vertex_of_key[key]
+    else:  # many classes: the table would be mostly empty
+        keys, inverse = np.unique(key, return_inverse=True)
+        corner_vertex = inverse.reshape(key.shape).astype(np.int64)
+    return keys // k, (keys % k).astype(np.int64), corner_vertex
+
+
+def _compact_positions(vertex_sample: np.ndarray, n_samples: int) -> tuple[np.ndarray, np.ndarray]:
+    """Flat ids of the used samples (e,) and each vertex's position id (v,)."""
+    used = np.zeros(n_samples, dtype=bool)
+    used[vertex_sample] = True
+    position_of_sample = np.cumsum(used, dtype=np.int64) - 1
+    return np.flatnonzero(used), position_of_sample[vertex_sample]
+
+
+def _sample_positions(h: np.ndarray, sample_ids: np.ndarray, cell_size: float, z_scale: float) -> np.ndarray:
+    """(e, 3) float64 world positions of flat sample ids."""
+    row, col = np.divmod(sample_ids, h.shape[1])
+    return np.stack([col * cell_size, row * cell_size, h.reshape(-1)[sample_ids] * z_scale], axis=1)
+
+
+def _cell_triangles(corner_vertex: np.ndarray) -> np.ndarray:
+    """(2n, 3) int64 faces: cell corners a, b, c, d (CCW) give abc and acd.
+
+    Both are counter-clockwise seen from +z because the corners are; the two
+    triangles of a cell are adjacent in the face array.
+    """
+    faces = np.empty((2 * len(corner_vertex), 3), dtype=np.int64)
+    faces[0::2] = corner_vertex[:, [0, 1, 2]]
+    faces[1::2] = corner_vertex[:, [0, 2, 3]]
+    return faces
+
+
+def _tiled_uvs(vertex_sample: np.ndarray, vertex_material: np.ndarray, cols: int,
+               cell_size: float, names: list[str]) -> np.ndarray:
+    """(v, 2) float32 UVs: (x, y) / tile size of the vertex's material.
+
+    Tile sizes differ between materials, so two vertices of one position get
+    different UVs: x / t1 == x / t2 only at x = 0, and the one sample where
+    also y = 0 (the grid's corner) touches a single cell.
+    """
+    tile = _tile_sizes(names)
+    row, col = np.divmod(vertex_sample, cols)
+    scale = cell_size / tile[vertex_material]
+    return np.stack([col * scale, row * scale], axis=1).astype(np.float32)
+
+
+def _tile_sizes(names: list[str]) -> np.ndarray:
+    """(k,) world units per texture repeat, pairwise different.
+
+    Known names use :data:`TILE_SIZES`, others an odd size per material id; a
+    size already taken (a repeated name) is stretched by 10 % until it is free.
+    """
+    sizes: list[float] = []
+    for material_id, name in enumerate(names):
+        size = TILE_SIZES.get(name, 11.0 * 1.5 ** material_id)
+        while size in sizes:
+            size *= 1.1
+        sizes.append(size)
+    return np.array(sizes)
+
+
+# --------------------------------------------------------------------------
+# default terrain
+
+
+def default_terrain(size: int = 256, seed: int = 7) -> SourceMesh:
+    """The built-in terrain as a mesh: ``size`` x ``size`` cells, 2 * size**2
+    triangles, on a fixed :data:`TERRAIN_EXTENT` square (cell size extent/size).
+    """
+    heights, classes = default_heights(size, seed)
+    return heightfield_to_source(heights, cell_size=TERRAIN_EXTENT / size, z_scale=1.0,
+                                 materials=classes, material_names=MATERIALS)
+
+
+def default_heights(size: int = 256, seed: int = 7) -> tuple[np.ndarray, np.ndarray]:
+    """Procedural terrain in the spirit of the paper's Three Lakes and Cliff models.
+
+    The landscape is defined on normalised [0, 1]^2 coordinates, so every size
+    shows the same terrain, only sampled finer; ``seed`` moves the features a
+    little and changes the hills.
+
+    Returns:
+        heights: (size+1, size+1) float64 metres (LAKE_LEVEL .. about 1,500).
+        classes: (size, size) int32 class per cell into :data:`MATERIALS`.
+    """
+    size = _checked_size(size)
+    rng = np.random.default_rng(seed)
+    layout = _terrain_layout(rng)
+    t = np.linspace(0.0, 1.0, size + 1)  # sample coordinates, x and y alike
+    u, v = np.meshgrid(t, t)             # u along columns (x), v along rows (y)
+    heights = (_rolling_hills(t, layout)
+               + _plateau_and_cliff(u, v, layout)
+               + _peaks(u, v, t, layout))
+    heights = _carve_lakes(heights, u, v, t, layout)
+    cell = TERRAIN_EXTENT / size
+    classes = classify_terrain(heights, cell, 1.0)
+    return heights, classes
+
+
+def _checked_size(size) -> int:
+    if isinstance(size, bool) or not isinstance(size, (int, np.integer)) or size < 1:
+        raise InputError(f"size must be a positive whole number of cells, got {size!r}")
+    return int(size)
+
+
+# Feature layout in normalised coordinates, before seeded jitter.
+_LAKES = ((0.20, 0.24, 0.20), (0.52, 0.13, 0.18), (0.80, 0.33, 0.19))  # (u, v, bowl radius)
+_PEAKS = ((0.22, 0.84, 0.090, 680.0), (0.50, 0.90, 0.095, 600.0), (0.78, 0.83, 0.085, 640.0))  # (u, v, sigma, m)
+_CLIFF_V = 0.58        # escarpment line at u = 0 ...
+_CLIFF_TILT = 0.04     # ... rising this much towards u = 1
+_CLIFF_WOBBLE = 0.015  # amplitude of its gentle meander
+_CLIFF_HEIGHT = 280.0  # metres from foot to top
+_CLIFF_WIDTH = 0.003   # horizontal run of the face (30 m): steep at any resolution
+_CLIFF_END = 0.42      # the face turns into a gentle ramp east of here ...
+_CLIFF_TAPER = 0.10    # ... over this distance
+_RAMP_WIDTH = 0.12     # run of the ramp that replaces the face
+_HILL_OCTAVES = ((3, 150.0), (6, 70.0), (12, 28.0), (24, 9.0))  # (lattice cells per side, amplitude m)
+
+
+def _terrain_layout(rng: np.random.Generator) -> dict:
+    """Seeded parameters. All random numbers are drawn here, in a fixed order
+    and amount independent of ``size``, so the terrain is scale-invariant."""
+    lake_shift = rng.uniform(-0.03, 0.03, size=(len(_LAKES), 2))
+    peak_shift = rng.uniform(-0.03, 0.03, size=(len(_PEAKS), 2))
+    peak_gain = rng.uniform(0.9, 1.1, size=len(_PEAKS))
+    lakes = [(u + du, v + dv, r) for (u, v, r), (du, dv) in zip(_LAKES, lake_shift)]
+    peaks = [(u + du, v + dv, s, a * g) for (u, v, s, a), (du, dv), g in zip(_PEAKS, peak_shift, peak_gain)]
+    return {
+        "lakes": lakes,
+        "peaks": peaks,
+        "cliff_phase": rng.uniform(0.0, 2.0 * np.pi),
+        "hills": [rng.random((f + 1, f + 1)) for f, _ in _HILL_OCTAVES],
+        "shore": rng.random((9, 9)),   # lattice that makes lake shores irregular
+        "crags": rng.random((7, 7)),   # lattice that makes peaks irregular
+    }
+
+
+def _value_noise(t: np.ndarray, lattice: np.ndarray) -> np.ndarray:
+    """Value noise in [0, 1] at the (n, n) grid t x t from an (f+1, f+1) lattice.
+
+    Quintic fade keeps it C2, so triangles stay smooth at every resolution.
+    The grid is a tensor product, so interpolate along x for every lattice
+    row first, then along y: O(f n + n^2) instead of four n^2 gathers.
+    """
+    f = lattice.shape[0] - 1
+    cell = np.minimum((t * f).astype(np.int64), f - 1)
+    frac = t * f - cell
+    w = frac ** 3 * (frac * (frac * 6.0 - 15.0) + 10.0)
+    along_x = lattice[:, cell] * (1.0 - w) + lattice[:, cell + 1] * w       # (f+1, n)
+    return along_x[cell] * (1.0 - w)[:, None] + along_x[cell + 1] * w[:, None]  # (n, n)
+
+
+def _rolling_hills(t: np.ndarray, layout: dict) -> np.ndarray:
+    """Base elevation: fBm value noise, 320..about 620 m, low frequencies only.
+
+    The finest octave (24 lattice cells, 9 m) still spans ~2.7 cells at size
+    64, and the amplitudes fall faster than the frequencies rise, so the
+    surface stays smooth (small dihedral angles) even at the coarsest size
+    we test.
+    """
+    total = sum(a for _, a in _HILL_OCTAVES)
+    noise = sum(a * _value_noise(t, lat) for (_, a), lat in zip(_HILL_OCTAVES, layout["hills"]))
+    return LAKE_LEVEL + 20.0 + 300.0 * noise / total
+
+
+def _plateau_and_cliff(u: np.ndarray, v: np.ndarray, layout: dict) -> np.ndarray:
+    """A plateau north of a straight-ish line, reached by a cliff in the west.
+
+    West of _CLIFF_END the step rises linearly over _CLIFF_WIDTH: the profile
+    has kinks at foot and top, so the top edge is a sharp crease at every
+    resolution. Eastwards the face widens into a smooth ramp, so the cliff ends
+    without a wall of creases.
+    """
+    wobble = _CLIFF_WOBBLE * np.sin(2.0 * np.pi * 1.3 * u + layout["cliff_phase"])
+    line = _CLIFF_V + _CLIFF_TILT * u + wobble
+    across = v - line  # signed distance north of the line (near enough, it is straight-ish)
+    taper = _smoothstep((u - _CLIFF_END) / _CLIFF_TAPER)
+    # Interpolate the width geometrically: a linear blend would stay near the
+    # wide ramp's width for most of the taper.
+    width = _CLIFF_WIDTH * (_RAMP_WIDTH / _CLIFF_WIDTH) ** taper
+    rise = np.clip(across / width + 0.5, 0.0, 1.0)
+    profile = (1.0 - taper) * rise + taper * _smoothstep(rise)
+    return _CLIFF_HEIGHT * profile
+
+
+def _peaks(u: np.ndarray, v: np.ndarray, t: np.ndarray, layout: dict) -> np.ndarray:
+    """Gaussian mountains on the plateau, roughened by low-frequency noise."""
+    crags = 0.75 + 0.5 * _value_noise(t, layout["crags"])
+    bumps = sum(a * np.exp(-((u - pu) ** 2 + (v - pv) ** 2) / (2.0 * s * s))
+                for pu, pv, s, a in layout["peaks"])
+    return bumps * crags
+
+
+def _carve_lakes(heights: np.ndarray, u: np.ndarray, v: np.ndarray, t: np.ndarray,
+                 layout: dict) -> np.ndarray:
+    """Pull the terrain down into bowls, then flood them to LAKE_LEVEL.
+
+    Each bowl blends the terrain towards a floor just below the lake level, so
+    the shore falls where the blend weight is near 1 and its slope is gentle:
+    the shore crease (water is flat) stays well under 20 degrees. Clamping to
+    the lake level makes every lake one flat surface at exactly LAKE_LEVEL.
+    """
+    floor = LAKE_LEVEL - 15.0
+    shore = 0.7 + 0.6 * _value_noise(t, layout["shore"])  # irregular shorelines
+    for lu, lv, radius in layout["lakes"]:
+        reach = np.hypot(u - lu, v - lv) / radius * shore
+        weight = 1.0 - _smoothstep((reach - 0.3) / 0.7)
+        heights = heights * (1.0 - weight) + floor * weight
+    return np.maximum(heights, LAKE_LEVEL)
+
+
+def _smoothstep(x: np.ndarray) -> np.ndarray:
+    """C1 ramp from 0 (x <= 0) to 1 (x >= 1)."""
+    x = np.clip(x, 0.0, 1.0)
+    return x * x * (3.0 - 2.0 * x)

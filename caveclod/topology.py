@@ -1,0 +1,119 @@
+"""Edge connectivity of a triangle mesh over welded positions.
+
+Two faces are neighbours across an edge only when the edge is *manifold*:
+exactly two faces use it, in opposite directions. Every other edge (used by
+one face, by three or more, or twice in the same direction) is a border for
+all faces on it; the edges used by more than one face that way are *cut*
+edges, and their end positions are never moved by the build (DESIGN.md:
+a collapse may not break manifoldness).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numba as nb
+import numpy as np
+
+from .kernels.fans import collect_fan
+
+
+@dataclass
+class Topology:
+    """Face adjacency of a mesh.
+
+    Attributes:
+        nbrs: (p, 3) int32, face across edge k (corner k -> k+1), -1 if none.
+        edge_faces: (p, 3) int32, how many faces use edge k of each face.
+        nonmanifold: (e,) bool, positions on a cut edge or whose faces form
+            more than one fan (two sheets touching at a point).
+        border: (e,) bool, positions on a border or cut edge.
+    """
+
+    nbrs: np.ndarray
+    edge_faces: np.ndarray
+    nonmanifold: np.ndarray
+    border: np.ndarray
+
+
+def face_neighbours(faces: np.ndarray, n_positions: int) -> Topology:
+    """Compute :class:`Topology` for ``faces`` (p, 3) of position ids."""
+    faces32 = np.ascontiguousarray(faces, dtype=np.int32)
+    nbrs, edge_faces = _link_edges(faces32, n_positions)
+    a = faces32
+    b = np.roll(a, -1, axis=1)                       # edge k runs a[:, k] -> b[:, k]
+    # Edges used by two or more faces without being a manifold pair are cut.
+    cut = (edge_faces >= 2) & (nbrs < 0)
+    nonmanifold = np.zeros(n_positions, bool)
+    nonmanifold[a[cut]] = True
+    nonmanifold[b[cut]] = True
+    border = np.zeros(n_positions, bool)
+    open_edge = nbrs < 0
+    border[a[open_edge]] = True
+    border[b[open_edge]] = True
+    _mark_multi_fan(faces32, nbrs, nonmanifold)
+    return Topology(nbrs, edge_faces, nonmanifold, border)
+
+
+@nb.njit(cache=True, nogil=True)
+def _link_edges(faces, e):
+    """(nbrs, edge_faces), both (p, 3) int32; see :class:`Topology`.
+
+    Half-edges are bucketed by their lower end (a CSR), so matching an edge
+    only scans the few half-edges that start at the same position.
+    """
+    p = faces.shape[0]
+    start = np.zeros(e + 1, np.int64)
+    for f in range(p):
+        for k in range(3):
+            a, b = faces[f, k], faces[f, (k + 1) % 3]
+            start[min(a, b) + 1] += 1
+    for x in range(e):
+        start[x + 1] += start[x]
+    fill = start[:-1].copy()
+    bucket = np.empty(3 * p, np.int64)               # half-edge ids 3f + k
+    for f in range(p):
+        for k in range(3):
+            a, b = faces[f, k], faces[f, (k + 1) % 3]
+            lo = min(a, b)
+            bucket[fill[lo]] = 3 * f + k
+            fill[lo] += 1
+    nbrs = np.full((p, 3), -1, np.int32)
+    edge_faces = np.zeros((p, 3), np.int32)
+    for x in range(e):
+        for i in range(start[x], start[x + 1]):
+            h = bucket[i]
+            f, k = h // 3, h % 3
+            hi = max(faces[f, k], faces[f, (k + 1) % 3])
+            count, other = 0, -1
+            for j in range(start[x], start[x + 1]):
+                g = bucket[j]
+                if max(faces[g // 3, g % 3], faces[g // 3, (g % 3 + 1) % 3]) == hi:
+                    count += 1
+                    if g != h:
+                        other = g
+            edge_faces[f, k] = count
+            if count == 2 and faces[f, k] == faces[other // 3, (other % 3 + 1) % 3]:
+                nbrs[f, k] = other // 3               # opposite directions: a manifold pair
+    return nbrs, edge_faces
+
+
+@nb.njit(cache=True, nogil=True)
+def _mark_multi_fan(faces, nbrs, nonmanifold):
+    """Flag positions whose faces do not form one connected fan."""
+    e = nonmanifold.shape[0]
+    valence = np.zeros(e, np.int32)
+    first = np.full(e, -1, np.int32)
+    for f in range(faces.shape[0]):
+        for k in range(3):
+            x = faces[f, k]
+            valence[x] += 1
+            if first[x] == -1:
+                first[x] = f
+    buf = np.empty(valence.max() + 1 if e else 1, np.int32)
+    for x in range(e):
+        if first[x] == -1 or nonmanifold[x]:
+            continue
+        n, _ = collect_fan(faces, nbrs, first[x], x, buf)
+        if n != valence[x]:
+            nonmanifold[x] = True

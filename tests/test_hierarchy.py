@@ -1,0 +1,212 @@
+"""The static CAVECLOD mesh: the build's invariants on realistic meshes."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from hypothesis import HealthCheck, given, settings
+from hypothesis import strategies as st
+
+import caveclod
+from caveclod.hierarchy import build_static_mesh, prepare_source
+from caveclod.surfaces import corner_vertices
+from caveclod.terrain import default_terrain, heightfield_to_source
+
+from meshes import holey_scan, noisy_box, replay_collapses, uv_sphere, with_bad_topology
+
+CASES = {
+    "terrain64": lambda: default_terrain(64),
+    "uv_sphere": uv_sphere,
+    "noisy_box": noisy_box,
+    "holey_scan": holey_scan,
+    "bad_topology": lambda: with_bad_topology(holey_scan(seed=3)),
+}
+
+
+@pytest.fixture(scope="module", params=sorted(CASES))
+def built(request):
+    source = CASES[request.param]()
+    return request.param, source, build_static_mesh(source)
+
+
+def test_replay_reference(built):
+    """Every collapse is legal and every face is made by one split or is base."""
+    _, source, mesh = built
+    replay_collapses(mesh, source)
+
+
+def test_every_face_exactly_once(built):
+    _, source, mesh = built
+    creator = np.asarray(mesh.face_creator)
+    made = np.asarray(mesh.node_faces).ravel()
+    made = made[made >= 0]
+    assert len(made) == len(np.unique(made)), "no face is made by two splits"
+    base = np.asarray(mesh.base_faces)
+    assert np.array_equal(np.sort(np.r_[made, base]), np.arange(mesh.n_faces))
+    assert (creator[base] == -1).all()
+    nodes = np.repeat(np.arange(mesh.n_internal) + mesh.n_positions, 2)
+    faces = np.asarray(mesh.node_faces).ravel()
+    assert np.array_equal(creator[faces[faces >= 0]], nodes[faces >= 0])
+
+
+def test_vertex_buffer_holds_every_original_corner(built):
+    _, source, mesh = built
+    src, _ = prepare_source(source)
+    face_pos = src.face_positions
+    v = corner_vertices(np.asarray(mesh.pos_vstart), np.asarray(mesh.vertex_sgid), face_pos,
+                        np.asarray(mesh.face_sgid))
+    assert (v >= 0).all()
+    np.testing.assert_array_equal(mesh.vertex_positions[v], src.positions[face_pos].astype(np.float32))
+    np.testing.assert_array_equal(mesh.vertex_normals[v], src.vertex_normal[src.faces])
+    if src.vertex_uv is not None:
+        np.testing.assert_array_equal(mesh.vertex_uvs[v], src.vertex_uv[src.faces])
+    assert np.array_equal(mesh.vertex_surface[v], np.repeat(src.face_material[:, None], 3, axis=1))
+    # ... and nothing else: every buffer entry is some corner.
+    assert len(np.unique(v)) == mesh.n_vertices
+
+
+def test_bounds_are_monotone_up_the_tree(built):
+    _, _, mesh = built
+    e = mesh.n_positions
+    parent = np.asarray(mesh.node_parent)
+    inner = np.arange(e, mesh.n_nodes)
+    has_parent = parent[inner] >= 0
+    c, p = inner[has_parent] - e, parent[inner][has_parent] - e
+    err, sph, cone = (np.asarray(a, np.float64) for a in (mesh.node_error, mesh.node_sphere, mesh.node_cone))
+    assert (err >= 0).all()
+    assert (err[p] >= err[c]).all(), "a parent's error bound is never below a child's"
+    scale = float(np.abs(mesh.vertex_positions).max())
+    tol = 1e-5 * scale
+    d = np.linalg.norm(sph[p, :3] - sph[c, :3], axis=1)
+    assert (d + sph[c, 3] <= sph[p, 3] + tol).all(), "spheres nest"
+    # atan2 of |a x b| and a.b: arccos is ill-conditioned for near-equal axes.
+    angle = np.arctan2(np.linalg.norm(np.cross(cone[p, :3], cone[c, :3]), axis=1),
+                       np.einsum("ij,ij->i", cone[p, :3], cone[c, :3]))
+    full = cone[p, 3] >= np.pi - 1e-6
+    assert (full | (angle + cone[c, 3] <= cone[p, 3] + 1e-5)).all(), "normal cones nest"
+    # Leaves' positions lie inside their parents' spheres.
+    leaf = np.arange(e)
+    lp = parent[leaf]
+    ok = lp >= 0
+    dl = np.linalg.norm(mesh.positions[leaf[ok]] - sph[lp[ok] - e, :3], axis=1)
+    assert (dl <= sph[lp[ok] - e, 3] + tol).all()
+
+
+def test_base_mesh_is_small_for_terrain():
+    mesh = build_static_mesh(default_terrain(128))
+    assert len(mesh.base_faces) <= max(0.01 * mesh.n_faces, 300), len(mesh.base_faces)
+
+
+def test_base_mesh_is_small_for_closed_mesh():
+    import trimesh
+    sphere = trimesh.creation.icosphere(subdivisions=4)     # 5120 faces, no seams
+    mesh = caveclod.build(sphere)
+    assert len(mesh.base_faces) <= max(0.01 * mesh.n_faces, 300)
+
+
+def test_static_bytes_within_equation1():
+    mesh = build_static_mesh(default_terrain(128))
+    assert mesh.nbytes <= mesh.equation1_bytes
+
+
+def test_rigid_positions_at_corners_of_seams():
+    """A seam that meets the border or another seam pins RIGID positions."""
+    mesh = build_static_mesh(default_terrain(64))
+    tally = mesh.class_tally()
+    assert tally["rigid"] > 0 and tally["sharp"] > 0 and tally["free"] > tally["sharp"]
+
+
+def test_nonmanifold_positions_are_rigid():
+    src = with_bad_topology(holey_scan(seed=3))
+    mesh = build_static_mesh(src)
+    fin_edge = src.face_positions[-1][:2]
+    assert (np.asarray(mesh.position_class)[fin_edge] == 2).all()
+
+
+@settings(max_examples=25, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+@given(
+    rows=st.integers(2, 9), cols=st.integers(2, 9), seed=st.integers(0, 10_000),
+    n_classes=st.integers(1, 4), holes=st.floats(0, 0.3),
+)
+def test_property_random_heightfields(rows, cols, seed, n_classes, holes):
+    """Random small terrains with holes and speckled materials."""
+    rng = np.random.default_rng(seed)
+    h = rng.normal(0, 1, (rows, cols)).cumsum(axis=0)
+    h[rng.random(h.shape) < holes] = np.nan
+    classes = rng.integers(0, n_classes, (rows - 1, cols - 1))
+    try:
+        source = heightfield_to_source(h, materials=classes)
+    except caveclod.InputError:
+        return                                  # everything fell into holes
+    mesh = build_static_mesh(source)
+    replay_collapses(mesh, source)
+
+
+@settings(max_examples=15, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+@given(seed=st.integers(0, 10_000), keep=st.floats(0.5, 1.0), crease=st.sampled_from([0.0, 30.0, 90.0]))
+def test_property_random_scans(seed, keep, crease):
+    """Random subsets of a noisy sphere: holes, islands, slivers, crease seams."""
+    import trimesh
+    from caveclod.meshfile import source_from_trimesh
+    rng = np.random.default_rng(seed)
+    sphere = trimesh.creation.icosphere(subdivisions=2)
+    sphere.vertices += rng.normal(0, 0.05, sphere.vertices.shape)
+    faces = sphere.faces[rng.random(len(sphere.faces)) < keep]
+    if len(faces) == 0:
+        return
+    m = trimesh.Trimesh(sphere.vertices, faces, process=False)
+    source = source_from_trimesh(m)
+    source.face_material = rng.integers(0, 2, len(source.faces)).astype(np.int32)
+    source.materials = ["a", "b"]
+    mesh = build_static_mesh(source, crease_angle=crease)
+    replay_collapses(mesh, source, crease_angle=crease)
+
+
+def test_save_load_roundtrip_is_memory_mapped(tmp_path):
+    mesh = caveclod.build("default", size=32)
+    path = tmp_path / "t.cvc"
+    mesh.save(path)
+    back = caveclod.load(path)
+    assert isinstance(back.node_parent, np.memmap), "arrays are mapped, not read"
+    for name, arr in mesh.arrays.items():
+        np.testing.assert_array_equal(np.asarray(back.arrays[name]), arr, err_msg=name)
+    assert back.content_hash == mesh.content_hash and back.vertex_buffer_hash == mesh.vertex_buffer_hash
+    back.verify()
+    assert back.summary()["nodes"] == mesh.n_nodes
+
+
+def test_same_input_same_hash():
+    a = caveclod.build("default", size=16)
+    b = caveclod.build("default", size=16)
+    assert a.content_hash == b.content_hash
+    c = caveclod.build("default", size=16, seed=8)
+    assert c.content_hash != a.content_hash
+
+
+@pytest.mark.parametrize("damage", ["truncate", "magic", "version", "header"])
+def test_damaged_files_are_refused(tmp_path, damage):
+    path = tmp_path / "t.cvc"
+    caveclod.build("default", size=16).save(path)
+    data = bytearray(path.read_bytes())
+    if damage == "truncate":
+        data = data[: len(data) // 2]
+    elif damage == "magic":
+        data[:8] = b"NOTACAVE"
+    elif damage == "version":
+        data[8] = 99
+    else:
+        data[20:40] = b"\xff" * 20
+    path.write_bytes(bytes(data))
+    with pytest.raises(caveclod.FileFormatError) as info:
+        caveclod.load(path)
+    assert "\n" not in str(info.value)
+
+
+def test_verify_detects_corruption(tmp_path):
+    path = tmp_path / "t.cvc"
+    caveclod.build("default", size=16).save(path)
+    data = bytearray(path.read_bytes())
+    data[-100] ^= 0xFF
+    path.write_bytes(bytes(data))
+    with pytest.raises(caveclod.FileFormatError):
+        caveclod.load(path).verify()
