@@ -1,0 +1,435 @@
+"""Per-camera incremental selective refinement (Hoppe 1997, Kram & Shaw 3.6).
+
+A camera's state is a handful of arrays; the static mesh is only read, so
+any number of cameras share it and each kernel call releases the GIL.
+
+Camera state (see :class:`caveclod.camera.CameraState`):
+
+* ``state`` (n,) uint8 per node: INACTIVE (below the front), ACTIVE, SPLIT
+  (above it), plus the IN_LIST bit while the node sits in ``active``.
+* ``face_slot`` (p,) int32: the slot of each active face in its material's
+  index buffer, -1 if inactive.
+* Records of active faces, pooled: material ``s`` owns records
+  ``off[s] .. off[s] + cnt[s]`` of a capacity ``cap[s]``, and record
+  ``off[s] + k`` *is* slot ``k`` of that material's index buffer: ``pos``
+  (3 corner positions), ``nbr`` (3 neighbour faces, edge k = corner k ->
+  k+1), ``face``, ``tri`` (3 vertex-buffer indices, the mirror of the
+  client's index buffer) and ``dirty`` (slot written since the last delta).
+  Removing a face moves the material's last record into its slot, so every
+  index buffer stays dense.
+
+Corners store *positions*, not nodes: a stationary child shares its parent's
+position, so only the floating child's wedge changes when a node splits.
+
+Split of node s into t (stationary) and u (floating), faces fl = (t, u, vl),
+fr = (u, t, vr) and recorded neighbours fn = (fl_u, fl_t, fr_u, fr_t); see
+:mod:`caveclod.kernels.simplify` for the picture.
+"""
+
+import math
+
+import numba as nb
+import numpy as np
+
+INACTIVE, ACTIVE, SPLIT = 0, 1, 2
+STATE_MASK, IN_LIST = 3, 4
+
+OK, NEED_RECORDS, NEED_LIST = 0, 1, 2
+
+# View parameter layout (caveclod.view).
+P_EYE, P_PLANES, P_KAPPA, P_TOL, P_CULL, P_BACKFACE = 0, 3, 23, 24, 25, 26
+
+
+@nb.njit(cache=True, nogil=True, inline="always")
+def _pos_corner(rec_pos, r, x):
+    if rec_pos[r, 0] == x:
+        return 0
+    if rec_pos[r, 1] == x:
+        return 1
+    return 2
+
+
+@nb.njit(cache=True, nogil=True, inline="always")
+def lookup_vertex(pos_vstart, vertex_sgid, sgid, x):
+    """Vertex-buffer index of (surface group id, position): D3Dindex."""
+    for i in range(pos_vstart[x], pos_vstart[x + 1]):
+        if vertex_sgid[i] == sgid:
+            return i
+    return -1
+
+
+@nb.njit(cache=True, nogil=True, inline="always")
+def node_position(e, npos, x):
+    return x if x < e else npos[x - e]
+
+
+@nb.njit(cache=True, nogil=True)
+def need_refine(j, sphere, err, cone, vp):
+    """Whether internal node ``j`` (index into node arrays) needs detail."""
+    cx, cy, cz, r = sphere[j, 0], sphere[j, 1], sphere[j, 2], sphere[j, 3]
+    if vp[P_CULL] != 0.0:
+        for i in range(5):
+            b = P_PLANES + 4 * i
+            if vp[b] * cx + vp[b + 1] * cy + vp[b + 2] * cz + vp[b + 3] < -r:
+                return False                 # wholly outside the frustum
+    dx, dy, dz = cx - vp[P_EYE], cy - vp[P_EYE + 1], cz - vp[P_EYE + 2]
+    length = math.sqrt(dx * dx + dy * dy + dz * dz)
+    if vp[P_BACKFACE] != 0.0 and length > r and cone[j, 3] < 0.5 * math.pi:
+        # Back-facing when every normal of the cone points away from every
+        # direction towards the sphere: angle(axis, view) - spreads > 90 deg
+        # measured from the eye, i.e. the cone lies within the far half.
+        cosphi = (cone[j, 0] * dx + cone[j, 1] * dy + cone[j, 2] * dz) / length
+        phi = math.acos(min(1.0, max(-1.0, cosphi)))
+        if phi + cone[j, 3] + math.asin(r / length) < 0.5 * math.pi:
+            return False
+    if vp[P_TOL] <= 0.0:
+        return True
+    dist = length - r
+    if dist <= 0.0:
+        return True
+    return err[j] * vp[P_KAPPA] > vp[P_TOL] * dist
+
+
+@nb.njit(cache=True, nogil=True, inline="always")
+def _rec(face_slot, off, mat, f):
+    return off[mat[f]] + face_slot[f]
+
+
+@nb.njit(cache=True, nogil=True)
+def split_node(x, e, children, npos, nfaces, nfn, mat, fsgid, pos_vstart, vertex_sgid,
+               state, face_slot, off, cnt, rec_pos, rec_nbr, rec_face, rec_tri, rec_dirty):
+    """Split active node ``x`` whose required faces are all active.
+
+    The caller has checked legality and capacity (two records).
+    """
+    j = x - e
+    t, u = children[j, 0], children[j, 1]
+    fl, fr = nfaces[j, 0], nfaces[j, 1]
+    fn0, fn1, fn2, fn3 = nfn[j, 0], nfn[j, 1], nfn[j, 2], nfn[j, 3]
+    px = npos[j]
+    pu = node_position(e, npos, u)
+    # 1. The floating child's wedge: faces from fl_u round to fr_u move to u.
+    if fn0 >= 0:
+        f = fn0
+        while True:
+            r = _rec(face_slot, off, mat, f)
+            k = _pos_corner(rec_pos, r, px)
+            rec_pos[r, k] = pu
+            rec_tri[r, k] = lookup_vertex(pos_vstart, vertex_sgid, fsgid[f], pu)
+            rec_dirty[r] = 1
+            if f == fn2:
+                break
+            f = rec_nbr[r, k]                # across u's outgoing edge
+            if f < 0:
+                break
+    elif fn2 >= 0:
+        f = fn2
+        while True:
+            r = _rec(face_slot, off, mat, f)
+            k = _pos_corner(rec_pos, r, px)
+            rec_pos[r, k] = pu
+            rec_tri[r, k] = lookup_vertex(pos_vstart, vertex_sgid, fsgid[f], pu)
+            rec_dirty[r] = 1
+            f = rec_nbr[r, (k + 2) % 3]      # across u's incoming edge
+            if f < 0:
+                break
+    # 2. The two new faces, linked into their neighbours.
+    if fl >= 0:
+        if fn0 >= 0:
+            r0 = _rec(face_slot, off, mat, fn0)
+            vl = rec_pos[r0, (_pos_corner(rec_pos, r0, pu) + 2) % 3]
+        else:
+            r1 = _rec(face_slot, off, mat, fn1)
+            vl = rec_pos[r1, (_pos_corner(rec_pos, r1, px) + 1) % 3]
+        _add_face(fl, px, pu, vl, fr, fn0, fn1, mat, fsgid, pos_vstart, vertex_sgid,
+                  face_slot, off, cnt, rec_pos, rec_nbr, rec_face, rec_tri, rec_dirty)
+        if fn0 >= 0:
+            r0 = _rec(face_slot, off, mat, fn0)
+            rec_nbr[r0, _pos_corner(rec_pos, r0, vl)] = fl      # edge vl -> u
+        if fn1 >= 0:
+            r1 = _rec(face_slot, off, mat, fn1)
+            rec_nbr[r1, _pos_corner(rec_pos, r1, px)] = fl      # edge t -> vl
+    if fr >= 0:
+        if fn2 >= 0:
+            r2 = _rec(face_slot, off, mat, fn2)
+            vr = rec_pos[r2, (_pos_corner(rec_pos, r2, pu) + 1) % 3]
+        else:
+            r3 = _rec(face_slot, off, mat, fn3)
+            vr = rec_pos[r3, (_pos_corner(rec_pos, r3, px) + 2) % 3]
+        _add_face(fr, pu, px, vr, fl, fn3, fn2, mat, fsgid, pos_vstart, vertex_sgid,
+                  face_slot, off, cnt, rec_pos, rec_nbr, rec_face, rec_tri, rec_dirty)
+        if fn2 >= 0:
+            r2 = _rec(face_slot, off, mat, fn2)
+            rec_nbr[r2, _pos_corner(rec_pos, r2, pu)] = fr      # edge u -> vr
+        if fn3 >= 0:
+            r3 = _rec(face_slot, off, mat, fn3)
+            rec_nbr[r3, _pos_corner(rec_pos, r3, vr)] = fr      # edge vr -> t
+    state[x] = (state[x] & IN_LIST) | SPLIT
+    state[t] = (state[t] & IN_LIST) | ACTIVE
+    state[u] = (state[u] & IN_LIST) | ACTIVE
+
+
+@nb.njit(cache=True, nogil=True)
+def _add_face(f, a, b, c, n0, n1, n2, mat, fsgid, pos_vstart, vertex_sgid,
+              face_slot, off, cnt, rec_pos, rec_nbr, rec_face, rec_tri, rec_dirty):
+    """Append face ``f`` = (a, b, c) with neighbours (n0, n1, n2)."""
+    s = mat[f]
+    slot = cnt[s]
+    cnt[s] += 1
+    r = off[s] + slot
+    face_slot[f] = slot
+    rec_face[r] = f
+    rec_pos[r, 0], rec_pos[r, 1], rec_pos[r, 2] = a, b, c
+    rec_nbr[r, 0], rec_nbr[r, 1], rec_nbr[r, 2] = n0, n1, n2
+    g = fsgid[f]
+    rec_tri[r, 0] = lookup_vertex(pos_vstart, vertex_sgid, g, a)
+    rec_tri[r, 1] = lookup_vertex(pos_vstart, vertex_sgid, g, b)
+    rec_tri[r, 2] = lookup_vertex(pos_vstart, vertex_sgid, g, c)
+    rec_dirty[r] = 1
+
+
+@nb.njit(cache=True, nogil=True)
+def _remove_face(f, mat, face_slot, off, cnt, rec_pos, rec_nbr, rec_face, rec_tri, rec_dirty):
+    """Remove face ``f``; the material's last face fills its slot."""
+    s = mat[f]
+    r = off[s] + face_slot[f]
+    last = off[s] + cnt[s] - 1
+    if r != last:
+        for k in range(3):
+            rec_pos[r, k] = rec_pos[last, k]
+            rec_nbr[r, k] = rec_nbr[last, k]
+            rec_tri[r, k] = rec_tri[last, k]
+        rec_face[r] = rec_face[last]
+        rec_dirty[r] = 1
+        face_slot[rec_face[r]] = r - off[s]
+    face_slot[f] = -1
+    cnt[s] -= 1
+
+
+@nb.njit(cache=True, nogil=True, inline="always")
+def _replace(rec_nbr, r, old, new):
+    for k in range(3):
+        if rec_nbr[r, k] == old:
+            rec_nbr[r, k] = new
+            return
+
+
+@nb.njit(cache=True, nogil=True)
+def collapse_legal(x, e, children, nfaces, nfn, mat, state, face_slot, off, rec_nbr):
+    """Hoppe's ecol precondition for undoing the split of ``x``."""
+    j = x - e
+    if (state[children[j, 0]] & STATE_MASK) != ACTIVE or (state[children[j, 1]] & STATE_MASK) != ACTIVE:
+        return False
+    fl, fr = nfaces[j, 0], nfaces[j, 1]
+    if fl >= 0:
+        r = _rec(face_slot, off, mat, fl)
+        if rec_nbr[r, 1] != nfn[j, 0] or rec_nbr[r, 2] != nfn[j, 1]:
+            return False
+    if fr >= 0:
+        r = _rec(face_slot, off, mat, fr)
+        if rec_nbr[r, 1] != nfn[j, 3] or rec_nbr[r, 2] != nfn[j, 2]:
+            return False
+    return True
+
+
+@nb.njit(cache=True, nogil=True)
+def collapse_node(x, e, children, npos, nfaces, nfn, mat, fsgid, pos_vstart, vertex_sgid,
+                  state, face_slot, off, cnt, rec_pos, rec_nbr, rec_face, rec_tri, rec_dirty):
+    """Undo the split of ``x`` (the caller checked :func:`collapse_legal`)."""
+    j = x - e
+    t, u = children[j, 0], children[j, 1]
+    fl, fr = nfaces[j, 0], nfaces[j, 1]
+    fn0, fn1, fn2, fn3 = nfn[j, 0], nfn[j, 1], nfn[j, 2], nfn[j, 3]
+    px = npos[j]
+    pu = node_position(e, npos, u)
+    if fn0 >= 0:
+        f = fn0
+        while True:
+            r = _rec(face_slot, off, mat, f)
+            k = _pos_corner(rec_pos, r, pu)
+            rec_pos[r, k] = px
+            rec_tri[r, k] = lookup_vertex(pos_vstart, vertex_sgid, fsgid[f], px)
+            rec_dirty[r] = 1
+            if f == fn2:
+                break
+            f = rec_nbr[r, k]
+            if f < 0 or f == fr:
+                break
+    elif fn2 >= 0:
+        f = fn2
+        while True:
+            r = _rec(face_slot, off, mat, f)
+            k = _pos_corner(rec_pos, r, pu)
+            rec_pos[r, k] = px
+            rec_tri[r, k] = lookup_vertex(pos_vstart, vertex_sgid, fsgid[f], px)
+            rec_dirty[r] = 1
+            f = rec_nbr[r, (k + 2) % 3]
+            if f < 0 or f == fl:
+                break
+    if fl >= 0:
+        if fn0 >= 0:
+            _replace(rec_nbr, _rec(face_slot, off, mat, fn0), fl, fn1)
+        if fn1 >= 0:
+            _replace(rec_nbr, _rec(face_slot, off, mat, fn1), fl, fn0)
+        _remove_face(fl, mat, face_slot, off, cnt, rec_pos, rec_nbr, rec_face, rec_tri, rec_dirty)
+    if fr >= 0:
+        if fn2 >= 0:
+            _replace(rec_nbr, _rec(face_slot, off, mat, fn2), fr, fn3)
+        if fn3 >= 0:
+            _replace(rec_nbr, _rec(face_slot, off, mat, fn3), fr, fn2)
+        _remove_face(fr, mat, face_slot, off, cnt, rec_pos, rec_nbr, rec_face, rec_tri, rec_dirty)
+    state[x] = (state[x] & IN_LIST) | ACTIVE
+    state[t] = state[t] & IN_LIST
+    state[u] = state[u] & IN_LIST
+
+
+@nb.njit(cache=True, nogil=True, inline="always")
+def _room_for_split(j, nfaces, mat, cnt, cap):
+    """-1 if both new faces fit, else the material that needs room."""
+    for side in range(2):
+        f = nfaces[j, side]
+        if f >= 0:
+            s = mat[f]
+            need = 1
+            if side == 1 and nfaces[j, 0] >= 0 and mat[nfaces[j, 0]] == s:
+                need = 2
+            if cnt[s] + need > cap[s]:
+                return s
+    return -1
+
+
+@nb.njit(cache=True, nogil=True)
+def adapt(e, parent, children, npos, nfaces, nfn, sphere, err, cone, face_creator, mat, fsgid,
+          pos_vstart, vertex_sgid, state, face_slot, off, cnt, cap, rec_pos, rec_nbr, rec_face,
+          rec_tri, rec_dirty, active, n_active, vp, max_ops, max_faces, counts):
+    """One pass of incremental selective refinement over the active nodes.
+
+    Splits (forcing the splits a split needs) where the view needs detail and
+    collapses sibling pairs whose parent no longer needs it, while fewer than
+    ``max_ops`` operations were made and fewer than ``max_faces`` faces are
+    active. ``counts`` (2,) int64 accumulates splits and collapses.
+
+    Returns (status, material): OK, or NEED_RECORDS for that material /
+    NEED_LIST: the state is consistent; grow the arrays and call again.
+    """
+    n = n_active[0]
+    i = 0
+    w = 0
+    stack = np.empty(256, np.int64)
+    n_faces = 0
+    for s in range(cnt.shape[0]):
+        n_faces += cnt[s]
+    status, need_mat = OK, -1
+    while i < n:
+        x = active[i]
+        i += 1
+        st = state[x]
+        if (st & STATE_MASK) != ACTIVE:
+            state[x] = st & ~IN_LIST & 0xFF
+            continue
+        ops = counts[0] + counts[1]
+        if x >= e and ops < max_ops and need_refine(x - e, sphere, err, cone, vp):
+            # Force the split of x: Hoppe's stack of unmet preconditions.
+            stack[0] = x
+            sp = 1
+            while sp > 0:
+                y = stack[sp - 1]
+                sy = state[y] & STATE_MASK
+                if sy == SPLIT or y < e:
+                    sp -= 1
+                    continue
+                if sp + 5 > stack.shape[0]:
+                    bigger = np.empty(2 * stack.shape[0], np.int64)
+                    bigger[:sp] = stack[:sp]
+                    stack = bigger
+                if sy == INACTIVE:
+                    stack[sp] = parent[y]
+                    sp += 1
+                    continue
+                jy = y - e
+                missing = False
+                for q in range(4):
+                    f = nfn[jy, q]
+                    if f >= 0 and face_slot[f] < 0:
+                        stack[sp] = face_creator[f]
+                        sp += 1
+                        missing = True
+                if missing:
+                    continue
+                if counts[0] + counts[1] >= max_ops or n_faces + 2 > max_faces:
+                    break
+                s_need = _room_for_split(jy, nfaces, mat, cnt, cap)
+                if s_need >= 0:
+                    status, need_mat = NEED_RECORDS, s_need
+                    break
+                if n + 2 > active.shape[0]:
+                    status = NEED_LIST
+                    break
+                split_node(y, e, children, npos, nfaces, nfn, mat, fsgid, pos_vstart, vertex_sgid,
+                           state, face_slot, off, cnt, rec_pos, rec_nbr, rec_face, rec_tri, rec_dirty)
+                counts[0] += 1
+                n_faces += (nfaces[jy, 0] >= 0) + (nfaces[jy, 1] >= 0)
+                for c in range(2):
+                    ch = children[jy, c]
+                    if (state[ch] & IN_LIST) == 0:
+                        state[ch] |= IN_LIST
+                        active[n] = ch
+                        n += 1
+                sp -= 1
+            if status != OK:
+                i -= 1                       # keep x; it is evaluated again
+                break
+            if (state[x] & STATE_MASK) == ACTIVE:
+                active[w] = x
+                w += 1
+            else:
+                state[x] = state[x] & ~IN_LIST & 0xFF
+            continue
+        p = parent[x]
+        if p >= 0 and ops < max_ops and not need_refine(p - e, sphere, err, cone, vp) and \
+                collapse_legal(p, e, children, nfaces, nfn, mat, state, face_slot, off, rec_nbr):
+            if (state[p] & IN_LIST) == 0 and n + 1 > active.shape[0]:
+                i -= 1
+                status = NEED_LIST
+                break
+            jp = p - e
+            collapse_node(p, e, children, npos, nfaces, nfn, mat, fsgid, pos_vstart, vertex_sgid,
+                          state, face_slot, off, cnt, rec_pos, rec_nbr, rec_face, rec_tri, rec_dirty)
+            counts[1] += 1
+            n_faces -= (nfaces[jp, 0] >= 0) + (nfaces[jp, 1] >= 0)
+            if (state[p] & IN_LIST) == 0:
+                state[p] |= IN_LIST
+                active[n] = p
+                n += 1
+            state[x] = state[x] & ~IN_LIST & 0xFF
+            continue
+        active[w] = x
+        w += 1
+    # Close the gap left by dropped entries (all of them if we stopped early).
+    while i < n:
+        active[w] = active[i]
+        w += 1
+        i += 1
+    n_active[0] = w
+    return status, need_mat
+
+
+@nb.njit(cache=True, nogil=True)
+def collect_writes(off, cnt, rec_tri, rec_dirty, out_mat, out_slot, out_tri):
+    """Gather dirty slots of every material (clearing them); returns how many.
+
+    ``out_*`` must hold ``cnt.sum()`` entries.
+    """
+    k = 0
+    for s in range(cnt.shape[0]):
+        for slot in range(cnt[s]):
+            r = off[s] + slot
+            if rec_dirty[r]:
+                rec_dirty[r] = 0
+                out_mat[k] = s
+                out_slot[k] = slot
+                out_tri[k, 0] = rec_tri[r, 0]
+                out_tri[k, 1] = rec_tri[r, 1]
+                out_tri[k, 2] = rec_tri[r, 2]
+                k += 1
+    return k

@@ -1,0 +1,98 @@
+"""A camera's view: pose, projection and refinement tolerance.
+
+The screen-space error of a node (DESIGN.md section 3) is
+``error_px = err_obj * kappa / distance`` with
+``kappa = viewport_height / (2 tan(fov_y / 2))``.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from .errors import InputError
+
+# Layout of the float64 parameter vector the kernels read.
+P_EYE = 0            # 3: eye position
+P_PLANES = 3         # 5 x 4: left, right, bottom, top, near; a.x + d >= 0 inside
+P_KAPPA = 23         # pixels per unit of error at unit distance
+P_TOL = 24           # tolerance in pixels
+P_CULL = 25          # 1.0: frustum culling on
+P_BACKFACE = 26      # 1.0: back-face culling on
+P_SIZE = 27
+
+
+@dataclass(frozen=True)
+class View:
+    """One camera pose and the refinement criteria for it.
+
+    Args:
+        eye, target, up: world-space points / direction (3 floats each).
+        fov_y: vertical field of view in degrees, in (0, 180).
+        width, height: viewport in pixels.
+        tolerance_px: screen-space error allowed, in pixels. ``0`` refines
+            every node the culling keeps.
+        cull: coarsen what lies outside the view frustum.
+        backface: coarsen regions whose normal cone faces wholly away.
+    """
+
+    eye: tuple = (0.0, 0.0, 1.0)
+    target: tuple = (0.0, 0.0, 0.0)
+    up: tuple = (0.0, 0.0, 1.0)
+    fov_y: float = 60.0
+    width: int = 1280
+    height: int = 720
+    tolerance_px: float = 1.0
+    cull: bool = True
+    backface: bool = False
+
+    def __post_init__(self):
+        for name in ("eye", "target", "up"):
+            v = getattr(self, name)
+            try:
+                arr = np.asarray(v, dtype=np.float64).reshape(3)
+            except (TypeError, ValueError):
+                raise InputError(f"View.{name} must be three numbers, got {v!r}") from None
+            if not np.isfinite(arr).all():
+                raise InputError(f"View.{name} is not finite ({v!r}); send a pose without NaN or infinity")
+            object.__setattr__(self, name, tuple(float(x) for x in arr))
+        for name in ("fov_y", "tolerance_px"):
+            if not math.isfinite(float(getattr(self, name))):
+                raise InputError(f"View.{name} must be finite, got {getattr(self, name)!r}")
+        if not 0.0 < float(self.fov_y) < 180.0:
+            raise InputError(f"View.fov_y must be between 0 and 180 degrees, got {self.fov_y}")
+        if int(self.width) < 1 or int(self.height) < 1:
+            raise InputError(f"View viewport must be at least 1x1 pixels, got {self.width}x{self.height}")
+        if float(self.tolerance_px) < 0:
+            raise InputError(f"View.tolerance_px must be >= 0, got {self.tolerance_px}")
+        forward = np.subtract(self.target, self.eye)
+        if np.linalg.norm(forward) == 0.0:
+            raise InputError("View.eye and View.target are the same point; look somewhere")
+        if np.linalg.norm(np.cross(forward, self.up)) <= 1e-12 * np.linalg.norm(forward) * np.linalg.norm(self.up):
+            raise InputError("View.up is parallel to the viewing direction (or zero); give an up vector across it")
+
+    def params(self) -> np.ndarray:
+        """The (P_SIZE,) float64 vector the refinement kernels read."""
+        eye = np.asarray(self.eye)
+        f = np.subtract(self.target, eye)
+        f /= np.linalg.norm(f)
+        r = np.cross(f, self.up)
+        r /= np.linalg.norm(r)
+        u = np.cross(r, f)
+        ty = math.tan(math.radians(self.fov_y) / 2.0)
+        tx = ty * self.width / self.height
+        # Inward normals of the four side planes through the eye, and near.
+        normals = [f * tx + r, f * tx - r, f * ty + u, f * ty - u, f]
+        out = np.zeros(P_SIZE)
+        out[P_EYE:P_EYE + 3] = eye
+        for i, n in enumerate(normals):
+            n = n / np.linalg.norm(n)
+            out[P_PLANES + 4 * i:P_PLANES + 4 * i + 3] = n
+            out[P_PLANES + 4 * i + 3] = -float(n @ eye)
+        out[P_KAPPA] = self.height / (2.0 * ty)
+        out[P_TOL] = float(self.tolerance_px)
+        out[P_CULL] = 1.0 if self.cull else 0.0
+        out[P_BACKFACE] = 1.0 if self.backface else 0.0
+        return out
