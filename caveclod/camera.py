@@ -80,22 +80,23 @@ class CameraState:
         self.max_faces = UNLIMITED if max_faces is None else int(max_faces)
         a = {k: np.asarray(v) for k, v in mesh.arrays.items()}   # plain views of the maps
         self._static = (
-            mesh.n_positions, a["node_parent"], a["node_children"], a["node_position"], a["node_faces"],
-            a["node_fn"], a["node_sphere"], a["node_error"], a["node_cone"], a["face_creator"],
+            mesh.n_positions, a["node_parent"], a["node_links"], a["node_position"],
+            a["node_bound"], a["node_cone"], a["face_creator"],
             a["face_material"], a["face_sgid"], a["pos_vstart"], a["vertex_sgid"],
         )
         self._e = mesh.n_positions
         n, p = mesh.n_nodes, mesh.n_faces
         self.n_materials = max(mesh.n_materials, int(a["face_material"].max(initial=0)) + 1)
         self.state = np.zeros(n, np.uint8)
-        self.face_slot = np.full(p, -1, np.int32)
+        self.face_rec = np.full(p, -1, np.int32)
         base = a["base_faces"]
         base_count = np.bincount(a["face_material"][base], minlength=self.n_materials)
         self.cnt = np.zeros(self.n_materials, np.int64)
-        self._layout(np.maximum(2 * base_count, 64))
+        self._layout(np.maximum(base_count + base_count // 2, 64))
         self._sent = np.zeros(self.n_materials, np.int64)   # buffer lengths the last delta announced
         self._add_base(a)
         self.counts = np.zeros(2, np.int64)
+        self._resume = np.zeros(3, np.int64)      # where an interrupted pass goes on
 
     # -- set-up -------------------------------------------------------------
     def _layout(self, capacity: np.ndarray, old: dict | None = None) -> None:
@@ -118,6 +119,8 @@ class CameraState:
                 dst = slice(int(self.off[s]), int(self.off[s]) + c)
                 for k in new:
                     new[k][dst] = old[k][src]
+                # Records moved: point their faces at the new places.
+                self.face_rec[new["rec_face"][dst]] = np.arange(dst.start, dst.stop, dtype=np.int32)
         for k, v in new.items():
             setattr(self, k, v)
 
@@ -125,18 +128,20 @@ class CameraState:
         old = {k: getattr(self, k) for k in ("rec_pos", "rec_nbr", "rec_face", "rec_tri", "rec_dirty")}
         old["off"] = self.off
         cap = self.cap.copy()
-        cap[material] = max(2 * cap[material], 64)
+        # Grow by half: a camera's bytes are what adding a camera costs, so
+        # slack is kept small; re-layout is O(active faces) and rare.
+        cap[material] = max(cap[material] + cap[material] // 2, 64)
         self._layout(cap, old)
 
     def _grow_list(self) -> None:
-        bigger = np.empty(max(2 * len(self.active), 64), np.int32)
+        bigger = np.empty(max(len(self.active) + len(self.active) // 2, 64), np.int32)
         bigger[: self.n_active[0]] = self.active[: self.n_active[0]]
         self.active = bigger
 
     def _add_base(self, a: dict) -> None:
         roots = np.flatnonzero(a["node_parent"] < 0).astype(np.int32)
         self.state[roots] = K.ACTIVE | K.IN_LIST
-        self.active = np.empty(max(2 * len(roots), 64), np.int32)
+        self.active = np.empty(max(len(roots) + len(roots) // 2, 64), np.int32)
         self.active[: len(roots)] = roots
         self.n_active = np.array([len(roots)], np.int64)
         faces = a["base_faces"]
@@ -144,7 +149,7 @@ class CameraState:
         mat = a["face_material"][faces]
         for f, corners, nbrs, s in zip(faces, pos, a["base_face_nbrs"], mat):
             r = int(self.off[s] + self.cnt[s])
-            self.face_slot[f] = self.cnt[s]
+            self.face_rec[f] = r
             self.cnt[s] += 1
             self.rec_face[r] = f
             self.rec_pos[r] = corners
@@ -165,23 +170,39 @@ class CameraState:
         t0 = time.perf_counter()
         vp = view.params()
         self.counts[:] = 0
-        while True:
-            status, material = K.adapt(*self._static, self.state, self.face_slot, self.off, self.cnt, self.cap,
-                                       self.rec_pos, self.rec_nbr, self.rec_face, self.rec_tri, self.rec_dirty,
-                                       self.active, self.n_active, vp, self.max_ops, self.max_faces,
-                                       self.counts)
-            if status == K.OK:
-                break
-            if status == K.NEED_RECORDS:
-                self._grow_records(int(material))
-            elif status == K.NEED_LIST:
-                self._grow_list()
-            else:  # pragma: no cover - the kernel has no other status
-                raise CaveclodError(f"refinement kernel returned status {status}")
+        try:
+            while True:
+                status, material = K.adapt(*self._static, self.state, self.face_rec, self.off, self.cnt,
+                                           self.cap, self.rec_pos, self.rec_nbr, self.rec_face, self.rec_tri,
+                                           self.rec_dirty, self.active, self.n_active, vp, self.max_ops,
+                                           self.max_faces, self.counts, self._resume)
+                if status == K.OK:
+                    break
+                if status == K.NEED_RECORDS:
+                    self._grow_records(int(material))
+                elif status == K.NEED_LIST:
+                    self._grow_list()
+                else:  # pragma: no cover - the kernel has no other status
+                    raise CaveclodError(f"refinement kernel returned status {status}")
+        finally:
+            if self._resume[2]:
+                self._abandon_pass()
         delta = self._collect_delta()
         delta.splits, delta.collapses = int(self.counts[0]), int(self.counts[1])
         delta.seconds = time.perf_counter() - t0
         return delta
+
+    def _abandon_pass(self) -> None:
+        """Close an interrupted pass (growth failed): keep the listed nodes.
+
+        Entries before the write position were kept, those from the read
+        position on were not reached; what lies between is stale.
+        """
+        i, w, _ = self._resume
+        n = self.n_active[0]
+        self.active[w: w + n - i] = self.active[i:n].copy()
+        self.n_active[0] = w + n - i
+        self._resume[:] = 0
 
     def _collect_delta(self) -> Delta:
         total = int(self.cnt.sum())
@@ -227,9 +248,9 @@ class CameraState:
     @property
     def nbytes(self) -> int:
         """Bytes this camera owns (the static mesh is shared, not counted)."""
-        arrays = (self.state, self.face_slot, self.rec_pos, self.rec_nbr, self.rec_face, self.rec_tri,
+        arrays = (self.state, self.face_rec, self.rec_pos, self.rec_nbr, self.rec_face, self.rec_tri,
                   self.rec_dirty, self.active, self.n_active, self.off, self.cnt, self.cap, self._sent,
-                  self.counts)
+                  self.counts, self._resume)
         return int(sum(x.nbytes for x in arrays))
 
     def validate(self) -> None:

@@ -46,12 +46,9 @@ ARRAYS = {
     "face_sgid": ("<u2", ()),            # (p,) surface group id
     "face_creator": ("<i4", ()),         # (p,) node whose split makes it, -1: base
     "node_parent": ("<i4", ()),          # (n,) -1 for roots
-    "node_children": ("<i4", (2,)),      # (m, 2) stationary t, floating u
+    "node_links": ("<i4", (8,)),         # (m, 8) t, u, fl, fr, fl_u, fl_t, fr_u, fr_t
     "node_position": ("<i4", ()),        # (m,) = position of t
-    "node_faces": ("<i4", (2,)),         # (m, 2) fl, fr (-1 if absent)
-    "node_fn": ("<i4", (4,)),            # (m, 4) fl_u, fl_t, fr_u, fr_t
-    "node_sphere": ("<f4", (4,)),        # (m, 4) centre, radius of the subtree
-    "node_error": ("<f4", ()),           # (m,) object-space error bound
+    "node_bound": ("<f4", (5,)),         # (m, 5) sphere centre, radius; error bound
     "node_cone": ("<f4", (4,)),          # (m, 4) normal cone axis, half-angle
     "base_faces": ("<i4", ()),           # (k,) faces of the coarsest mesh
     "base_face_nodes": ("<i4", (3,)),    # (k, 3) their nodes
@@ -87,6 +84,38 @@ class StaticMesh:
         if arrays is not None and name in arrays:
             return arrays[name]
         raise AttributeError(name)
+
+    # node_links packs what a split or collapse reads into one 32-byte row
+    # (children, the faces fl/fr it makes, the four neighbours it needs):
+    # the refinement tests it for thousands of nodes a frame.
+    @property
+    def node_children(self) -> np.ndarray:
+        """(m, 2) stationary child t and floating child u of each internal node."""
+        return self.arrays["node_links"][:, 0:2]
+
+    @property
+    def node_faces(self) -> np.ndarray:
+        """(m, 2) faces fl, fr that the node's split creates (-1 if absent)."""
+        return self.arrays["node_links"][:, 2:4]
+
+    @property
+    def node_fn(self) -> np.ndarray:
+        """(m, 4) neighbour faces the split requires: fl_u, fl_t, fr_u, fr_t."""
+        return self.arrays["node_links"][:, 4:8]
+
+    @property
+    def node_sphere(self) -> np.ndarray:
+        """(m, 4) bounding sphere (centre, radius) of each internal node's subtree."""
+        return self.arrays["node_bound"][:, :4]
+
+    @property
+    def node_error(self) -> np.ndarray:
+        """(m,) object-space error bound of each internal node.
+
+        Stored beside the sphere (one row of ``node_bound``) because the
+        refinement reads both for every active node each frame.
+        """
+        return self.arrays["node_bound"][:, 4]
 
     # -- counts -----------------------------------------------------------
     @property

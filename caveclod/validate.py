@@ -52,7 +52,7 @@ def validate_camera(cam) -> None:
     want = np.ones(len(creator), bool)
     made = creator >= 0
     want[made] = state[creator[made]] == K.SPLIT
-    if not np.array_equal(want, cam.face_slot >= 0):
+    if not np.array_equal(want, cam.face_rec >= 0):
         _fail("a face is active while its creator is not split, or the reverse")
 
     mat = np.asarray(mesh.face_material)
@@ -66,8 +66,8 @@ def validate_camera(cam) -> None:
         faces = cam.rec_face[r]
         if (mat[faces] != s).any():
             _fail(f"a face sits in the index buffer of another material ({s})")
-        if not np.array_equal(cam.face_slot[faces], r - lo):
-            _fail(f"face_slot and records disagree in material {s}")
+        if not np.array_equal(cam.face_rec[faces], r):
+            _fail(f"face_rec and records disagree in material {s}")
         recs.append(r)
     recs = np.concatenate(recs) if recs else np.zeros(0, np.int64)
     faces = cam.rec_face[recs]

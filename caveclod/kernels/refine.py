@@ -7,8 +7,7 @@ Camera state (see :class:`caveclod.camera.CameraState`):
 
 * ``state`` (n,) uint8 per node: INACTIVE (below the front), ACTIVE, SPLIT
   (above it), plus the IN_LIST bit while the node sits in ``active``.
-* ``face_slot`` (p,) int32: the slot of each active face in its material's
-  index buffer, -1 if inactive.
+* ``face_rec`` (p,) int32: the record of each active face, -1 if inactive.
 * Records of active faces, pooled: material ``s`` owns records
   ``off[s] .. off[s] + cnt[s]`` of a capacity ``cap[s]``, and record
   ``off[s] + k`` *is* slot ``k`` of that material's index buffer: ``pos``
@@ -64,9 +63,13 @@ def node_position(e, npos, x):
 
 
 @nb.njit(cache=True, nogil=True)
-def need_refine(j, sphere, err, cone, vp):
-    """Whether internal node ``j`` (index into node arrays) needs detail."""
-    cx, cy, cz, r = sphere[j, 0], sphere[j, 1], sphere[j, 2], sphere[j, 3]
+def need_refine(j, bound, cone, vp):
+    """Whether internal node ``j`` (index into node arrays) needs detail.
+
+    ``bound[j]`` is (centre xyz, radius, error bound), one row so that the
+    test touches one cache line.
+    """
+    cx, cy, cz, r = bound[j, 0], bound[j, 1], bound[j, 2], bound[j, 3]
     if vp[P_CULL] != 0.0:
         for i in range(5):
             b = P_PLANES + 4 * i
@@ -87,32 +90,27 @@ def need_refine(j, sphere, err, cone, vp):
     dist = length - r
     if dist <= 0.0:
         return True
-    return err[j] * vp[P_KAPPA] > vp[P_TOL] * dist
-
-
-@nb.njit(cache=True, nogil=True, inline="always")
-def _rec(face_slot, off, mat, f):
-    return off[mat[f]] + face_slot[f]
+    return bound[j, 4] * vp[P_KAPPA] > vp[P_TOL] * dist
 
 
 @nb.njit(cache=True, nogil=True)
-def split_node(x, e, children, npos, nfaces, nfn, mat, fsgid, pos_vstart, vertex_sgid,
-               state, face_slot, off, cnt, rec_pos, rec_nbr, rec_face, rec_tri, rec_dirty):
+def split_node(x, e, links, npos, mat, fsgid, pos_vstart, vertex_sgid,
+               state, face_rec, off, cnt, rec_pos, rec_nbr, rec_face, rec_tri, rec_dirty):
     """Split active node ``x`` whose required faces are all active.
 
     The caller has checked legality and capacity (two records).
     """
     j = x - e
-    t, u = children[j, 0], children[j, 1]
-    fl, fr = nfaces[j, 0], nfaces[j, 1]
-    fn0, fn1, fn2, fn3 = nfn[j, 0], nfn[j, 1], nfn[j, 2], nfn[j, 3]
+    t, u = links[j, 0], links[j, 1]
+    fl, fr = links[j, 2], links[j, 3]
+    fn0, fn1, fn2, fn3 = links[j, 4], links[j, 5], links[j, 6], links[j, 7]
     px = npos[j]
     pu = node_position(e, npos, u)
     # 1. The floating child's wedge: faces from fl_u round to fr_u move to u.
     if fn0 >= 0:
         f = fn0
         while True:
-            r = _rec(face_slot, off, mat, f)
+            r = face_rec[f]
             k = _pos_corner(rec_pos, r, px)
             rec_pos[r, k] = pu
             rec_tri[r, k] = lookup_vertex(pos_vstart, vertex_sgid, fsgid[f], pu)
@@ -125,7 +123,7 @@ def split_node(x, e, children, npos, nfaces, nfn, mat, fsgid, pos_vstart, vertex
     elif fn2 >= 0:
         f = fn2
         while True:
-            r = _rec(face_slot, off, mat, f)
+            r = face_rec[f]
             k = _pos_corner(rec_pos, r, px)
             rec_pos[r, k] = pu
             rec_tri[r, k] = lookup_vertex(pos_vstart, vertex_sgid, fsgid[f], pu)
@@ -136,33 +134,33 @@ def split_node(x, e, children, npos, nfaces, nfn, mat, fsgid, pos_vstart, vertex
     # 2. The two new faces, linked into their neighbours.
     if fl >= 0:
         if fn0 >= 0:
-            r0 = _rec(face_slot, off, mat, fn0)
+            r0 = face_rec[fn0]
             vl = rec_pos[r0, (_pos_corner(rec_pos, r0, pu) + 2) % 3]
         else:
-            r1 = _rec(face_slot, off, mat, fn1)
+            r1 = face_rec[fn1]
             vl = rec_pos[r1, (_pos_corner(rec_pos, r1, px) + 1) % 3]
         _add_face(fl, px, pu, vl, fr, fn0, fn1, mat, fsgid, pos_vstart, vertex_sgid,
-                  face_slot, off, cnt, rec_pos, rec_nbr, rec_face, rec_tri, rec_dirty)
+                  face_rec, off, cnt, rec_pos, rec_nbr, rec_face, rec_tri, rec_dirty)
         if fn0 >= 0:
-            r0 = _rec(face_slot, off, mat, fn0)
+            r0 = face_rec[fn0]
             rec_nbr[r0, _pos_corner(rec_pos, r0, vl)] = fl      # edge vl -> u
         if fn1 >= 0:
-            r1 = _rec(face_slot, off, mat, fn1)
+            r1 = face_rec[fn1]
             rec_nbr[r1, _pos_corner(rec_pos, r1, px)] = fl      # edge t -> vl
     if fr >= 0:
         if fn2 >= 0:
-            r2 = _rec(face_slot, off, mat, fn2)
+            r2 = face_rec[fn2]
             vr = rec_pos[r2, (_pos_corner(rec_pos, r2, pu) + 1) % 3]
         else:
-            r3 = _rec(face_slot, off, mat, fn3)
+            r3 = face_rec[fn3]
             vr = rec_pos[r3, (_pos_corner(rec_pos, r3, px) + 2) % 3]
         _add_face(fr, pu, px, vr, fl, fn3, fn2, mat, fsgid, pos_vstart, vertex_sgid,
-                  face_slot, off, cnt, rec_pos, rec_nbr, rec_face, rec_tri, rec_dirty)
+                  face_rec, off, cnt, rec_pos, rec_nbr, rec_face, rec_tri, rec_dirty)
         if fn2 >= 0:
-            r2 = _rec(face_slot, off, mat, fn2)
+            r2 = face_rec[fn2]
             rec_nbr[r2, _pos_corner(rec_pos, r2, pu)] = fr      # edge u -> vr
         if fn3 >= 0:
-            r3 = _rec(face_slot, off, mat, fn3)
+            r3 = face_rec[fn3]
             rec_nbr[r3, _pos_corner(rec_pos, r3, vr)] = fr      # edge vr -> t
     state[x] = (state[x] & IN_LIST) | SPLIT
     state[t] = (state[t] & IN_LIST) | ACTIVE
@@ -171,13 +169,13 @@ def split_node(x, e, children, npos, nfaces, nfn, mat, fsgid, pos_vstart, vertex
 
 @nb.njit(cache=True, nogil=True)
 def _add_face(f, a, b, c, n0, n1, n2, mat, fsgid, pos_vstart, vertex_sgid,
-              face_slot, off, cnt, rec_pos, rec_nbr, rec_face, rec_tri, rec_dirty):
+              face_rec, off, cnt, rec_pos, rec_nbr, rec_face, rec_tri, rec_dirty):
     """Append face ``f`` = (a, b, c) with neighbours (n0, n1, n2)."""
     s = mat[f]
     slot = cnt[s]
     cnt[s] += 1
     r = off[s] + slot
-    face_slot[f] = slot
+    face_rec[f] = r
     rec_face[r] = f
     rec_pos[r, 0], rec_pos[r, 1], rec_pos[r, 2] = a, b, c
     rec_nbr[r, 0], rec_nbr[r, 1], rec_nbr[r, 2] = n0, n1, n2
@@ -189,10 +187,10 @@ def _add_face(f, a, b, c, n0, n1, n2, mat, fsgid, pos_vstart, vertex_sgid,
 
 
 @nb.njit(cache=True, nogil=True)
-def _remove_face(f, mat, face_slot, off, cnt, rec_pos, rec_nbr, rec_face, rec_tri, rec_dirty):
+def _remove_face(f, mat, face_rec, off, cnt, rec_pos, rec_nbr, rec_face, rec_tri, rec_dirty):
     """Remove face ``f``; the material's last face fills its slot."""
     s = mat[f]
-    r = off[s] + face_slot[f]
+    r = face_rec[f]
     last = off[s] + cnt[s] - 1
     if r != last:
         for k in range(3):
@@ -201,8 +199,8 @@ def _remove_face(f, mat, face_slot, off, cnt, rec_pos, rec_nbr, rec_face, rec_tr
             rec_tri[r, k] = rec_tri[last, k]
         rec_face[r] = rec_face[last]
         rec_dirty[r] = 1
-        face_slot[rec_face[r]] = r - off[s]
-    face_slot[f] = -1
+        face_rec[rec_face[r]] = r
+    face_rec[f] = -1
     cnt[s] -= 1
 
 
@@ -215,37 +213,37 @@ def _replace(rec_nbr, r, old, new):
 
 
 @nb.njit(cache=True, nogil=True)
-def collapse_legal(x, e, children, nfaces, nfn, mat, state, face_slot, off, rec_nbr):
+def collapse_legal(x, e, links, mat, state, face_rec, off, rec_nbr):
     """Hoppe's ecol precondition for undoing the split of ``x``."""
     j = x - e
-    if (state[children[j, 0]] & STATE_MASK) != ACTIVE or (state[children[j, 1]] & STATE_MASK) != ACTIVE:
+    if (state[links[j, 0]] & STATE_MASK) != ACTIVE or (state[links[j, 1]] & STATE_MASK) != ACTIVE:
         return False
-    fl, fr = nfaces[j, 0], nfaces[j, 1]
+    fl, fr = links[j, 2], links[j, 3]
     if fl >= 0:
-        r = _rec(face_slot, off, mat, fl)
-        if rec_nbr[r, 1] != nfn[j, 0] or rec_nbr[r, 2] != nfn[j, 1]:
+        r = face_rec[fl]
+        if rec_nbr[r, 1] != links[j, 4] or rec_nbr[r, 2] != links[j, 5]:
             return False
     if fr >= 0:
-        r = _rec(face_slot, off, mat, fr)
-        if rec_nbr[r, 1] != nfn[j, 3] or rec_nbr[r, 2] != nfn[j, 2]:
+        r = face_rec[fr]
+        if rec_nbr[r, 1] != links[j, 7] or rec_nbr[r, 2] != links[j, 6]:
             return False
     return True
 
 
 @nb.njit(cache=True, nogil=True)
-def collapse_node(x, e, children, npos, nfaces, nfn, mat, fsgid, pos_vstart, vertex_sgid,
-                  state, face_slot, off, cnt, rec_pos, rec_nbr, rec_face, rec_tri, rec_dirty):
+def collapse_node(x, e, links, npos, mat, fsgid, pos_vstart, vertex_sgid,
+                  state, face_rec, off, cnt, rec_pos, rec_nbr, rec_face, rec_tri, rec_dirty):
     """Undo the split of ``x`` (the caller checked :func:`collapse_legal`)."""
     j = x - e
-    t, u = children[j, 0], children[j, 1]
-    fl, fr = nfaces[j, 0], nfaces[j, 1]
-    fn0, fn1, fn2, fn3 = nfn[j, 0], nfn[j, 1], nfn[j, 2], nfn[j, 3]
+    t, u = links[j, 0], links[j, 1]
+    fl, fr = links[j, 2], links[j, 3]
+    fn0, fn1, fn2, fn3 = links[j, 4], links[j, 5], links[j, 6], links[j, 7]
     px = npos[j]
     pu = node_position(e, npos, u)
     if fn0 >= 0:
         f = fn0
         while True:
-            r = _rec(face_slot, off, mat, f)
+            r = face_rec[f]
             k = _pos_corner(rec_pos, r, pu)
             rec_pos[r, k] = px
             rec_tri[r, k] = lookup_vertex(pos_vstart, vertex_sgid, fsgid[f], px)
@@ -258,7 +256,7 @@ def collapse_node(x, e, children, npos, nfaces, nfn, mat, fsgid, pos_vstart, ver
     elif fn2 >= 0:
         f = fn2
         while True:
-            r = _rec(face_slot, off, mat, f)
+            r = face_rec[f]
             k = _pos_corner(rec_pos, r, pu)
             rec_pos[r, k] = px
             rec_tri[r, k] = lookup_vertex(pos_vstart, vertex_sgid, fsgid[f], px)
@@ -268,30 +266,30 @@ def collapse_node(x, e, children, npos, nfaces, nfn, mat, fsgid, pos_vstart, ver
                 break
     if fl >= 0:
         if fn0 >= 0:
-            _replace(rec_nbr, _rec(face_slot, off, mat, fn0), fl, fn1)
+            _replace(rec_nbr, face_rec[fn0], fl, fn1)
         if fn1 >= 0:
-            _replace(rec_nbr, _rec(face_slot, off, mat, fn1), fl, fn0)
-        _remove_face(fl, mat, face_slot, off, cnt, rec_pos, rec_nbr, rec_face, rec_tri, rec_dirty)
+            _replace(rec_nbr, face_rec[fn1], fl, fn0)
+        _remove_face(fl, mat, face_rec, off, cnt, rec_pos, rec_nbr, rec_face, rec_tri, rec_dirty)
     if fr >= 0:
         if fn2 >= 0:
-            _replace(rec_nbr, _rec(face_slot, off, mat, fn2), fr, fn3)
+            _replace(rec_nbr, face_rec[fn2], fr, fn3)
         if fn3 >= 0:
-            _replace(rec_nbr, _rec(face_slot, off, mat, fn3), fr, fn2)
-        _remove_face(fr, mat, face_slot, off, cnt, rec_pos, rec_nbr, rec_face, rec_tri, rec_dirty)
+            _replace(rec_nbr, face_rec[fn3], fr, fn2)
+        _remove_face(fr, mat, face_rec, off, cnt, rec_pos, rec_nbr, rec_face, rec_tri, rec_dirty)
     state[x] = (state[x] & IN_LIST) | ACTIVE
     state[t] = state[t] & IN_LIST
     state[u] = state[u] & IN_LIST
 
 
 @nb.njit(cache=True, nogil=True, inline="always")
-def _room_for_split(j, nfaces, mat, cnt, cap):
+def _room_for_split(j, links, mat, cnt, cap):
     """-1 if both new faces fit, else the material that needs room."""
     for side in range(2):
-        f = nfaces[j, side]
+        f = links[j, 2 + side]
         if f >= 0:
             s = mat[f]
             need = 1
-            if side == 1 and nfaces[j, 0] >= 0 and mat[nfaces[j, 0]] == s:
+            if side == 1 and links[j, 2] >= 0 and mat[links[j, 2]] == s:
                 need = 2
             if cnt[s] + need > cap[s]:
                 return s
@@ -299,9 +297,9 @@ def _room_for_split(j, nfaces, mat, cnt, cap):
 
 
 @nb.njit(cache=True, nogil=True)
-def adapt(e, parent, children, npos, nfaces, nfn, sphere, err, cone, face_creator, mat, fsgid,
-          pos_vstart, vertex_sgid, state, face_slot, off, cnt, cap, rec_pos, rec_nbr, rec_face,
-          rec_tri, rec_dirty, active, n_active, vp, max_ops, max_faces, counts):
+def adapt(e, parent, links, npos, bound, cone, face_creator, mat, fsgid,
+          pos_vstart, vertex_sgid, state, face_rec, off, cnt, cap, rec_pos, rec_nbr, rec_face,
+          rec_tri, rec_dirty, active, n_active, vp, max_ops, max_faces, counts, resume):
     """One pass of incremental selective refinement over the active nodes.
 
     Splits (forcing the splits a split needs) where the view needs detail and
@@ -310,11 +308,23 @@ def adapt(e, parent, children, npos, nfaces, nfn, sphere, err, cone, face_creato
     active. ``counts`` (2,) int64 accumulates splits and collapses.
 
     Returns (status, material): OK, or NEED_RECORDS for that material /
-    NEED_LIST: the state is consistent; grow the arrays and call again.
+    NEED_LIST: grow the arrays and call again, and the call *continues the
+    same pass* where this one stopped: ``resume`` (3,) int64 holds the read
+    and write positions and a flag, so decisions never depend on how much
+    room the arrays happened to have. (The node being force-split when room
+    ran out is visited again; its forced split restarts and, being
+    deterministic, makes the same decisions.)
     """
     n = n_active[0]
-    i = 0
-    w = 0
+    if resume[2]:
+        i, w = resume[0], resume[1]
+        resume[2] = 0
+    else:
+        # Visit nodes in id order: their static rows are then read front to
+        # back instead of at random, which halves the cost of a pass.
+        active[:n].sort()
+        i = 0
+        w = 0
     stack = np.empty(256, np.int64)
     n_faces = 0
     for s in range(cnt.shape[0]):
@@ -328,7 +338,7 @@ def adapt(e, parent, children, npos, nfaces, nfn, sphere, err, cone, face_creato
             state[x] = st & ~IN_LIST & 0xFF
             continue
         ops = counts[0] + counts[1]
-        if x >= e and ops < max_ops and need_refine(x - e, sphere, err, cone, vp):
+        if x >= e and ops < max_ops and need_refine(x - e, bound, cone, vp):
             # Force the split of x: Hoppe's stack of unmet preconditions.
             stack[0] = x
             sp = 1
@@ -349,8 +359,8 @@ def adapt(e, parent, children, npos, nfaces, nfn, sphere, err, cone, face_creato
                 jy = y - e
                 missing = False
                 for q in range(4):
-                    f = nfn[jy, q]
-                    if f >= 0 and face_slot[f] < 0:
+                    f = links[jy, 4 + q]
+                    if f >= 0 and face_rec[f] < 0:
                         stack[sp] = face_creator[f]
                         sp += 1
                         missing = True
@@ -358,26 +368,26 @@ def adapt(e, parent, children, npos, nfaces, nfn, sphere, err, cone, face_creato
                     continue
                 if counts[0] + counts[1] >= max_ops or n_faces + 2 > max_faces:
                     break
-                s_need = _room_for_split(jy, nfaces, mat, cnt, cap)
+                s_need = _room_for_split(jy, links, mat, cnt, cap)
                 if s_need >= 0:
                     status, need_mat = NEED_RECORDS, s_need
                     break
                 if n + 2 > active.shape[0]:
                     status = NEED_LIST
                     break
-                split_node(y, e, children, npos, nfaces, nfn, mat, fsgid, pos_vstart, vertex_sgid,
-                           state, face_slot, off, cnt, rec_pos, rec_nbr, rec_face, rec_tri, rec_dirty)
+                split_node(y, e, links, npos, mat, fsgid, pos_vstart, vertex_sgid,
+                           state, face_rec, off, cnt, rec_pos, rec_nbr, rec_face, rec_tri, rec_dirty)
                 counts[0] += 1
-                n_faces += (nfaces[jy, 0] >= 0) + (nfaces[jy, 1] >= 0)
+                n_faces += (links[jy, 2] >= 0) + (links[jy, 3] >= 0)
                 for c in range(2):
-                    ch = children[jy, c]
+                    ch = links[jy, c]
                     if (state[ch] & IN_LIST) == 0:
                         state[ch] |= IN_LIST
                         active[n] = ch
                         n += 1
                 sp -= 1
             if status != OK:
-                i -= 1                       # keep x; it is evaluated again
+                i -= 1                       # x is visited again on resume
                 break
             if (state[x] & STATE_MASK) == ACTIVE:
                 active[w] = x
@@ -386,17 +396,22 @@ def adapt(e, parent, children, npos, nfaces, nfn, sphere, err, cone, face_creato
                 state[x] = state[x] & ~IN_LIST & 0xFF
             continue
         p = parent[x]
-        if p >= 0 and ops < max_ops and not need_refine(p - e, sphere, err, cone, vp) and \
-                collapse_legal(p, e, children, nfaces, nfn, mat, state, face_slot, off, rec_nbr):
+        # The stationary child speaks for the pair, and only when its sibling
+        # is active too: a collapse needs both, and this halves the
+        # (cache-missing) parent tests.
+        if p >= 0 and ops < max_ops and links[p - e, 0] == x and \
+                (state[links[p - e, 1]] & STATE_MASK) == ACTIVE and \
+                not need_refine(p - e, bound, cone, vp) and \
+                collapse_legal(p, e, links, mat, state, face_rec, off, rec_nbr):
             if (state[p] & IN_LIST) == 0 and n + 1 > active.shape[0]:
                 i -= 1
                 status = NEED_LIST
                 break
             jp = p - e
-            collapse_node(p, e, children, npos, nfaces, nfn, mat, fsgid, pos_vstart, vertex_sgid,
-                          state, face_slot, off, cnt, rec_pos, rec_nbr, rec_face, rec_tri, rec_dirty)
+            collapse_node(p, e, links, npos, mat, fsgid, pos_vstart, vertex_sgid,
+                          state, face_rec, off, cnt, rec_pos, rec_nbr, rec_face, rec_tri, rec_dirty)
             counts[1] += 1
-            n_faces -= (nfaces[jp, 0] >= 0) + (nfaces[jp, 1] >= 0)
+            n_faces -= (links[jp, 2] >= 0) + (links[jp, 3] >= 0)
             if (state[p] & IN_LIST) == 0:
                 state[p] |= IN_LIST
                 active[n] = p
@@ -405,11 +420,11 @@ def adapt(e, parent, children, npos, nfaces, nfn, sphere, err, cone, face_creato
             continue
         active[w] = x
         w += 1
-    # Close the gap left by dropped entries (all of them if we stopped early).
-    while i < n:
-        active[w] = active[i]
-        w += 1
-        i += 1
+    if status != OK:
+        # Stopped for room: remember where, keep the list as it is.
+        resume[0], resume[1], resume[2] = i, w, 1
+        n_active[0] = n
+        return status, need_mat
     n_active[0] = w
     return status, need_mat
 

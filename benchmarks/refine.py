@@ -1,0 +1,223 @@
+"""The paper's experiments: multi-camera flyovers, per-camera vs shared state.
+
+    python benchmarks/refine.py [--mesh X.cvc | --size 708] [--seconds 20]
+
+For 1, 2, 3 and 4 cameras flying over different parts of the mesh at 30 Hz
+(1280x720, 60 degree field of view, 1 px tolerance):
+
+* **per-camera**: each camera has its own CameraState (CAVECLOD);
+* **baseline**: one CameraState re-refined for camera A, then B, ... each
+  frame (the paper's application without CAVECLOD).
+
+Reported: split+collapse operations per camera-second in both modes and
+their ratio (paper Figs. 10-11), update time per camera-frame (p50, p99),
+active faces per camera (Fig. 13), bytes per added camera against the static
+mesh and against Equation 1 (Table 1, Fig. 14), and the speed-up of 2
+threads over 1 updating 2 cameras. The first second (refining up from the
+base mesh) is left out of rates and times. Writes
+``benchmarks/results/refine.json`` and ``refine_*.png``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import statistics
+import sys
+import time
+from concurrent.futures import ThreadPoolExecutor
+from pathlib import Path
+
+import numpy as np
+
+import caveclod
+from caveclod.flyover import flyover_view, mesh_bounds
+
+RESULTS = Path(__file__).parent / "results"
+FPS = 30
+
+
+def load_mesh(args):
+    if args.mesh:
+        return caveclod.load(args.mesh), str(args.mesh)
+    path = RESULTS / f"default_{args.size}.cvc"
+    if not path.exists():
+        path.parent.mkdir(parents=True, exist_ok=True)
+        caveclod.build("default", size=args.size).save(path)
+    return caveclod.load(path), f"default --size {args.size}"
+
+
+def views_for(lo, hi, cameras, frames, tolerance):
+    return [[flyover_view(lo, hi, c, f / FPS, tolerance_px=tolerance) for c in range(cameras)]
+            for f in range(frames)]
+
+
+def per_camera(mesh, views):
+    """Each camera its own state. Returns ops, seconds, faces: (frames, cams)."""
+    cams = [mesh.new_camera() for _ in views[0]]
+    ops, secs, faces = (np.zeros((len(views), len(cams))) for _ in range(3))
+    for f, frame in enumerate(views):
+        for c, (cam, view) in enumerate(zip(cams, frame)):
+            d = cam.update(view)
+            ops[f, c], secs[f, c], faces[f, c] = d.operations, d.seconds, cam.n_faces
+    return ops, secs, faces, cams
+
+
+def shared_state(mesh, views):
+    """The paper's baseline: one state refined for each camera in turn."""
+    cam = mesh.new_camera()
+    ops, secs = np.zeros((len(views), len(views[0]))), np.zeros((len(views), len(views[0])))
+    for f, frame in enumerate(views):
+        for c, view in enumerate(frame):
+            d = cam.update(view)
+            ops[f, c], secs[f, c] = d.operations, d.seconds
+    return ops, secs
+
+
+def threaded(mesh, views, threads):
+    """Wall seconds to run 2+ cameras' flyovers with ``threads`` threads."""
+    cams = [mesh.new_camera() for _ in views[0]]
+    # Warm each camera to the first view so both runs time steady refinement.
+    for cam, view in zip(cams, views[0]):
+        cam.update(view)
+
+    def run(c):
+        for frame in views[1:]:
+            cams[c].update(frame[c])
+
+    t0 = time.perf_counter()
+    if threads == 1:
+        for c in range(len(cams)):
+            run(c)
+    else:
+        with ThreadPoolExecutor(threads) as pool:
+            list(pool.map(run, range(len(cams))))
+    return time.perf_counter() - t0
+
+
+def equation1_per_camera(mesh, cam) -> int:
+    """4n + 4p + 16 + 12 n_a + 36 p_a for one camera (paper Equation 1)."""
+    return 4 * mesh.n_nodes + 4 * mesh.n_faces + 16 + 12 * len(cam.active_nodes()) + 36 * cam.n_faces
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--mesh", type=Path, help="a .cvc file (default: the built-in terrain)")
+    ap.add_argument("--size", type=int, default=708, help="default terrain cells per side (708 = 1.0M triangles)")
+    ap.add_argument("--seconds", type=float, default=20.0, help="simulated flyover length")
+    ap.add_argument("--tolerance", type=float, default=1.0, help="screen-space tolerance in pixels")
+    ap.add_argument("--repeats", type=int, default=3, help="repeats of the thread speed-up timing")
+    ap.add_argument("--out", type=Path, default=RESULTS / "refine.json")
+    args = ap.parse_args(argv)
+
+    mesh, label = load_mesh(args)
+    lo, hi = mesh_bounds(mesh)
+    frames = int(args.seconds * FPS)
+    warm = FPS                                           # leave out the first second
+    mesh.new_camera().update(flyover_view(lo, hi, 0, 0.0))  # compile/load kernels
+    report = {"mesh": label, "triangles": mesh.n_faces, "static_bytes": mesh.nbytes,
+              "equation1_static_bytes": mesh.equation1_bytes, "frames": frames, "fps": FPS,
+              "tolerance_px": args.tolerance, "cameras": {}}
+    series = {}
+    for n_cams in (1, 2, 3, 4):
+        views = views_for(lo, hi, n_cams, frames, args.tolerance)
+        ops, secs, faces, cams = per_camera(mesh, views)
+        bops, bsecs = shared_state(mesh, views)
+        sim = (frames - warm) / FPS
+        pc_rate = ops[warm:].sum() / (n_cams * sim)
+        bl_rate = bops[warm:].sum() / (n_cams * sim)
+        t_ms = secs[warm:].ravel() * 1000
+        cam_bytes = [c.nbytes for c in cams]
+        row = {
+            "ops_per_camera_second": pc_rate,
+            "baseline_ops_per_camera_second": bl_rate,
+            "baseline_over_per_camera": bl_rate / max(pc_rate, 1e-9),
+            "update_ms_p50": float(np.percentile(t_ms, 50)),
+            "update_ms_p99": float(np.percentile(t_ms, 99)),
+            "baseline_update_ms_p50": float(np.percentile(bsecs[warm:].ravel() * 1000, 50)),
+            "active_faces_mean": float(faces[warm:].mean()),
+            "bytes_per_camera": cam_bytes,
+            "camera_over_static": max(cam_bytes) / mesh.nbytes,
+            "equation1_bytes_per_camera": [equation1_per_camera(mesh, c) for c in cams],
+            "equation1_camera_over_static": max(equation1_per_camera(mesh, c) for c in cams) / mesh.equation1_bytes,
+        }
+        report["cameras"][n_cams] = row
+        series[n_cams] = (ops, bops, faces, t_ms)
+        print(f"{n_cams} camera(s): per-camera {pc_rate:,.0f} ops/cam-s, baseline {bl_rate:,.0f} "
+              f"({row['baseline_over_per_camera']:.1f}x); update p50 {row['update_ms_p50']:.2f} ms "
+              f"p99 {row['update_ms_p99']:.2f} ms; {row['active_faces_mean']:,.0f} faces/camera; "
+              f"camera = {100 * row['camera_over_static']:.1f}% of static "
+              f"(Eq. 1: {100 * row['equation1_camera_over_static']:.1f}%)", flush=True)
+
+    views = views_for(lo, hi, 2, frames, args.tolerance)
+    one = [threaded(mesh, views, 1) for _ in range(args.repeats)]
+    two = [threaded(mesh, views, 2) for _ in range(args.repeats)]
+    report["threads"] = {"one_thread_seconds": one, "two_threads_seconds": two,
+                         "speedup_median": statistics.median(a / b for a, b in zip(one, two)),
+                         "cores": os.cpu_count()}
+    print(f"2 cameras: 1 thread {statistics.median(one):.2f} s, 2 threads {statistics.median(two):.2f} s, "
+          f"speed-up {report['threads']['speedup_median']:.2f}x", flush=True)
+    args.out.parent.mkdir(parents=True, exist_ok=True)
+    args.out.write_text(json.dumps(report, indent=1))
+    _plot(series, report, args.out.parent)
+    return 0
+
+
+def _plot(series, report, folder: Path) -> None:
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    ops, bops, faces, _ = series[4]
+    t = np.arange(len(ops)) / FPS
+    secs = np.arange(int(t[-1]) + 1)
+    per_sec = lambda a: np.array([a[(t >= s) & (t < s + 1)].sum(axis=0) for s in secs])  # noqa: E731
+    fig, (a, b) = plt.subplots(1, 2, figsize=(11, 4), sharey=True)
+    for c, name in enumerate("ABCD"):
+        a.plot(secs, per_sec(bops)[:, c], label=f"camera {name}")
+        b.plot(secs, per_sec(ops)[:, c], label=f"camera {name}")
+    a.set_title("shared state (paper Fig. 10)")
+    b.set_title("per-camera states, CAVECLOD (Fig. 11)")
+    a.set_xlabel("flyover time (s)")
+    b.set_xlabel("flyover time (s)")
+    a.set_ylabel("split + collapse operations per second")
+    a.set_yscale("symlog")
+    a.legend()
+    fig.tight_layout()
+    fig.savefig(folder / "refine_ops.png", dpi=100)
+
+    fig, (a, b) = plt.subplots(1, 2, figsize=(11, 4))
+    for c, name in enumerate("ABCD"):
+        a.plot(t, faces[:, c], label=f"camera {name}")
+    a.set_title("active faces per camera, 4-camera flyover (Fig. 13)")
+    a.set_xlabel("flyover time (s)")
+    a.legend()
+    n = sorted(report["cameras"], key=int)
+    static = report["static_bytes"] / 2 ** 20
+    total = [static + sum(report["cameras"][k]["bytes_per_camera"]) / 2 ** 20 for k in n]
+    a_cam = [static] + total
+    b.plot([0] + [int(k) for k in n], a_cam, "o-", label="static + cameras")
+    b.axhline(static, color="k", ls="--", lw=1, label="static mesh")
+    b.set_title("memory vs cameras (Fig. 14)")
+    b.set_xlabel("cameras")
+    b.set_ylabel("MiB")
+    b.set_ylim(0, None)
+    b.legend()
+    fig.tight_layout()
+    fig.savefig(folder / "refine_faces_memory.png", dpi=100)
+
+    fig, ax = plt.subplots(figsize=(5.5, 4))
+    for k in n:
+        x = np.sort(series[int(k)][3])
+        ax.plot(x, np.linspace(0, 1, len(x)), label=f"{k} camera(s)")
+    ax.axvline(5.0, color="k", ls="--", lw=1, label="5 ms")
+    ax.set_xlabel("update time per camera-frame (ms)")
+    ax.set_ylabel("fraction of frames")
+    ax.set_xscale("log")
+    ax.legend()
+    fig.tight_layout()
+    fig.savefig(folder / "refine_update_cdf.png", dpi=100)
+
+
+if __name__ == "__main__":
+    sys.exit(main())

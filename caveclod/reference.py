@@ -1,0 +1,410 @@
+"""A slow, plainly written reference of the per-camera refinement.
+
+Used only by tests, to check the compiled kernels of
+:mod:`caveclod.kernels.refine` decision by decision. Everything here is plain
+Python (lists, dicts, sets); the static arrays are read once, up front, into
+Python ints and floats. It is written from the rules (DESIGN.md section 3,
+Hoppe 1997 "View-dependent refinement of progressive meshes"), so it reads as
+the specification of one update:
+
+1. Sort the active-node list by node id, then walk it front to back. Nodes
+   appended during the walk (the children of a split, the parent of a
+   collapse) go to the back and are visited in the same walk; a node that is
+   no longer active when reached is dropped. A node is appended only if it is
+   not in the list already.
+2. An internal active node that needs detail is split, forcing first the
+   splits its split requires (Hoppe's stack).
+3. Otherwise, if it is its parent's stationary child (the stationary child
+   speaks for the pair), the parent does not need detail and the collapse
+   back into the parent is legal, the pair collapses and the parent joins
+   the list.
+
+Node ids: leaves ``0 .. e-1`` are positions; internal node ``x`` has its
+static data at index ``x - e``. A split of ``s`` into ``t`` (stationary, at
+s's position) and ``u`` (floating) creates ``fl = (t, u, vl)`` and
+``fr = (u, t, vr)`` (either may be absent on a border) and requires the
+neighbour faces ``fn = (fl_u, fl_t, fr_u, fr_t)``::
+
+        vl
+       /  \\          fl_u across fl's edge u -> vl, fl_t across vl -> t
+      / fl \\         fr_u across fr's edge vr -> u, fr_t across t -> vr
+     t ---- u
+      \\ fr /
+       \\  /
+        vr
+
+Faces keep their corners as *positions* and edge ``k`` of a face runs from
+corner ``k`` to corner ``k + 1``; ``nbr[k]`` is the face across edge ``k``
+(-1 on a border).
+"""
+
+from __future__ import annotations
+
+import math
+
+INACTIVE, ACTIVE, SPLIT = "inactive", "active", "split"
+
+
+class ReferenceCamera:
+    """One camera's refinement state, in plain Python.
+
+    Args:
+        mesh: a :class:`caveclod.StaticMesh`.
+        max_ops: at most this many splits + collapses per update (None: no limit).
+        max_faces: a split is made only while ``active faces + 2 <= max_faces``.
+    """
+
+    def __init__(self, mesh, max_ops=None, max_faces=None):
+        self.max_ops = math.inf if max_ops is None else int(max_ops)
+        self.max_faces = math.inf if max_faces is None else int(max_faces)
+        self._read_static(mesh)
+        # Per-camera state.
+        self.state = {}                       # node -> ACTIVE / SPLIT (absent: INACTIVE)
+        self.faces = {}                       # face -> {"pos": [p0, p1, p2], "nbr": [f0, f1, f2]}
+        self.faces_at = {}                    # position -> set of active faces with a corner there
+        self.active = []                      # the active-node list, in visiting order
+        self.in_list = set()                  # nodes currently in self.active
+        self.splits = self.collapses = 0
+        for x in range(self.n_nodes):         # the roots form the base mesh's front
+            if self.parent[x] < 0:
+                self.state[x] = ACTIVE
+                self.active.append(x)
+                self.in_list.add(x)
+        for f, nodes, nbrs in self.base:
+            self._add_face(f, [self.position(x) for x in nodes], list(nbrs))
+
+    def _read_static(self, mesh):
+        def ints(name):
+            return [int(v) for v in getattr(mesh, name)]
+
+        def rows(name, conv):
+            return [tuple(conv(v) for v in row) for row in getattr(mesh, name)]
+
+        self.e = mesh.n_positions
+        self.n_nodes = mesh.n_nodes
+        self.parent = ints("node_parent")
+        self.children = rows("node_children", int)        # (t, u), by node - e
+        self.node_pos = ints("node_position")
+        self.new_faces = rows("node_faces", int)          # (fl, fr)
+        self.required = rows("node_fn", int)              # (fl_u, fl_t, fr_u, fr_t)
+        self.sphere = rows("node_sphere", float)          # float32 -> exact Python floats
+        self.error = [float(v) for v in mesh.node_error]
+        self.cone = rows("node_cone", float)
+        self.creator = ints("face_creator")
+        self.material = ints("face_material")
+        self.sgid = ints("face_sgid")
+        self.base = list(zip(ints("base_faces"), rows("base_face_nodes", int), rows("base_face_nbrs", int)))
+        # D3Dindex: (surface group id, position) -> the first vertex-buffer entry.
+        start, vsg = ints("pos_vstart"), ints("vertex_sgid")
+        self.vertex_of = {}
+        for p in range(self.e):
+            for i in range(start[p], start[p + 1]):
+                self.vertex_of.setdefault((vsg[i], p), i)
+
+    # -- small facts ----------------------------------------------------------
+    def position(self, x):
+        """Position of node ``x``: its own id for a leaf, its stationary child's otherwise."""
+        return x if x < self.e else self.node_pos[x - self.e]
+
+    def is_leaf(self, x):
+        return x < self.e
+
+    def node_state(self, x):
+        return self.state.get(x, INACTIVE)
+
+    def face_active(self, f):
+        return f in self.faces
+
+    def n_faces(self):
+        return len(self.faces)
+
+    def ops(self):
+        return self.splits + self.collapses
+
+    # -- face records ---------------------------------------------------------
+    def _add_face(self, f, pos, nbr):
+        assert f not in self.faces and len(set(pos)) == 3
+        self.faces[f] = {"pos": list(pos), "nbr": list(nbr)}
+        for p in pos:
+            self.faces_at.setdefault(p, set()).add(f)
+
+    def _remove_face(self, f):
+        for p in self.faces.pop(f)["pos"]:
+            self.faces_at[p].discard(f)
+
+    def _move_corner(self, f, old, new):
+        """Face ``f``'s corner at position ``old`` now sits at ``new``."""
+        pos = self.faces[f]["pos"]
+        pos[pos.index(old)] = new
+        self.faces_at[old].discard(f)
+        self.faces_at.setdefault(new, set()).add(f)
+
+    def _corner(self, f, p):
+        return self.faces[f]["pos"].index(p)
+
+    def _after(self, f, p):
+        """The corner following position ``p`` in face ``f``."""
+        return self.faces[f]["pos"][(self._corner(f, p) + 1) % 3]
+
+    def _before(self, f, p):
+        """The corner preceding position ``p`` in face ``f``."""
+        return self.faces[f]["pos"][(self._corner(f, p) + 2) % 3]
+
+    def _set_neighbour(self, f, a, b, g):
+        """The face across ``f``'s directed edge ``a -> b`` becomes ``g``."""
+        k = self._corner(f, a)
+        assert self.faces[f]["pos"][(k + 1) % 3] == b, f"face {f} has no edge {a}->{b}"
+        self.faces[f]["nbr"][k] = g
+
+    def _replace_neighbour(self, f, old, new):
+        nbr = self.faces[f]["nbr"]
+        nbr[nbr.index(old)] = new
+
+    def _step_out(self, f, p):
+        """The face after ``f`` around ``p``: across p's outgoing edge."""
+        return self.faces[f]["nbr"][self._corner(f, p)]
+
+    def _step_in(self, f, p):
+        """The face before ``f`` around ``p``: across p's incoming edge."""
+        return self.faces[f]["nbr"][(self._corner(f, p) + 2) % 3]
+
+    # -- the view criteria ----------------------------------------------------
+    def need_refine(self, x):
+        """Whether internal node ``x`` needs detail for the current view.
+
+        Same float64 arithmetic, in the same order, as the compiled kernel:
+        frustum (bounding sphere against five planes), back-facing (normal
+        cone, when enabled) and screen-space error ``err * kappa / distance``
+        against the tolerance in pixels.
+        """
+        v = self.view
+        cx, cy, cz, r = self.sphere[x - self.e]
+        if v["cull"]:
+            for nx, ny, nz, d in v["planes"]:
+                if nx * cx + ny * cy + nz * cz + d < -r:
+                    return False                  # the sphere lies wholly outside a plane
+        ex, ey, ez = v["eye"]
+        dx, dy, dz = cx - ex, cy - ey, cz - ez
+        length = math.sqrt(dx * dx + dy * dy + dz * dz)
+        ax, ay, az, spread = self.cone[x - self.e]
+        if v["backface"] and length > r and spread < 0.5 * math.pi:
+            cosphi = (ax * dx + ay * dy + az * dz) / length
+            phi = math.acos(min(1.0, max(-1.0, cosphi)))
+            if phi + spread + math.asin(r / length) < 0.5 * math.pi:
+                return False                      # every normal faces away from the eye
+        if v["tolerance"] <= 0.0:
+            return True
+        dist = length - r
+        if dist <= 0.0:
+            return True                           # the eye is inside the sphere
+        return self.error[x - self.e] * v["kappa"] > v["tolerance"] * dist
+
+    # -- splits ---------------------------------------------------------------
+    def split_legal(self, x):
+        """Hoppe's vsplit precondition: ``x`` is active and every required face is."""
+        return self.node_state(x) == ACTIVE and all(
+            f < 0 or self.face_active(f) for f in self.required[x - self.e])
+
+    def budget_allows_split(self):
+        return self.ops() < self.max_ops and self.n_faces() + 2 <= self.max_faces
+
+    def force_split(self, x):
+        """Split ``x``, first splitting whatever its split requires.
+
+        Hoppe's stack: look at the top node. Already split: pop it. Not yet
+        active: push its parent. Some required faces missing: push, in order
+        fl_u, fl_t, fr_u, fr_t, the node whose split creates each missing
+        face. Otherwise split it and pop. Stops (leaving everything
+        consistent) when the budget runs out.
+        """
+        stack = [x]
+        while stack:
+            y = stack[-1]
+            if self.node_state(y) == SPLIT or self.is_leaf(y):
+                stack.pop()
+                continue
+            if self.node_state(y) == INACTIVE:
+                stack.append(self.parent[y])
+                continue
+            missing = [f for f in self.required[y - self.e] if f >= 0 and not self.face_active(f)]
+            if missing:
+                stack.extend(self.creator[f] for f in missing)
+                continue
+            if not self.budget_allows_split():
+                return
+            assert self.split_legal(y)
+            self.split(y)
+            stack.pop()
+
+    def faces_moving_to_u(self, x):
+        """The active faces around ``x`` that lie on its floating child's side.
+
+        They form the wedge from fl_u round to fr_u (turning away from fl),
+        reached from either end; with fl_u absent, the wedge runs from fr_u
+        round the other way to the border (and the reverse).
+        """
+        fn0, _, fn2, _ = self.required[x - self.e]
+        p = self.position(x)
+        wedge = []
+        for start, step, stop in ((fn0, self._step_out, fn2), (fn2, self._step_in, fn0)):
+            f, steps = start, 0
+            while f >= 0:
+                if f not in wedge:
+                    wedge.append(f)
+                if f == stop:
+                    break
+                f = step(f, p)
+                steps += 1
+                assert steps <= len(self.faces), f"the fan walk round node {x} does not end"
+        return wedge
+
+    def split(self, x):
+        """Split active node ``x`` into its children (all required faces active)."""
+        t, u = self.children[x - self.e]
+        fl, fr = self.new_faces[x - self.e]
+        fn0, fn1, fn2, fn3 = self.required[x - self.e]
+        pt, pu = self.position(x), self.position(u)
+        assert self.position(t) == pt
+        # 1. The faces on u's side move their corner from s to u.
+        for f in self.faces_moving_to_u(x):
+            self._move_corner(f, pt, pu)
+        # 2. fl = (t, u, vl) and fr = (u, t, vr) appear between the wedges;
+        #    the four required faces now border them instead of each other.
+        if fl >= 0:
+            vl = self._before(fn0, pu) if fn0 >= 0 else self._after(fn1, pt)
+            self._add_face(fl, [pt, pu, vl], [fr, fn0, fn1])
+            if fn0 >= 0:
+                self._set_neighbour(fn0, vl, pu, fl)
+            if fn1 >= 0:
+                self._set_neighbour(fn1, pt, vl, fl)
+        if fr >= 0:
+            vr = self._after(fn2, pu) if fn2 >= 0 else self._before(fn3, pt)
+            self._add_face(fr, [pu, pt, vr], [fl, fn3, fn2])
+            if fn2 >= 0:
+                self._set_neighbour(fn2, pu, vr, fr)
+            if fn3 >= 0:
+                self._set_neighbour(fn3, vr, pt, fr)
+        self.state[x] = SPLIT
+        self.state[t] = ACTIVE
+        self.state[u] = ACTIVE
+        self.splits += 1
+        for child in (t, u):
+            self.append(child)
+
+    # -- collapses ------------------------------------------------------------
+    def collapse_legal(self, s):
+        """Hoppe's ecol precondition for undoing the split of ``s``.
+
+        Both children are active, fl's neighbours across its edges 1 and 2
+        are fl_u, fl_t, and fr's across its edges 1 and 2 are fr_t, fr_u.
+        """
+        t, u = self.children[s - self.e]
+        if self.node_state(t) != ACTIVE or self.node_state(u) != ACTIVE:
+            return False
+        fl, fr = self.new_faces[s - self.e]
+        fn0, fn1, fn2, fn3 = self.required[s - self.e]
+        if fl >= 0 and self.faces[fl]["nbr"][1:] != [fn0, fn1]:
+            return False
+        if fr >= 0 and self.faces[fr]["nbr"][1:] != [fn3, fn2]:
+            return False
+        return True
+
+    def collapse(self, s):
+        """Undo the split of ``s`` (legal): u's faces return to s, fl and fr go."""
+        t, u = self.children[s - self.e]
+        fl, fr = self.new_faces[s - self.e]
+        fn0, fn1, fn2, fn3 = self.required[s - self.e]
+        pt, pu = self.position(s), self.position(u)
+        # Every other active face at u's position is one of u's; it moves to s.
+        for f in sorted(self.faces_at.get(pu, set()) - {fl, fr}):
+            self._move_corner(f, pu, pt)
+        # fl's and fr's outer neighbours border each other again.
+        if fl >= 0:
+            if fn0 >= 0:
+                self._replace_neighbour(fn0, fl, fn1)
+            if fn1 >= 0:
+                self._replace_neighbour(fn1, fl, fn0)
+            self._remove_face(fl)
+        if fr >= 0:
+            if fn2 >= 0:
+                self._replace_neighbour(fn2, fr, fn3)
+            if fn3 >= 0:
+                self._replace_neighbour(fn3, fr, fn2)
+            self._remove_face(fr)
+        self.state[s] = ACTIVE
+        del self.state[t]
+        del self.state[u]
+        self.collapses += 1
+        self.append(s)
+
+    # -- the active list and one update ----------------------------------------
+    def append(self, x):
+        """Put ``x`` at the back of the active list unless it is there already."""
+        if x not in self.in_list:
+            self.in_list.add(x)
+            self.active.append(x)
+
+    def adapt(self):
+        """One pass over the active list (see the module docstring)."""
+        self.active.sort()                       # each pass visits the front in id order
+        kept = []
+        i = 0
+        while i < len(self.active):              # the list grows during the pass
+            x = self.active[i]
+            i += 1
+            if self.node_state(x) != ACTIVE:
+                self.in_list.discard(x)           # split or collapsed away meanwhile
+                continue
+            if not self.is_leaf(x) and self.ops() < self.max_ops and self.need_refine(x):
+                self.force_split(x)
+                if self.node_state(x) == ACTIVE:  # the budget ran out first
+                    kept.append(x)
+                else:
+                    self.in_list.discard(x)
+                continue
+            s = self.parent[x]
+            if s >= 0 and self.children[s - self.e][0] == x and self.ops() < self.max_ops \
+                    and not self.need_refine(s) and self.collapse_legal(s):
+                self.collapse(s)
+                self.in_list.discard(x)
+                continue
+            kept.append(x)
+        self.active = kept
+
+    def update(self, view):
+        """Refine for ``view`` (a :class:`caveclod.view.View`); returns (splits, collapses)."""
+        self.set_view(view)
+        self.splits = self.collapses = 0
+        self.adapt()
+        return self.splits, self.collapses
+
+    def set_view(self, view):
+        """Read the criteria :meth:`need_refine` uses from ``view``'s parameter vector."""
+        from .view import P_BACKFACE, P_CULL, P_EYE, P_KAPPA, P_PLANES, P_TOL
+        vp = [float(v) for v in view.params()]
+        self.view = {
+            "eye": vp[P_EYE:P_EYE + 3],
+            "planes": [vp[P_PLANES + 4 * i:P_PLANES + 4 * i + 4] for i in range(5)],
+            "kappa": vp[P_KAPPA],
+            "tolerance": vp[P_TOL],
+            "cull": vp[P_CULL] != 0.0,
+            "backface": vp[P_BACKFACE] != 0.0,
+        }
+
+    # -- what the camera shows ----------------------------------------------------
+    def vertex(self, f, p):
+        """Vertex-buffer index of face ``f``'s corner at position ``p`` (D3Dindex)."""
+        return self.vertex_of[(self.sgid[f], p)]
+
+    def triangles(self):
+        """{material: set of (a, b, c) vertex indices, rotated so the smallest is first}."""
+        out = {}
+        for f, rec in self.faces.items():
+            tri = [self.vertex(f, p) for p in rec["pos"]]
+            k = tri.index(min(tri))
+            out.setdefault(self.material[f], set()).add(tuple(tri[k:] + tri[:k]))
+        return out
+
+    def active_nodes(self):
+        """Sorted list of the active nodes (the front)."""
+        return sorted(x for x, st in self.state.items() if st == ACTIVE)
