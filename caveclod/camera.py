@@ -169,15 +169,33 @@ class CameraState:
             raise InputError(f"update() takes a caveclod.View, got {type(view).__name__}")
         t0 = time.perf_counter()
         vp = view.params()
+        if not np.isfinite(vp).all():     # a View built around its own checks
+            raise InputError("the view has NaN or infinite numbers; send a finite pose")
         self.counts[:] = 0
+        if self.max_ops == UNLIMITED and self.max_faces == UNLIMITED:
+            self._pass(vp, K.MIXED)
+        else:
+            # Under a budget a forced split may stop half-way; refining first
+            # and coarsening with what is left keeps the next update from
+            # collapsing the half-made dependencies again (no oscillation).
+            self._pass(vp, K.SPLITS_ONLY)
+            if self.counts.sum() < self.max_ops:
+                self._pass(vp, K.COLLAPSES_ONLY)
+        delta = self._collect_delta()
+        delta.splits, delta.collapses = int(self.counts[0]), int(self.counts[1])
+        delta.seconds = time.perf_counter() - t0
+        return delta
+
+    def _pass(self, vp: np.ndarray, mode: int) -> None:
+        """Run one refinement pass to its end, growing arrays when asked."""
         try:
             while True:
                 status, material = K.adapt(*self._static, self.state, self.face_rec, self.off, self.cnt,
                                            self.cap, self.rec_pos, self.rec_nbr, self.rec_face, self.rec_tri,
                                            self.rec_dirty, self.active, self.n_active, vp, self.max_ops,
-                                           self.max_faces, self.counts, self._resume)
+                                           self.max_faces, self.counts, self._resume, mode)
                 if status == K.OK:
-                    break
+                    return
                 if status == K.NEED_RECORDS:
                     self._grow_records(int(material))
                 elif status == K.NEED_LIST:
@@ -187,10 +205,6 @@ class CameraState:
         finally:
             if self._resume[2]:
                 self._abandon_pass()
-        delta = self._collect_delta()
-        delta.splits, delta.collapses = int(self.counts[0]), int(self.counts[1])
-        delta.seconds = time.perf_counter() - t0
-        return delta
 
     def _abandon_pass(self) -> None:
         """Close an interrupted pass (growth failed): keep the listed nodes.

@@ -344,8 +344,11 @@ class ReferenceCamera:
             self.in_list.add(x)
             self.active.append(x)
 
-    def adapt(self):
-        """One pass over the active list (see the module docstring)."""
+    def adapt(self, splits=True, collapses=True):
+        """One pass over the active list (see the module docstring).
+
+        ``splits``/``collapses`` say which operations the pass may make.
+        """
         self.active.sort()                       # each pass visits the front in id order
         kept = []
         i = 0
@@ -355,7 +358,7 @@ class ReferenceCamera:
             if self.node_state(x) != ACTIVE:
                 self.in_list.discard(x)           # split or collapsed away meanwhile
                 continue
-            if not self.is_leaf(x) and self.ops() < self.max_ops and self.need_refine(x):
+            if splits and not self.is_leaf(x) and self.ops() < self.max_ops and self.need_refine(x):
                 self.force_split(x)
                 if self.node_state(x) == ACTIVE:  # the budget ran out first
                     kept.append(x)
@@ -363,7 +366,7 @@ class ReferenceCamera:
                     self.in_list.discard(x)
                 continue
             s = self.parent[x]
-            if s >= 0 and self.children[s - self.e][0] == x and self.ops() < self.max_ops \
+            if collapses and s >= 0 and self.children[s - self.e][0] == x and self.ops() < self.max_ops \
                     and not self.need_refine(s) and self.collapse_legal(s):
                 self.collapse(s)
                 self.in_list.discard(x)
@@ -375,7 +378,14 @@ class ReferenceCamera:
         """Refine for ``view`` (a :class:`caveclod.view.View`); returns (splits, collapses)."""
         self.set_view(view)
         self.splits = self.collapses = 0
-        self.adapt()
+        if self.max_ops == math.inf and self.max_faces == math.inf:
+            self.adapt()
+        else:
+            # With a budget: refine first, coarsen with what budget is left,
+            # so a forced split cut short is not undone by the next update.
+            self.adapt(collapses=False)
+            if self.ops() < self.max_ops:
+                self.adapt(splits=False)
         return self.splits, self.collapses
 
     def set_view(self, view):

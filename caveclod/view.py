@@ -38,7 +38,7 @@ class View:
         backface: coarsen regions whose normal cone faces wholly away.
     """
 
-    eye: tuple = (0.0, 0.0, 1.0)
+    eye: tuple = (0.0, -1.0, 1.0)
     target: tuple = (0.0, 0.0, 0.0)
     up: tuple = (0.0, 0.0, 1.0)
     fov_y: float = 60.0
@@ -58,9 +58,15 @@ class View:
             if not np.isfinite(arr).all():
                 raise InputError(f"View.{name} is not finite ({v!r}); send a pose without NaN or infinity")
             object.__setattr__(self, name, tuple(float(x) for x in arr))
-        for name in ("fov_y", "tolerance_px"):
-            if not math.isfinite(float(getattr(self, name))):
-                raise InputError(f"View.{name} must be finite, got {getattr(self, name)!r}")
+        for name, kind in (("fov_y", float), ("tolerance_px", float), ("width", int), ("height", int)):
+            value = getattr(self, name)
+            try:
+                number = kind(value)
+            except (TypeError, ValueError, OverflowError):
+                raise InputError(f"View.{name} must be a number, got {value!r}") from None
+            if kind is float and not math.isfinite(number):
+                raise InputError(f"View.{name} must be finite, got {value!r}")
+            object.__setattr__(self, name, number)
         if not 0.0 < float(self.fov_y) < 180.0:
             raise InputError(f"View.fov_y must be between 0 and 180 degrees, got {self.fov_y}")
         if int(self.width) < 1 or int(self.height) < 1:

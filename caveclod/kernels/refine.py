@@ -34,6 +34,7 @@ INACTIVE, ACTIVE, SPLIT = 0, 1, 2
 STATE_MASK, IN_LIST = 3, 4
 
 OK, NEED_RECORDS, NEED_LIST = 0, 1, 2
+MIXED, SPLITS_ONLY, COLLAPSES_ONLY = 0, 1, 2   # what a pass may do
 
 # View parameter layout (caveclod.view).
 P_EYE, P_PLANES, P_KAPPA, P_TOL, P_CULL, P_BACKFACE = 0, 3, 23, 24, 25, 26
@@ -299,13 +300,15 @@ def _room_for_split(j, links, mat, cnt, cap):
 @nb.njit(cache=True, nogil=True)
 def adapt(e, parent, links, npos, bound, cone, face_creator, mat, fsgid,
           pos_vstart, vertex_sgid, state, face_rec, off, cnt, cap, rec_pos, rec_nbr, rec_face,
-          rec_tri, rec_dirty, active, n_active, vp, max_ops, max_faces, counts, resume):
+          rec_tri, rec_dirty, active, n_active, vp, max_ops, max_faces, counts, resume, mode):
     """One pass of incremental selective refinement over the active nodes.
 
     Splits (forcing the splits a split needs) where the view needs detail and
     collapses sibling pairs whose parent no longer needs it, while fewer than
     ``max_ops`` operations were made and fewer than ``max_faces`` faces are
-    active. ``counts`` (2,) int64 accumulates splits and collapses.
+    active. ``counts`` (2,) int64 accumulates splits and collapses. ``mode``
+    MIXED does both in one pass (Hoppe); SPLITS_ONLY / COLLAPSES_ONLY let a
+    budgeted update refine first and coarsen with what budget is left.
 
     Returns (status, material): OK, or NEED_RECORDS for that material /
     NEED_LIST: grow the arrays and call again, and the call *continues the
@@ -338,7 +341,7 @@ def adapt(e, parent, links, npos, bound, cone, face_creator, mat, fsgid,
             state[x] = st & ~IN_LIST & 0xFF
             continue
         ops = counts[0] + counts[1]
-        if x >= e and ops < max_ops and need_refine(x - e, bound, cone, vp):
+        if mode != COLLAPSES_ONLY and x >= e and ops < max_ops and need_refine(x - e, bound, cone, vp):
             # Force the split of x: Hoppe's stack of unmet preconditions.
             stack[0] = x
             sp = 1
@@ -399,7 +402,7 @@ def adapt(e, parent, links, npos, bound, cone, face_creator, mat, fsgid,
         # The stationary child speaks for the pair, and only when its sibling
         # is active too: a collapse needs both, and this halves the
         # (cache-missing) parent tests.
-        if p >= 0 and ops < max_ops and links[p - e, 0] == x and \
+        if mode != SPLITS_ONLY and p >= 0 and ops < max_ops and links[p - e, 0] == x and \
                 (state[links[p - e, 1]] & STATE_MASK) == ACTIVE and \
                 not need_refine(p - e, bound, cone, vp) and \
                 collapse_legal(p, e, links, mat, state, face_rec, off, rec_nbr):
