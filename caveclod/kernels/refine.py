@@ -214,7 +214,7 @@ def _replace(rec_nbr, r, old, new):
 
 
 @nb.njit(cache=True, nogil=True)
-def collapse_legal(x, e, links, mat, state, face_rec, off, rec_nbr):
+def collapse_legal(x, e, links, state, face_rec, rec_nbr):
     """Hoppe's ecol precondition for undoing the split of ``x``."""
     j = x - e
     if (state[links[j, 0]] & STATE_MASK) != ACTIVE or (state[links[j, 1]] & STATE_MASK) != ACTIVE:
@@ -298,6 +298,31 @@ def _room_for_split(j, links, mat, cnt, cap):
 
 
 @nb.njit(cache=True, nogil=True)
+def sort_active(active, n):
+    """Sort ``active[:n]``: a sorted run (last pass's survivors, written in
+    order) followed by a short tail of nodes appended during that pass.
+
+    Sorting the tail and merging is linear; a plain quicksort degrades on
+    this nearly sorted input (4 ms instead of 0.1 ms for 11k nodes).
+    """
+    k = 1
+    while k < n and active[k - 1] <= active[k]:
+        k += 1
+    if k >= n:
+        return
+    tail = np.sort(active[k:n])
+    head = active[:k].copy()
+    i = j = 0
+    for o in range(n):
+        if j >= tail.shape[0] or (i < k and head[i] <= tail[j]):
+            active[o] = head[i]
+            i += 1
+        else:
+            active[o] = tail[j]
+            j += 1
+
+
+@nb.njit(cache=True, nogil=True)
 def adapt(e, parent, links, npos, bound, cone, face_creator, mat, fsgid,
           pos_vstart, vertex_sgid, state, face_rec, off, cnt, cap, rec_pos, rec_nbr, rec_face,
           rec_tri, rec_dirty, active, n_active, vp, max_ops, max_faces, counts, resume, mode):
@@ -325,7 +350,7 @@ def adapt(e, parent, links, npos, bound, cone, face_creator, mat, fsgid,
     else:
         # Visit nodes in id order: their static rows are then read front to
         # back instead of at random, which halves the cost of a pass.
-        active[:n].sort()
+        sort_active(active, n)
         i = 0
         w = 0
     stack = np.empty(256, np.int64)
@@ -405,7 +430,7 @@ def adapt(e, parent, links, npos, bound, cone, face_creator, mat, fsgid,
         if mode != SPLITS_ONLY and p >= 0 and ops < max_ops and links[p - e, 0] == x and \
                 (state[links[p - e, 1]] & STATE_MASK) == ACTIVE and \
                 not need_refine(p - e, bound, cone, vp) and \
-                collapse_legal(p, e, links, mat, state, face_rec, off, rec_nbr):
+                collapse_legal(p, e, links, state, face_rec, rec_nbr):
             if (state[p] & IN_LIST) == 0 and n + 1 > active.shape[0]:
                 i -= 1
                 status = NEED_LIST
