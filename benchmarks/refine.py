@@ -125,7 +125,7 @@ def main(argv=None) -> int:
     ap.add_argument("--size", type=int, default=708, help="default terrain cells per side (708 = 1.0M triangles)")
     ap.add_argument("--seconds", type=float, default=20.0, help="simulated flyover length")
     ap.add_argument("--tolerance", type=float, default=1.0, help="screen-space tolerance in pixels")
-    ap.add_argument("--repeats", type=int, default=3, help="repeats of the thread speed-up timing")
+    ap.add_argument("--repeats", type=int, default=3, help="repeats of each timing (medians are reported)")
     ap.add_argument("--out", type=Path, default=RESULTS / "refine.json")
     args = ap.parse_args(argv)
 
@@ -140,7 +140,12 @@ def main(argv=None) -> int:
     series = {}
     for n_cams in (1, 2, 3, 4):
         views = views_for(lo, hi, n_cams, frames, args.tolerance)
-        ops, secs, faces, cams = per_camera(mesh, views)
+        # Timings drift on shared machines: repeat the per-camera flyover and
+        # take medians of its percentiles (its operations are deterministic).
+        runs = [per_camera(mesh, views) for _ in range(args.repeats)]
+        ops, secs, faces, cams = runs[0]
+        p50s = [float(np.percentile(r[1][warm:] * 1000, 50)) for r in runs]
+        p99s = [float(np.percentile(r[1][warm:] * 1000, 99)) for r in runs]
         bops, bsecs = shared_state(mesh, views)
         sim = (frames - warm) / FPS
         pc_rate = ops[warm:].sum() / (n_cams * sim)
@@ -151,8 +156,9 @@ def main(argv=None) -> int:
             "ops_per_camera_second": pc_rate,
             "baseline_ops_per_camera_second": bl_rate,
             "baseline_over_per_camera": bl_rate / max(pc_rate, 1e-9),
-            "update_ms_p50": float(np.percentile(t_ms, 50)),
-            "update_ms_p99": float(np.percentile(t_ms, 99)),
+            "update_ms_p50": statistics.median(p50s),
+            "update_ms_p99": statistics.median(p99s),
+            "update_ms_p99_each_repeat": p99s,
             "baseline_update_ms_p50": float(np.percentile(bsecs[warm:].ravel() * 1000, 50)),
             "active_faces_mean": float(faces[warm:].mean()),
             "bytes_per_camera": cam_bytes,
@@ -221,6 +227,7 @@ def _plot(series, report, folder: Path) -> None:
     a_cam = [static] + total
     b.plot([0] + [int(k) for k in n], a_cam, "o-", label="static + cameras")
     b.axhline(static, color="k", ls="--", lw=1, label="static mesh")
+    b.set_xticks([0] + [int(k) for k in n])
     b.set_title("memory vs cameras (Fig. 14)")
     b.set_xlabel("cameras")
     b.set_ylabel("MiB")

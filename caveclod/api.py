@@ -36,8 +36,22 @@ def build(source, *, cell_size: float = 1.0, z_scale: float = 1.0, materials=Non
         progress: draw a progress bar on stderr.
     """
     from .hierarchy import build_static_mesh
+    _check_options(crease_angle=crease_angle, cell_size=cell_size, z_scale=z_scale)
     src = to_source(source, cell_size=cell_size, z_scale=z_scale, materials=materials, size=size, seed=seed)
     return build_static_mesh(src, crease_angle=crease_angle, progress=progress)
+
+
+def _check_options(crease_angle, cell_size, z_scale) -> None:
+    """Refuse bad numeric options before any work is done."""
+    for name, value in (("--crease-angle", crease_angle), ("--cell-size", cell_size), ("--z-scale", z_scale)):
+        try:
+            ok = np.isfinite(float(value))
+        except (TypeError, ValueError):
+            ok = False
+        if not ok:
+            raise InputError(f"{name} must be a finite number, got {value!r}")
+    if not 0.0 <= float(crease_angle) <= 180.0:
+        raise InputError(f"--crease-angle must be between 0 and 180 degrees, got {crease_angle}")
 
 
 def load(path: str | os.PathLike) -> StaticMesh:

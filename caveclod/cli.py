@@ -47,7 +47,7 @@ def _parser() -> argparse.ArgumentParser:
     b.add_argument("--z-scale", type=float, default=1.0, help="heightfield height scale")
     b.add_argument("--materials", help="heightfield material map (.npy, one integer class per cell)")
     b.add_argument("--crease-angle", type=float, default=30.0, help="degrees; edges sharper than this become normal seams where the input has no normals")
-    b.add_argument("--quiet", action="store_true", help="no progress bar")
+    b.add_argument("--quiet", action="store_true", help="no progress on stderr")
     b.set_defaults(run=_build)
 
     i = sub.add_parser("inspect", help="print the counts of a .cvc file")
@@ -62,7 +62,7 @@ def _build(args) -> int:
     from .api import build
     mesh = build(args.input, cell_size=args.cell_size, z_scale=args.z_scale, materials=args.materials,
                  crease_angle=args.crease_angle, size=args.size, seed=args.seed,
-                 progress=not args.quiet and sys.stderr.isatty())
+                 progress=not args.quiet)
     try:
         mesh.save(args.output)
     except OSError as exc:

@@ -26,7 +26,7 @@ def main(argv=None) -> int:
     ap.add_argument("--seconds", type=float, default=5.0, help="simulated flyover length at 30 Hz")
     args = ap.parse_args(argv)
     os.makedirs(os.path.dirname(args.out) or ".", exist_ok=True)
-    mesh = build("default", size=args.size, progress=sys.stderr.isatty())
+    mesh = build("default", size=args.size, progress=True)
     mesh.save(args.out)
     mesh = load(args.out)
     s = mesh.summary()

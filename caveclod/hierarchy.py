@@ -17,7 +17,7 @@ import numpy as np
 from .kernels.bounds import empty_cones, empty_spheres
 from .kernels.simplify import gather_candidates, init_leaves, perform_collapses, rank_collapses
 from .normals import add_crease_normals
-from .progress import Progress
+from .progress import Progress, stage
 from .source import SourceMesh
 from .staticmesh import StaticMesh
 from .surfaces import RIGID, corner_vertices, layout_surfaces
@@ -30,6 +30,7 @@ def build_static_mesh(source: SourceMesh, crease_angle: float = 30.0, progress: 
     """Run the whole offline build; see the module docstring."""
     t0 = time.perf_counter()
     source.validate()
+    stage(f"preparing {len(source.faces):,} triangles: normals, topology, surface groups", progress)
     source, topo = prepare_source(source, crease_angle)
     e, p = len(source.positions), len(source.faces)
     face_pos = source.face_positions.astype(np.int32)

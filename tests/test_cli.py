@@ -1,0 +1,91 @@
+"""The command line: JSON reports, progress on stderr, one-line errors."""
+
+from __future__ import annotations
+
+import json
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+REQUIRED = {"nodes", "faces", "vertices", "positions", "surface_group_ids", "base_faces",
+            "static_bytes", "equation1_static_bytes", "build_seconds"}
+
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def run(*args, **kw):
+    # The repository on the path too, so the tests work without an install.
+    env = {**os.environ, "PYTHONPATH": os.pathsep.join(filter(None, [str(ROOT), os.environ.get("PYTHONPATH")]))}
+    return subprocess.run([sys.executable, "-m", "caveclod.cli", *map(str, args)],
+                          capture_output=True, text=True, timeout=300, env=env, **kw)
+
+
+def assert_refused(proc, *words):
+    assert proc.returncode == 2, proc
+    assert proc.stdout == ""
+    lines = proc.stderr.strip().splitlines()
+    assert len(lines) == 1 and lines[0].startswith("caveclod: error:"), proc.stderr
+    assert "Traceback" not in proc.stderr
+    for w in words:
+        assert w.lower() in lines[0].lower(), lines[0]
+
+
+def test_build_json_and_inspect(tmp_path):
+    out = tmp_path / "t.cvc"
+    proc = run("build", "default", "--size", 16, "-o", out, "--json")
+    assert proc.returncode == 0, proc.stderr
+    report = json.loads(proc.stdout)
+    assert REQUIRED <= set(report)
+    assert report["faces"] == 2 * 16 * 16
+    assert report["static_bytes"] <= report["equation1_static_bytes"]
+    assert "collapsing" in proc.stderr, "progress goes to stderr"
+    proc = run("inspect", out, "--json", "--verify")
+    assert proc.returncode == 0, proc.stderr
+    info = json.loads(proc.stdout)
+    assert REQUIRED - {"build_seconds"} <= set(info)
+    assert set(info["classes"]) == {"free", "sharp", "rigid"}
+    assert sum(info["classes"].values()) == info["positions"]
+    for key in ("nodes", "faces", "vertices", "positions", "base_faces", "static_bytes"):
+        assert info[key] == report[key]
+
+
+def test_build_heightfield_with_materials(tmp_path):
+    rng = np.random.default_rng(0)
+    h = rng.normal(0, 1, (9, 11)).cumsum(axis=0)
+    np.save(tmp_path / "h.npy", h)
+    np.save(tmp_path / "m.npy", rng.integers(0, 3, (8, 10)))
+    proc = run("build", tmp_path / "h.npy", "-o", tmp_path / "h.cvc", "--json", "--quiet",
+               "--cell-size", 30, "--z-scale", 2, "--materials", tmp_path / "m.npy")
+    assert proc.returncode == 0, proc.stderr
+    assert proc.stderr == "", "--quiet prints nothing on stderr"
+    assert json.loads(proc.stdout)["faces"] == 2 * 8 * 10
+
+
+@pytest.mark.parametrize("args,words", [
+    (["build", "missing.obj", "-o", "x.cvc"], ["missing.obj"]),
+    (["build", "default", "--size", "0", "-o", "x.cvc"], ["size"]),
+    (["build", "default", "--size", "16", "--crease-angle", "400", "-o", "x.cvc"], ["crease"]),
+    (["inspect", "missing.cvc"], ["missing.cvc"]),
+])
+def test_bad_arguments_are_refused(tmp_path, args, words):
+    assert_refused(run(*args, cwd=tmp_path), *words)
+
+
+def test_garbage_files_are_refused(tmp_path):
+    (tmp_path / "junk.obj").write_bytes(b"\x00\xff" * 100)
+    assert_refused(run("build", tmp_path / "junk.obj", "-o", tmp_path / "x.cvc"), "junk.obj")
+    (tmp_path / "junk.cvc").write_bytes(b"CAVECLOD" + b"\x01\x00\x00\x00" + b"\xff" * 8)
+    assert_refused(run("inspect", tmp_path / "junk.cvc"), "junk.cvc")
+    (tmp_path / "nan.npy").write_bytes(b"")
+    np.save(tmp_path / "nan.npy", np.full((4, 4), np.nan))
+    assert_refused(run("build", tmp_path / "nan.npy", "-o", tmp_path / "x.cvc"))
+
+
+def test_unwritable_output_is_refused(tmp_path):
+    proc = run("build", "default", "--size", 8, "-o", tmp_path / "no" / "such" / "dir" / "x.cvc", "--quiet")
+    assert_refused(proc, "cannot write")
