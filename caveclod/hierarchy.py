@@ -21,7 +21,7 @@ from .progress import Progress, stage
 from .source import SourceMesh
 from .staticmesh import StaticMesh
 from .surfaces import RIGID, corner_vertices, layout_surfaces
-from .topology import Topology, face_neighbours
+from .topology import Topology, count_components, face_neighbours
 
 PASS_FRACTION = 0.5   # share of ranked collapses a pass may make (shallower tree)
 
@@ -130,9 +130,29 @@ def build_static_mesh(source: SourceMesh, crease_angle: float = 30.0, progress: 
         "passes": pass_id,
         "surface_groups": lay.n_groups,
         "classes": mesh.class_tally(),
+        "base_mesh": _base_mesh_reasons(len(base), p, topo),
         "notes": list(source.notes),
     }
+    if mesh.info["base_mesh"]["large"]:
+        mesh.info["notes"].append(mesh.info["base_mesh"]["why"])
     return mesh
+
+
+def _base_mesh_reasons(base: int, p: int, topo: Topology) -> dict:
+    """What keeps the base mesh from shrinking further, for the report.
+
+    The issue's bound: at most 1% of the faces or 300, whichever is larger.
+    Every piece of the mesh keeps a face; non-manifold positions never move;
+    RIGID positions (seam corners and crossings) never float.
+    """
+    components = int(count_components(topo.nbrs))
+    pinned = int(np.count_nonzero(topo.nonmanifold))
+    large = base > max(0.01 * p, 300)
+    why = (f"base mesh is {base:,} faces ({100 * base / p:.1f}% of {p:,}): the mesh has {components:,} "
+           f"separate pieces (each keeps at least one face) and {pinned:,} non-manifold positions that never "
+           f"move; seam corners (RIGID positions) stay too")
+    return {"faces": base, "components": components, "nonmanifold_positions": pinned, "large": large,
+            "why": why}
 
 
 def prepare_source(source: SourceMesh, crease_angle: float = 30.0) -> tuple[SourceMesh, Topology]:

@@ -117,3 +117,33 @@ def _mark_multi_fan(faces, nbrs, nonmanifold):
         n, _ = collect_fan(faces, nbrs, first[x], x, buf)
         if n != valence[x]:
             nonmanifold[x] = True
+
+
+@nb.njit(cache=True, nogil=True)
+def count_components(nbrs):
+    """Number of edge-connected pieces of a mesh with face links ``nbrs``.
+
+    Each piece keeps at least one face in the base mesh, so this is one of
+    the reasons a base mesh can be large (scans break into many islands).
+    """
+    p = nbrs.shape[0]
+    seen = np.zeros(p, np.bool_)
+    stack = np.empty(p, np.int32)
+    count = 0
+    for seed in range(p):
+        if seen[seed]:
+            continue
+        count += 1
+        seen[seed] = True
+        stack[0] = seed
+        top = 1
+        while top > 0:
+            top -= 1
+            f = stack[top]
+            for k in range(3):
+                g = nbrs[f, k]
+                if g >= 0 and not seen[g]:
+                    seen[g] = True
+                    stack[top] = g
+                    top += 1
+    return count

@@ -210,3 +210,16 @@ def test_verify_detects_corruption(tmp_path):
     path.write_bytes(bytes(data))
     with pytest.raises(caveclod.FileFormatError):
         caveclod.load(path).verify()
+
+
+def test_large_base_mesh_says_why():
+    """A scan broken into many islands cannot shrink below one face each."""
+    import trimesh
+    from caveclod.meshfile import source_from_trimesh
+    pieces = [trimesh.creation.icosphere(subdivisions=0).apply_translation((3 * i, 0, 0)) for i in range(40)]
+    mesh = build_static_mesh(source_from_trimesh(trimesh.util.concatenate(pieces)))
+    info = mesh.info["base_mesh"]
+    assert info["components"] == 40
+    assert info["large"] == (len(mesh.base_faces) > 300)
+    small = build_static_mesh(default_terrain(32)).info["base_mesh"]
+    assert small["components"] == 1 and not small["large"]
