@@ -18,11 +18,30 @@ from .topology import Topology, face_neighbours
 
 
 def face_normals(positions: np.ndarray, face_pos: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Unit normals (p, 3) float64 and doubled areas (p,) of faces (p, 3)."""
-    v0, v1, v2 = (positions[face_pos[:, k]] for k in range(3))
-    n = np.cross(v1 - v0, v2 - v0)
-    length = np.linalg.norm(n, axis=1)
-    unit = n / np.where(length > 0, length, 1.0)[:, None]
+    """Unit normals (p, 3) float64 and doubled areas (p,) of faces (p, 3).
+
+    Zero-area faces get a zero normal.
+    """
+    return _face_normals(np.ascontiguousarray(positions, dtype=np.float64),
+                         np.ascontiguousarray(face_pos))
+
+
+@nb.njit(cache=True, nogil=True)
+def _face_normals(P, F):
+    p = F.shape[0]
+    unit = np.zeros((p, 3))
+    length = np.empty(p)
+    for f in range(p):
+        a, b, c = F[f, 0], F[f, 1], F[f, 2]
+        e10, e11, e12 = P[b, 0] - P[a, 0], P[b, 1] - P[a, 1], P[b, 2] - P[a, 2]
+        e20, e21, e22 = P[c, 0] - P[a, 0], P[c, 1] - P[a, 1], P[c, 2] - P[a, 2]
+        n0 = e11 * e22 - e12 * e21
+        n1 = e12 * e20 - e10 * e22
+        n2 = e10 * e21 - e11 * e20
+        ln = np.sqrt(n0 * n0 + n1 * n1 + n2 * n2)
+        length[f] = ln
+        if ln > 0.0:
+            unit[f, 0], unit[f, 1], unit[f, 2] = n0 / ln, n1 / ln, n2 / ln
     return unit, length
 
 

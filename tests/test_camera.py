@@ -809,11 +809,14 @@ def test_camera_memory_is_small_next_to_the_mesh(terrain64, camera, phase):
     until_still(cam, flyover(case, camera, phase))
     cam.validate()
     assert 0 < cam.n_faces < mesh.n_faces
+    # On an 8k-face mesh a close camera shows a quarter of the faces, so the
+    # share of static bytes depends on the view; the yardstick is Equation
+    # 1's per-camera term for the same counts (the 10% figure of the paper is
+    # checked by benchmarks/refine.py on the 1M-triangle terrain).
     ratio = cam.nbytes / mesh.nbytes
-    assert ratio < 0.25, f"camera {cam.nbytes} bytes vs static {mesh.nbytes} ({ratio:.1%}) with {cam.n_faces} faces"
-    # Within Equation 1's per-camera term, allowing for the pools' growth slack.
+    assert ratio < 0.5, f"camera {cam.nbytes} bytes vs static {mesh.nbytes} ({ratio:.1%}) with {cam.n_faces} faces"
     eq1 = equation1_camera_bytes(mesh, cam)
-    assert cam.nbytes <= 2 * eq1, f"camera {cam.nbytes} bytes vs Equation 1's {eq1}"
+    assert cam.nbytes <= 1.25 * eq1, f"camera {cam.nbytes} bytes vs Equation 1's {eq1} (pools grow by half)"
 
 
 def test_updates_never_write_the_static_mesh(lib):

@@ -405,18 +405,25 @@ def gather_candidates(vface, best_t, best_c, cost, target, src):
 def perform_collapses(P, F, N, vface, alive, fgroup, pclass, fixed, pg_start, pg_groups, Q,
                       cur_node, parent, child, npos, nfaces, nfn, sphere, cone, err, creator,
                       m, lock, mark, pass_id, fraction, cost, target, src, nc, counter):
-    """Perform ranked collapses cheapest first; returns the new node count m.
+    """Perform the cheapest ranked collapses; returns the new node count m.
 
-    At most ``fraction`` of the ranked ones are tried unless none of those
-    could be made. Each is checked again on the current mesh.
+    At most ``fraction`` of the ranked ones (the cheapest) are tried unless
+    none of those could be made. Each is checked again on the current mesh.
     """
     e = P.shape[0]
     fan_u = np.empty(4096, np.int32)
     fan_t = np.empty(4096, np.int32)
     if nc == 0:
         return m
-    order = np.argsort(cost[:nc])
+    # The cheapest ``fraction`` of the ranked collapses are made first (the
+    # rest only if none of those could be). Within each share they are made
+    # in position order: candidates come ranked by position, so this walks
+    # the mesh arrays front to back, where cost order jumps at random and
+    # was half the build's time at 2M triangles in cache misses.
+    order = np.argsort(cost[:nc], kind="mergesort")   # stable: ties by position
     limit = max(1, int(nc * fraction))
+    order[:limit].sort()
+    order[limit:].sort()
     made = 0
     for attempt in range(2):
         lo = 0 if attempt == 0 else limit
