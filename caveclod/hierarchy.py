@@ -11,9 +11,11 @@ from __future__ import annotations
 import os
 import time
 from concurrent.futures import ThreadPoolExecutor
+from dataclasses import dataclass
 
 import numpy as np
 
+from .errors import InputError
 from .kernels.bounds import empty_cones, empty_spheres
 from .kernels.simplify import gather_candidates, init_leaves, perform_collapses, rank_collapses
 from .normals import add_crease_normals
@@ -32,13 +34,66 @@ def build_static_mesh(source: SourceMesh, crease_angle: float = 30.0, progress: 
     source.validate()
     stage(f"preparing {len(source.faces):,} triangles: normals, topology, surface groups", progress)
     source, topo = prepare_source(source, crease_angle)
-    e, p = len(source.positions), len(source.faces)
     face_pos = source.face_positions.astype(np.int32)
-    face_vertex = source.faces.astype(np.int32)
-    lay = layout_surfaces(face_pos, face_vertex, source.face_material, topo.nbrs, topo.nonmanifold, e)
+    lay = layout_surfaces(face_pos, source.faces.astype(np.int32), source.face_material, topo.nbrs,
+                          topo.nonmanifold, len(source.positions))
+    if max(lay.n_sgids, len(source.materials)) > 65535:
+        raise InputError(f"{lay.n_sgids:,} surface group ids and {len(source.materials):,} materials: at most "
+                         "65,535 of each fit the .cvc format; merge materials before building")
+    hier = collapse_all(source.positions, face_pos, topo, lay, progress)
+    mesh = StaticMesh(arrays=static_arrays(source, face_pos, lay, hier), materials=list(source.materials))
+    mesh.info = {
+        "build_seconds": round(time.perf_counter() - t0, 3),
+        "input_triangles": len(face_pos),
+        "passes": hier.passes,
+        "surface_groups": lay.n_groups,
+        "classes": mesh.class_tally(),
+        "base_mesh": _base_mesh_reasons(len(hier.base), len(face_pos), topo),
+        "notes": list(source.notes),
+    }
+    if mesh.info["base_mesh"]["large"]:
+        mesh.info["notes"].append(mesh.info["base_mesh"]["why"])
+    return mesh
 
-    P = np.ascontiguousarray(source.positions, dtype=np.float64)
-    F = face_pos.copy()
+
+@dataclass
+class Hierarchy:
+    """What :func:`collapse_all` made; node arrays sized for e + m nodes.
+
+    Attributes:
+        m: collapses made (internal nodes). passes: passes run.
+        parent: (2e,) int32; child, nfaces: (e, 2); nfn: (e, 4); npos: (e,).
+        sphere, cone: (2e, 4) float64; err: (2e,) float64 (leaves first).
+        creator: (p,) int32 node whose split makes each face, -1 for base.
+        base: (k,) int32 base faces; base_nodes, base_nbrs: (k, 3) int32.
+    """
+
+    m: int
+    passes: int
+    parent: np.ndarray
+    child: np.ndarray
+    npos: np.ndarray
+    nfaces: np.ndarray
+    nfn: np.ndarray
+    sphere: np.ndarray
+    cone: np.ndarray
+    err: np.ndarray
+    creator: np.ndarray
+    base: np.ndarray
+    base_nodes: np.ndarray
+    base_nbrs: np.ndarray
+
+
+def collapse_all(positions: np.ndarray, face_pos: np.ndarray, topo: Topology, lay, progress: bool) -> Hierarchy:
+    """Collapse pass after pass until no legal collapse is left.
+
+    Ranking runs on several threads (the kernels release the GIL), each over
+    its own range of positions with its own scratch marks; collapses are
+    made on one.
+    """
+    e, p = len(positions), len(face_pos)
+    P = np.ascontiguousarray(positions, dtype=np.float64)
+    F = face_pos.copy()                       # faces over positions, collapsed in place
     N = topo.nbrs.copy()
     vface = np.empty(e, np.int32)
     Q = np.zeros((e, 10))
@@ -55,87 +110,74 @@ def build_static_mesh(source: SourceMesh, crease_angle: float = 30.0, progress: 
     nfn = np.full((e, 4), -1, np.int32)
     creator = np.full(p, -1, np.int32)
     lock = np.full(e, -1, np.int64)
-    # Ranking runs on several threads (the kernels release the GIL), each
-    # over its own range of positions with its own scratch marks.
     workers = max(1, min(os.cpu_count() or 1, 4))
-    bounds_of = np.linspace(0, e, workers + 1).astype(np.int64)
+    ranges = np.linspace(0, e, workers + 1).astype(np.int64)
     marks = [np.full(e, -1, np.int64) for _ in range(workers)]
     counters = [np.zeros(1, np.int64) for _ in range(workers)]
     best_t = np.full(e, -1, np.int32)
     best_c = np.zeros(e)
     cost, target, src = np.empty(e), np.empty(e, np.int32), np.empty(e, np.int32)
-    pg_start = lay.pos_vstart
-    pg_groups = lay.vertex_group
-    fixed = topo.nonmanifold.copy()
-    movable = int(np.count_nonzero((lay.position_class != RIGID) & ~fixed))
+    fixed = topo.nonmanifold
+    group, cls, pg_start, pg_groups = lay.face_group, lay.position_class, lay.pos_vstart, lay.vertex_group
 
-    bar = Progress("collapsing", total=max(movable, 1), enabled=progress)
+    bar = Progress("collapsing", total=max(int(np.count_nonzero((cls != RIGID) & ~fixed)), 1), enabled=progress)
     m, pass_id = 0, 0
     with ThreadPoolExecutor(workers) as pool:
         while True:
             before = m
-            jobs = [pool.submit(rank_collapses, P, F, N, vface, lay.face_group, lay.position_class,
-                                fixed, pg_start, pg_groups, Q, lock, marks[i], best_t, best_c,
-                                pass_id, bounds_of[i], bounds_of[i + 1], counters[i])
+            jobs = [pool.submit(rank_collapses, P, F, N, vface, group, cls, fixed, pg_start, pg_groups, Q,
+                                lock, marks[i], best_t, best_c, pass_id, ranges[i], ranges[i + 1], counters[i])
                     for i in range(workers)]
             for job in jobs:
                 job.result()
             nc = gather_candidates(vface, best_t, best_c, cost, target, src)
-            m = perform_collapses(P, F, N, vface, alive, lay.face_group, lay.position_class, fixed,
-                                  pg_start, pg_groups, Q, cur_node, parent, child, npos, nfaces, nfn,
-                                  sphere, cone, err, creator, m, lock, marks[0], pass_id,
-                                  PASS_FRACTION, cost, target, src, nc, counters[0])
+            m = perform_collapses(P, F, N, vface, alive, group, cls, fixed, pg_start, pg_groups, Q, cur_node,
+                                  parent, child, npos, nfaces, nfn, sphere, cone, err, creator, m, lock,
+                                  marks[0], pass_id, PASS_FRACTION, cost, target, src, nc, counters[0])
             pass_id += 1
             bar.update(m)
             if m == before:
                 break
     bar.close()
-
-    n = e + m
     base = np.flatnonzero(alive).astype(np.int32)
+    return Hierarchy(m=m, passes=pass_id, parent=parent, child=child, npos=npos, nfaces=nfaces, nfn=nfn,
+                     sphere=sphere, cone=cone, err=err, creator=creator, base=base,
+                     base_nodes=cur_node[F[base]].astype(np.int32), base_nbrs=N[base].astype(np.int32))
+
+
+def static_arrays(source: SourceMesh, face_pos: np.ndarray, lay, hier: Hierarchy) -> dict:
+    """The arrays of the ``.cvc`` file (see :data:`caveclod.staticmesh.ARRAYS`)."""
+    e, m = len(source.positions), hier.m
+    n = e + m
     vsrc = lay.vertex_source
-    vpos = source.vertex_position[vsrc]
     d = len(vsrc)
     uv = source.vertex_uv[vsrc] if source.vertex_uv is not None else np.zeros((d, 2), np.float32)
     colors = source.vertex_color[vsrc] if source.vertex_color is not None else np.zeros((0, 4), np.uint8)
-    small = np.uint16 if max(lay.n_sgids, len(source.materials)) <= 65535 else np.uint32
     vertex_surface = np.empty(d, np.int64)
     corners = corner_vertices(lay.pos_vstart, lay.vertex_sgid, face_pos, lay.face_sgid)
     vertex_surface[corners.ravel()] = np.repeat(source.face_material, 3)
-    arrays = {
-        "vertex_positions": P[vpos].astype(np.float32),
+    P = np.asarray(source.positions, dtype=np.float64)
+    return {
+        "vertex_positions": P[source.vertex_position[vsrc]].astype(np.float32),
         "vertex_normals": source.vertex_normal[vsrc].astype(np.float32),
         "vertex_uvs": uv.astype(np.float32),
         "vertex_colors": colors.astype(np.uint8),
-        "vertex_sgid": lay.vertex_sgid.astype(small),
-        "vertex_surface": vertex_surface.astype(small),
+        "vertex_sgid": lay.vertex_sgid.astype(np.uint16),
+        "vertex_surface": vertex_surface.astype(np.uint16),
         "pos_vstart": lay.pos_vstart.astype(np.int32),
         "position_class": lay.position_class,
-        "face_material": source.face_material.astype(small),
-        "face_sgid": lay.face_sgid.astype(small),
-        "face_creator": creator,
-        "node_parent": parent[:n].copy(),
-        "node_links": np.c_[child[:m], nfaces[:m], nfn[:m]].astype(np.int32),
-        "node_position": npos[:m].copy(),
-        "node_bound": np.c_[_round_spheres(sphere[e:n], P), _round_up(err[e:n])],
-        "node_cone": _round_cones(cone[e:n]),
-        "base_faces": base,
-        "base_face_nodes": cur_node[F[base]].astype(np.int32),
-        "base_face_nbrs": N[base].astype(np.int32),
+        "face_material": source.face_material.astype(np.uint16),
+        "face_sgid": lay.face_sgid.astype(np.uint16),
+        "face_creator": hier.creator,
+        "node_parent": hier.parent[:n].copy(),
+        "node_links": np.c_[hier.child[:m], hier.nfaces[:m], hier.nfn[:m]].astype(np.int32),
+        "node_position": hier.npos[:m].copy(),
+        "node_bound": np.c_[_round_spheres(hier.sphere[e:n], P), _round_up(hier.err[e:n])],
+        "node_cone": _round_cones(hier.cone[e:n]),
+        "base_faces": hier.base,
+        "base_face_nodes": hier.base_nodes,
+        "base_face_nbrs": hier.base_nbrs,
     }
-    mesh = StaticMesh(arrays=arrays, materials=list(source.materials))
-    mesh.info = {
-        "build_seconds": round(time.perf_counter() - t0, 3),
-        "input_triangles": p,
-        "passes": pass_id,
-        "surface_groups": lay.n_groups,
-        "classes": mesh.class_tally(),
-        "base_mesh": _base_mesh_reasons(len(base), p, topo),
-        "notes": list(source.notes),
-    }
-    if mesh.info["base_mesh"]["large"]:
-        mesh.info["notes"].append(mesh.info["base_mesh"]["why"])
-    return mesh
 
 
 def _base_mesh_reasons(base: int, p: int, topo: Topology) -> dict:

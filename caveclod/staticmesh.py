@@ -240,7 +240,7 @@ class StaticMesh:
             fh.write(MAGIC + struct.pack("<II", VERSION, len(blob)) + blob)
             fh.write(b"\0" * (data_start - fh.tell()))
             for name in ARRAYS:
-                a = np.ascontiguousarray(self.arrays[name], dtype=ARRAYS[name][0])
+                a = _as_declared(name, self.arrays[name])
                 fh.write(a.tobytes())
                 fh.write(b"\0" * (_aligned(a.nbytes) - a.nbytes))
         os.replace(tmp, path)
@@ -292,6 +292,16 @@ def load(path: str | os.PathLike) -> StaticMesh:
     return StaticMesh(arrays=arrays, materials=header.get("materials", []), info=header.get("info", {}),
                       path=str(path), content_hash=header.get("content_hash", ""),
                       vertex_buffer_hash=header.get("vertex_buffer_hash", ""))
+
+
+def _as_declared(name: str, a: np.ndarray) -> np.ndarray:
+    """``a`` in its declared dtype; refuses values that would not fit."""
+    dtype = np.dtype(ARRAYS[name][0])
+    if dtype.kind in "iu" and a.size and a.dtype != dtype:
+        info = np.iinfo(dtype)
+        if a.min() < info.min or a.max() > info.max:
+            raise FileFormatError(f"{name} holds values outside {dtype}; this mesh does not fit the .cvc format")
+    return np.ascontiguousarray(a, dtype=dtype)
 
 
 def _aligned(n: int) -> int:

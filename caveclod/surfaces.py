@@ -67,17 +67,12 @@ def layout_surfaces(face_pos, face_vertex, face_material, nbrs, nonmanifold, n_p
     """
     group = _grow_groups(face_pos, face_vertex, face_material.astype(np.int32), nbrs, n_positions)
     n_groups = int(group.max()) + 1
-    # One vertex per (group, position) pair in use.
-    key = group[:, None].astype(np.int64) * n_positions + face_pos
-    pairs, first = np.unique(key.ravel(), return_index=True)
-    pair_group = (pairs // n_positions).astype(np.int32)
-    pair_pos = (pairs % n_positions).astype(np.int32)
+    # One vertex per (group, position) pair in use, listed by position.
+    pos_vstart, pair_group, first = _group_pairs(face_pos, group, n_positions)
+    pair_pos = np.repeat(np.arange(n_positions, dtype=np.int32), np.diff(pos_vstart))
     sgid_of_group = _colour_groups(pair_group, pair_pos, n_groups, n_positions)
     pair_sgid = sgid_of_group[pair_group]
-    order = np.lexsort((pair_sgid, pair_pos))     # by position, then id
-    vertex_pos = pair_pos[order]
-    pos_vstart = np.zeros(n_positions + 1, np.int64)
-    np.cumsum(np.bincount(vertex_pos, minlength=n_positions), out=pos_vstart[1:])
+    order = _by_id_within_position(pos_vstart, pair_sgid)
     cls = _classify(face_pos, group, nbrs, nonmanifold)
     return SurfaceLayout(
         face_group=group,
@@ -90,6 +85,62 @@ def layout_surfaces(face_pos, face_vertex, face_material, nbrs, nonmanifold, n_p
         n_groups=n_groups,
         n_sgids=int(sgid_of_group.max()) + 1,
     )
+
+
+@nb.njit(cache=True, nogil=True)
+def _group_pairs(face_pos, group, e):
+    """The (group, position) pairs in use, as a CSR by position.
+
+    Returns ``(pos_start (e+1,) int64, pair_group (d,) int32, first (d,)
+    int64)``: the groups at position x are ``pair_group[pos_start[x]:
+    pos_start[x+1]]``, and ``first`` is the first corner (3 f + k) of each
+    pair. Linear: a position has a handful of groups, kept in a linked list.
+    """
+    p = face_pos.shape[0]
+    head = np.full(e, -1, np.int64)
+    nxt = np.empty(3 * p, np.int64)
+    grp = np.empty(3 * p, np.int32)
+    src = np.empty(3 * p, np.int64)
+    count = np.zeros(e + 1, np.int64)
+    n = 0
+    for f in range(p):
+        g = group[f]
+        for k in range(3):
+            x = face_pos[f, k]
+            i = head[x]
+            while i != -1 and grp[i] != g:
+                i = nxt[i]
+            if i == -1:
+                grp[n], src[n], nxt[n] = g, 3 * f + k, head[x]
+                head[x] = n
+                count[x + 1] += 1
+                n += 1
+    for x in range(e):
+        count[x + 1] += count[x]
+    pair_group = np.empty(n, np.int32)
+    first = np.empty(n, np.int64)
+    for x in range(e):
+        o = count[x + 1]
+        i = head[x]
+        while i != -1:               # the list is newest first: fill backwards
+            o -= 1
+            pair_group[o] = grp[i]
+            first[o] = src[i]
+            i = nxt[i]
+    return count, pair_group, first
+
+
+@nb.njit(cache=True, nogil=True)
+def _by_id_within_position(pos_start, pair_sgid):
+    """(d,) permutation sorting each position's pairs by id (insertion sort)."""
+    order = np.arange(pair_sgid.shape[0])
+    for x in range(pos_start.shape[0] - 1):
+        for i in range(pos_start[x] + 1, pos_start[x + 1]):
+            j = i
+            while j > pos_start[x] and pair_sgid[order[j - 1]] > pair_sgid[order[j]]:
+                order[j - 1], order[j] = order[j], order[j - 1]
+                j -= 1
+    return order
 
 
 @nb.njit(cache=True, nogil=True)
@@ -136,8 +187,12 @@ def _grow_groups(face_pos, face_vertex, material, nbrs, e):
 
 @nb.njit(cache=True, nogil=True)
 def _colour_groups(pair_group, pair_pos, n_groups, e):
-    """(n_groups,) int32 id per group; groups sharing a position differ."""
-    # CSR position -> groups, and group -> positions (pairs sorted by group).
+    """(n_groups,) int32 id per group; groups sharing a position differ.
+
+    ``pair_group``/``pair_pos`` (d,) list the (group, position) pairs in any
+    order; both directions are indexed here.
+    """
+    # CSR position -> groups, and group -> positions.
     pos_count = np.zeros(e + 1, np.int64)
     for i in range(pair_pos.shape[0]):
         pos_count[pair_pos[i] + 1] += 1
@@ -153,11 +208,16 @@ def _colour_groups(pair_group, pair_pos, n_groups, e):
         grp_start[pair_group[i] + 1] += 1
     for g in range(n_groups):
         grp_start[g + 1] += grp_start[g]
+    fill = grp_start[:-1].copy()
+    grp_pos = np.empty(pair_group.shape[0], np.int32)     # positions of each group (CSR)
+    for i in range(pair_group.shape[0]):
+        grp_pos[fill[pair_group[i]]] = pair_pos[i]
+        fill[pair_group[i]] += 1
     colour = np.full(n_groups, -1, np.int32)
     used_by = np.full(n_groups + 1, -1, np.int32)   # colour c is used near g
     for g in range(n_groups):
         for i in range(grp_start[g], grp_start[g + 1]):
-            x = pair_pos[i]
+            x = grp_pos[i]
             for j in range(pos_count[x], pos_count[x + 1]):
                 c = colour[pos_groups[j]]
                 if c >= 0:

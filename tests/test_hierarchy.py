@@ -223,3 +223,14 @@ def test_large_base_mesh_says_why():
     assert info["large"] == (len(mesh.base_faces) > 300)
     small = build_static_mesh(default_terrain(32)).info["base_mesh"]
     assert small["components"] == 1 and not small["large"]
+
+
+def test_surface_group_ids_differ_at_every_position(built):
+    """Reused ids never meet: each position's vertices carry distinct ids, in order."""
+    _, _, mesh = built
+    start = np.asarray(mesh.pos_vstart)
+    sgid = np.asarray(mesh.vertex_sgid).astype(np.int64)
+    same_pos = np.repeat(np.arange(mesh.n_positions), np.diff(start))
+    nxt = np.arange(1, len(sgid))
+    within = same_pos[nxt] == same_pos[nxt - 1]
+    assert (sgid[nxt][within] > sgid[nxt - 1][within]).all()
