@@ -95,6 +95,41 @@ def need_refine(j, bound, cone, vp):
 
 
 @nb.njit(cache=True, nogil=True)
+def _move_wedge(fn0, fn2, old, new, fl, fr, fsgid, pos_vstart, vertex_sgid, face_rec, rec_pos, rec_nbr,
+                rec_tri, rec_dirty):
+    """Move the floating child's wedge of faces from position ``old`` to ``new``.
+
+    The wedge runs from ``fn0`` (fl_u) round ``old`` to ``fn2`` (fr_u); if
+    fl_u is absent it is walked back from fr_u to the border instead. A split
+    moves it from s to u, a collapse back; the walk never enters fl or fr.
+    """
+    if fn0 >= 0:
+        f = fn0
+        while True:
+            r = face_rec[f]
+            k = _pos_corner(rec_pos, r, old)
+            rec_pos[r, k] = new
+            rec_tri[r, k] = lookup_vertex(pos_vstart, vertex_sgid, fsgid[f], new)
+            rec_dirty[r] = 1
+            if f == fn2:
+                break
+            f = rec_nbr[r, k]                # across the outgoing edge at the corner
+            if f < 0 or f == fr:
+                break
+    elif fn2 >= 0:
+        f = fn2
+        while True:
+            r = face_rec[f]
+            k = _pos_corner(rec_pos, r, old)
+            rec_pos[r, k] = new
+            rec_tri[r, k] = lookup_vertex(pos_vstart, vertex_sgid, fsgid[f], new)
+            rec_dirty[r] = 1
+            f = rec_nbr[r, (k + 2) % 3]      # across the incoming edge
+            if f < 0 or f == fl:
+                break
+
+
+@nb.njit(cache=True, nogil=True)
 def split_node(x, e, links, npos, mat, fsgid, pos_vstart, vertex_sgid,
                state, face_rec, off, cnt, rec_pos, rec_nbr, rec_face, rec_tri, rec_dirty):
     """Split active node ``x`` whose required faces are all active.
@@ -108,30 +143,8 @@ def split_node(x, e, links, npos, mat, fsgid, pos_vstart, vertex_sgid,
     px = npos[j]
     pu = node_position(e, npos, u)
     # 1. The floating child's wedge: faces from fl_u round to fr_u move to u.
-    if fn0 >= 0:
-        f = fn0
-        while True:
-            r = face_rec[f]
-            k = _pos_corner(rec_pos, r, px)
-            rec_pos[r, k] = pu
-            rec_tri[r, k] = lookup_vertex(pos_vstart, vertex_sgid, fsgid[f], pu)
-            rec_dirty[r] = 1
-            if f == fn2:
-                break
-            f = rec_nbr[r, k]                # across u's outgoing edge
-            if f < 0:
-                break
-    elif fn2 >= 0:
-        f = fn2
-        while True:
-            r = face_rec[f]
-            k = _pos_corner(rec_pos, r, px)
-            rec_pos[r, k] = pu
-            rec_tri[r, k] = lookup_vertex(pos_vstart, vertex_sgid, fsgid[f], pu)
-            rec_dirty[r] = 1
-            f = rec_nbr[r, (k + 2) % 3]      # across u's incoming edge
-            if f < 0:
-                break
+    _move_wedge(fn0, fn2, px, pu, fl, fr, fsgid, pos_vstart, vertex_sgid, face_rec, rec_pos, rec_nbr,
+                rec_tri, rec_dirty)
     # 2. The two new faces, linked into their neighbours.
     if fl >= 0:
         if fn0 >= 0:
@@ -241,30 +254,8 @@ def collapse_node(x, e, links, npos, mat, fsgid, pos_vstart, vertex_sgid,
     fn0, fn1, fn2, fn3 = links[j, 4], links[j, 5], links[j, 6], links[j, 7]
     px = npos[j]
     pu = node_position(e, npos, u)
-    if fn0 >= 0:
-        f = fn0
-        while True:
-            r = face_rec[f]
-            k = _pos_corner(rec_pos, r, pu)
-            rec_pos[r, k] = px
-            rec_tri[r, k] = lookup_vertex(pos_vstart, vertex_sgid, fsgid[f], px)
-            rec_dirty[r] = 1
-            if f == fn2:
-                break
-            f = rec_nbr[r, k]
-            if f < 0 or f == fr:
-                break
-    elif fn2 >= 0:
-        f = fn2
-        while True:
-            r = face_rec[f]
-            k = _pos_corner(rec_pos, r, pu)
-            rec_pos[r, k] = px
-            rec_tri[r, k] = lookup_vertex(pos_vstart, vertex_sgid, fsgid[f], px)
-            rec_dirty[r] = 1
-            f = rec_nbr[r, (k + 2) % 3]
-            if f < 0 or f == fl:
-                break
+    _move_wedge(fn0, fn2, pu, px, fl, fr, fsgid, pos_vstart, vertex_sgid, face_rec, rec_pos, rec_nbr,
+                rec_tri, rec_dirty)
     if fl >= 0:
         if fn0 >= 0:
             _replace(rec_nbr, face_rec[fn0], fl, fn1)
