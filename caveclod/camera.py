@@ -66,6 +66,14 @@ class Delta:
         return buffers
 
 
+def _empty_index(faces: int) -> np.ndarray:
+    """An empty face -> record hash table with room for about ``faces``."""
+    size = 64
+    while size < 4 * faces:
+        size *= 2
+    return np.full((size, 2), -1, np.int32)
+
+
 class CameraState:
     """Active nodes and faces of one camera, refined incrementally.
 
@@ -88,7 +96,7 @@ class CameraState:
         n, p = mesh.n_nodes, mesh.n_faces
         self.n_materials = max(mesh.n_materials, int(a["face_material"].max(initial=0)) + 1)
         self.state = np.zeros(n, np.uint8)
-        self.face_rec = np.full(p, -1, np.int32)
+        self.face_rec = _empty_index(len(mesh.arrays["base_faces"]))
         base = a["base_faces"]
         base_count = np.bincount(a["face_material"][base], minlength=self.n_materials)
         self.cnt = np.zeros(self.n_materials, np.int64)
@@ -119,10 +127,10 @@ class CameraState:
                 dst = slice(int(self.off[s]), int(self.off[s]) + c)
                 for k in new:
                     new[k][dst] = old[k][src]
-                # Records moved: point their faces at the new places.
-                self.face_rec[new["rec_face"][dst]] = np.arange(dst.start, dst.stop, dtype=np.int32)
         for k, v in new.items():
             setattr(self, k, v)
+        if old is not None:
+            self._reindex(len(self.face_rec))      # records moved
 
     def _grow_records(self, material: int) -> None:
         old = {k: getattr(self, k) for k in ("rec_pos", "rec_nbr", "rec_face", "rec_tri", "rec_dirty")}
@@ -132,6 +140,11 @@ class CameraState:
         # slack is kept small; re-layout is O(active faces) and rare.
         cap[material] = max(cap[material] + cap[material] // 2, 64)
         self._layout(cap, old)
+
+    def _reindex(self, size: int) -> None:
+        """Rebuild the face -> record hash table with ``size`` slots."""
+        self.face_rec = np.full((size, 2), -1, np.int32)
+        K.index_records(self.off, self.cnt, self.rec_face, self.face_rec)
 
     def _grow_list(self) -> None:
         bigger = np.empty(max(len(self.active) + len(self.active) // 2, 64), np.int32)
@@ -149,13 +162,13 @@ class CameraState:
         mat = a["face_material"][faces]
         for f, corners, nbrs, s in zip(faces, pos, a["base_face_nbrs"], mat):
             r = int(self.off[s] + self.cnt[s])
-            self.face_rec[f] = r
             self.cnt[s] += 1
             self.rec_face[r] = f
             self.rec_pos[r] = corners
             self.rec_nbr[r] = nbrs
             self.rec_dirty[r] = 1
         self.rec_tri[:] = 0
+        K.index_records(self.off, self.cnt, self.rec_face, self.face_rec)
         for s in range(self.n_materials):
             sl = slice(int(self.off[s]), int(self.off[s] + self.cnt[s]))
             if self.cnt[s]:
@@ -200,6 +213,8 @@ class CameraState:
                     self._grow_records(int(material))
                 elif status == K.NEED_LIST:
                     self._grow_list()
+                elif status == K.NEED_INDEX:
+                    self._reindex(2 * len(self.face_rec))
                 else:  # pragma: no cover - the kernel has no other status
                     raise CaveclodError(f"refinement kernel returned status {status}")
         finally:

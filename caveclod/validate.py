@@ -52,7 +52,13 @@ def validate_camera(cam) -> None:
     want = np.ones(len(creator), bool)
     made = creator >= 0
     want[made] = state[creator[made]] == K.SPLIT
-    if not np.array_equal(want, cam.face_rec >= 0):
+    table = cam.face_rec
+    keys = table[:, 0][table[:, 0] >= 0]
+    indexed = np.zeros(len(creator), bool)
+    indexed[keys] = True
+    if len(keys) != len(np.unique(keys)):
+        _fail("a face is in the face -> record table twice")
+    if not np.array_equal(want, indexed):
         _fail("a face is active while its creator is not split, or the reverse")
 
     mat = np.asarray(mesh.face_material)
@@ -66,8 +72,9 @@ def validate_camera(cam) -> None:
         faces = cam.rec_face[r]
         if (mat[faces] != s).any():
             _fail(f"a face sits in the index buffer of another material ({s})")
-        if not np.array_equal(cam.face_rec[faces], r):
-            _fail(f"face_rec and records disagree in material {s}")
+        recorded = dict(zip(table[:, 0].tolist(), table[:, 1].tolist()))
+        if [recorded.get(int(f)) for f in faces] != r.tolist():
+            _fail(f"the face -> record table and the records disagree in material {s}")
         recs.append(r)
     recs = np.concatenate(recs) if recs else np.zeros(0, np.int64)
     faces = cam.rec_face[recs]

@@ -7,7 +7,9 @@ Camera state (see :class:`caveclod.camera.CameraState`):
 
 * ``state`` (n,) uint8 per node: INACTIVE (below the front), ACTIVE, SPLIT
   (above it), plus the IN_LIST bit while the node sits in ``active``.
-* ``face_rec`` (p,) int32: the record of each active face, -1 if inactive.
+* ``face_rec`` (h, 2) int32: a hash table (open addressing, linear
+  probing) from each active face to its record. Sized by the active faces,
+  not by the mesh: a dense per-face array was most of a camera's bytes.
 * Records of active faces, pooled: material ``s`` owns records
   ``off[s] .. off[s] + cnt[s]`` of a capacity ``cap[s]``, and record
   ``off[s] + k`` *is* slot ``k`` of that material's index buffer: ``pos``
@@ -33,11 +35,66 @@ import numpy as np
 INACTIVE, ACTIVE, SPLIT = 0, 1, 2
 STATE_MASK, IN_LIST = 3, 4
 
-OK, NEED_RECORDS, NEED_LIST = 0, 1, 2
+OK, NEED_RECORDS, NEED_LIST, NEED_INDEX = 0, 1, 2, 3
 MIXED, SPLITS_ONLY, COLLAPSES_ONLY = 0, 1, 2   # what a pass may do
 
 # View parameter layout (caveclod.view).
 P_EYE, P_PLANES, P_KAPPA, P_TOL, P_CULL, P_BACKFACE = 0, 3, 23, 24, 25, 26
+
+
+@nb.njit(cache=True, nogil=True, inline="always")
+def _slot_of(table, f):
+    """Where face ``f`` sits in the hash table, or the empty slot it would take."""
+    mask = table.shape[0] - 1
+    i = (f * 2654435761) & mask               # Knuth's multiplicative hash
+    while table[i, 0] != f and table[i, 0] != -1:
+        i = (i + 1) & mask
+    return i
+
+
+@nb.njit(cache=True, nogil=True, inline="always")
+def _find(table, f):
+    """Record of active face ``f``, or -1 if the face is not active."""
+    return table[_slot_of(table, f), 1]
+
+
+@nb.njit(cache=True, nogil=True, inline="always")
+def _store(table, f, r):
+    i = _slot_of(table, f)
+    table[i, 0] = f
+    table[i, 1] = r
+
+
+@nb.njit(cache=True, nogil=True)
+def _forget(table, f):
+    """Delete ``f``, shifting later entries back (no tombstones)."""
+    mask = table.shape[0] - 1
+    i = _slot_of(table, f)
+    if table[i, 0] == -1:
+        return
+    j = i
+    while True:
+        table[i, 0] = -1
+        table[i, 1] = -1
+        while True:
+            j = (j + 1) & mask
+            if table[j, 0] == -1:
+                return
+            home = (table[j, 0] * 2654435761) & mask
+            # Move j back to i unless its home lies cyclically in (i, j].
+            if (i <= j and (home <= i or home > j)) or (i > j and home <= i and home > j):
+                break
+        table[i, 0] = table[j, 0]
+        table[i, 1] = table[j, 1]
+        i = j
+
+
+@nb.njit(cache=True, nogil=True)
+def index_records(off, cnt, rec_face, table):
+    """Fill an empty hash ``table`` (-1) with every active face's record."""
+    for s in range(cnt.shape[0]):
+        for r in range(off[s], off[s] + cnt[s]):
+            _store(table, rec_face[r], r)
 
 
 @nb.njit(cache=True, nogil=True, inline="always")
@@ -106,7 +163,7 @@ def _move_wedge(fn0, fn2, old, new, fl, fr, fsgid, pos_vstart, vertex_sgid, face
     if fn0 >= 0:
         f = fn0
         while True:
-            r = face_rec[f]
+            r = _find(face_rec, f)
             k = _pos_corner(rec_pos, r, old)
             rec_pos[r, k] = new
             rec_tri[r, k] = lookup_vertex(pos_vstart, vertex_sgid, fsgid[f], new)
@@ -119,7 +176,7 @@ def _move_wedge(fn0, fn2, old, new, fl, fr, fsgid, pos_vstart, vertex_sgid, face
     elif fn2 >= 0:
         f = fn2
         while True:
-            r = face_rec[f]
+            r = _find(face_rec, f)
             k = _pos_corner(rec_pos, r, old)
             rec_pos[r, k] = new
             rec_tri[r, k] = lookup_vertex(pos_vstart, vertex_sgid, fsgid[f], new)
@@ -148,33 +205,33 @@ def split_node(x, e, links, npos, mat, fsgid, pos_vstart, vertex_sgid,
     # 2. The two new faces, linked into their neighbours.
     if fl >= 0:
         if fn0 >= 0:
-            r0 = face_rec[fn0]
+            r0 = _find(face_rec, fn0)
             vl = rec_pos[r0, (_pos_corner(rec_pos, r0, pu) + 2) % 3]
         else:
-            r1 = face_rec[fn1]
+            r1 = _find(face_rec, fn1)
             vl = rec_pos[r1, (_pos_corner(rec_pos, r1, px) + 1) % 3]
         _add_face(fl, px, pu, vl, fr, fn0, fn1, mat, fsgid, pos_vstart, vertex_sgid,
                   face_rec, off, cnt, rec_pos, rec_nbr, rec_face, rec_tri, rec_dirty)
         if fn0 >= 0:
-            r0 = face_rec[fn0]
+            r0 = _find(face_rec, fn0)
             rec_nbr[r0, _pos_corner(rec_pos, r0, vl)] = fl      # edge vl -> u
         if fn1 >= 0:
-            r1 = face_rec[fn1]
+            r1 = _find(face_rec, fn1)
             rec_nbr[r1, _pos_corner(rec_pos, r1, px)] = fl      # edge t -> vl
     if fr >= 0:
         if fn2 >= 0:
-            r2 = face_rec[fn2]
+            r2 = _find(face_rec, fn2)
             vr = rec_pos[r2, (_pos_corner(rec_pos, r2, pu) + 1) % 3]
         else:
-            r3 = face_rec[fn3]
+            r3 = _find(face_rec, fn3)
             vr = rec_pos[r3, (_pos_corner(rec_pos, r3, px) + 2) % 3]
         _add_face(fr, pu, px, vr, fl, fn3, fn2, mat, fsgid, pos_vstart, vertex_sgid,
                   face_rec, off, cnt, rec_pos, rec_nbr, rec_face, rec_tri, rec_dirty)
         if fn2 >= 0:
-            r2 = face_rec[fn2]
+            r2 = _find(face_rec, fn2)
             rec_nbr[r2, _pos_corner(rec_pos, r2, pu)] = fr      # edge u -> vr
         if fn3 >= 0:
-            r3 = face_rec[fn3]
+            r3 = _find(face_rec, fn3)
             rec_nbr[r3, _pos_corner(rec_pos, r3, vr)] = fr      # edge vr -> t
     state[x] = (state[x] & IN_LIST) | SPLIT
     state[t] = (state[t] & IN_LIST) | ACTIVE
@@ -189,7 +246,7 @@ def _add_face(f, a, b, c, n0, n1, n2, mat, fsgid, pos_vstart, vertex_sgid,
     slot = cnt[s]
     cnt[s] += 1
     r = off[s] + slot
-    face_rec[f] = r
+    _store(face_rec, f, r)
     rec_face[r] = f
     rec_pos[r, 0], rec_pos[r, 1], rec_pos[r, 2] = a, b, c
     rec_nbr[r, 0], rec_nbr[r, 1], rec_nbr[r, 2] = n0, n1, n2
@@ -204,7 +261,7 @@ def _add_face(f, a, b, c, n0, n1, n2, mat, fsgid, pos_vstart, vertex_sgid,
 def _remove_face(f, mat, face_rec, off, cnt, rec_pos, rec_nbr, rec_face, rec_tri, rec_dirty):
     """Remove face ``f``; the material's last face fills its slot."""
     s = mat[f]
-    r = face_rec[f]
+    r = _find(face_rec, f)
     last = off[s] + cnt[s] - 1
     if r != last:
         for k in range(3):
@@ -213,8 +270,8 @@ def _remove_face(f, mat, face_rec, off, cnt, rec_pos, rec_nbr, rec_face, rec_tri
             rec_tri[r, k] = rec_tri[last, k]
         rec_face[r] = rec_face[last]
         rec_dirty[r] = 1
-        face_rec[rec_face[r]] = r
-    face_rec[f] = -1
+        _store(face_rec, rec_face[r], r)
+    _forget(face_rec, f)
     cnt[s] -= 1
 
 
@@ -234,11 +291,11 @@ def collapse_legal(x, e, links, state, face_rec, rec_nbr):
         return False
     fl, fr = links[j, 2], links[j, 3]
     if fl >= 0:
-        r = face_rec[fl]
+        r = _find(face_rec, fl)
         if rec_nbr[r, 1] != links[j, 4] or rec_nbr[r, 2] != links[j, 5]:
             return False
     if fr >= 0:
-        r = face_rec[fr]
+        r = _find(face_rec, fr)
         if rec_nbr[r, 1] != links[j, 7] or rec_nbr[r, 2] != links[j, 6]:
             return False
     return True
@@ -258,15 +315,15 @@ def collapse_node(x, e, links, npos, mat, fsgid, pos_vstart, vertex_sgid,
                 rec_tri, rec_dirty)
     if fl >= 0:
         if fn0 >= 0:
-            _replace(rec_nbr, face_rec[fn0], fl, fn1)
+            _replace(rec_nbr, _find(face_rec, fn0), fl, fn1)
         if fn1 >= 0:
-            _replace(rec_nbr, face_rec[fn1], fl, fn0)
+            _replace(rec_nbr, _find(face_rec, fn1), fl, fn0)
         _remove_face(fl, mat, face_rec, off, cnt, rec_pos, rec_nbr, rec_face, rec_tri, rec_dirty)
     if fr >= 0:
         if fn2 >= 0:
-            _replace(rec_nbr, face_rec[fn2], fr, fn3)
+            _replace(rec_nbr, _find(face_rec, fn2), fr, fn3)
         if fn3 >= 0:
-            _replace(rec_nbr, face_rec[fn3], fr, fn2)
+            _replace(rec_nbr, _find(face_rec, fn3), fr, fn2)
         _remove_face(fr, mat, face_rec, off, cnt, rec_pos, rec_nbr, rec_face, rec_tri, rec_dirty)
     state[x] = (state[x] & IN_LIST) | ACTIVE
     state[t] = state[t] & IN_LIST
@@ -379,7 +436,7 @@ def adapt(e, parent, links, npos, bound, cone, face_creator, mat, fsgid,
                 missing = False
                 for q in range(4):
                     f = links[jy, 4 + q]
-                    if f >= 0 and face_rec[f] < 0:
+                    if f >= 0 and _find(face_rec, f) < 0:
                         stack[sp] = face_creator[f]
                         sp += 1
                         missing = True
@@ -393,6 +450,9 @@ def adapt(e, parent, links, npos, bound, cone, face_creator, mat, fsgid,
                     break
                 if n + 2 > active.shape[0]:
                     status = NEED_LIST
+                    break
+                if 2 * (n_faces + 2) > face_rec.shape[0]:   # keep the table at most half full
+                    status = NEED_INDEX
                     break
                 split_node(y, e, links, npos, mat, fsgid, pos_vstart, vertex_sgid,
                            state, face_rec, off, cnt, rec_pos, rec_nbr, rec_face, rec_tri, rec_dirty)
