@@ -62,6 +62,21 @@ def holey_scan(seed=0, n=12) -> SourceMesh:
     return heightfield_to_source(h, cell_size=1.0, z_scale=1.0, materials=classes)
 
 
+def random_scan(seed: int, keep: float) -> SourceMesh | None:
+    """A random subset of a noisy icosphere: holes, islands, slivers; two
+    materials at random. None when nothing is kept."""
+    rng = np.random.default_rng(seed)
+    sphere = trimesh.creation.icosphere(subdivisions=2)
+    sphere.vertices += rng.normal(0, 0.05, sphere.vertices.shape)
+    faces = sphere.faces[rng.random(len(sphere.faces)) < keep]
+    if len(faces) == 0:
+        return None
+    source = source_from_trimesh(trimesh.Trimesh(sphere.vertices, faces, process=False))
+    source.face_material = rng.integers(0, 2, len(source.faces)).astype(np.int32)
+    source.materials = ["a", "b"]
+    return source
+
+
 def with_bad_topology(src: SourceMesh) -> SourceMesh:
     """Add a non-manifold fin (a third face on one edge) and a sliver."""
     f0 = src.faces[0]

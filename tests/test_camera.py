@@ -29,7 +29,7 @@ from caveclod.terrain import default_terrain, heightfield_to_source
 from caveclod.topology import face_neighbours
 from caveclod.view import View
 
-from meshes import holey_scan, noisy_box, uv_sphere, with_bad_topology
+from meshes import holey_scan, noisy_box, random_scan, uv_sphere, with_bad_topology
 
 CASES = {
     "terrain32": lambda: default_terrain(32),
@@ -889,17 +889,9 @@ def test_property_random_heightfields(rows, cols, seed, n_classes, holes, n_view
 @given(seed=st.integers(0, 10_000), keep=st.floats(0.5, 1.0), crease=st.sampled_from([0.0, 30.0, 90.0]))
 def test_property_random_scans(seed, keep, crease):
     """Random subsets of a noisy sphere (holes, islands, slivers, crease seams) seen by a walk."""
-    import trimesh
-    from caveclod.meshfile import source_from_trimesh
-    rng = np.random.default_rng(seed)
-    sphere = trimesh.creation.icosphere(subdivisions=2)
-    sphere.vertices += rng.normal(0, 0.05, sphere.vertices.shape)
-    faces = sphere.faces[rng.random(len(sphere.faces)) < keep]
-    if len(faces) == 0:
+    source = random_scan(seed, keep)
+    if source is None:
         return
-    source = source_from_trimesh(trimesh.Trimesh(sphere.vertices, faces, process=False))
-    source.face_material = rng.integers(0, 2, len(source.faces)).astype(np.int32)
-    source.materials = ["a", "b"]
     case = Case(source, crease_angle=crease)
     cam = case.mesh.new_camera()
     buffers = {}

@@ -12,7 +12,7 @@ from caveclod.hierarchy import build_static_mesh, prepare_source
 from caveclod.surfaces import corner_vertices
 from caveclod.terrain import default_terrain, heightfield_to_source
 
-from meshes import holey_scan, noisy_box, replay_collapses, uv_sphere, with_bad_topology
+from meshes import holey_scan, noisy_box, random_scan, replay_collapses, uv_sphere, with_bad_topology
 
 CASES = {
     "terrain64": lambda: default_terrain(64),
@@ -146,18 +146,9 @@ def test_property_random_heightfields(rows, cols, seed, n_classes, holes):
 @given(seed=st.integers(0, 10_000), keep=st.floats(0.5, 1.0), crease=st.sampled_from([0.0, 30.0, 90.0]))
 def test_property_random_scans(seed, keep, crease):
     """Random subsets of a noisy sphere: holes, islands, slivers, crease seams."""
-    import trimesh
-    from caveclod.meshfile import source_from_trimesh
-    rng = np.random.default_rng(seed)
-    sphere = trimesh.creation.icosphere(subdivisions=2)
-    sphere.vertices += rng.normal(0, 0.05, sphere.vertices.shape)
-    faces = sphere.faces[rng.random(len(sphere.faces)) < keep]
-    if len(faces) == 0:
+    source = random_scan(seed, keep)
+    if source is None:
         return
-    m = trimesh.Trimesh(sphere.vertices, faces, process=False)
-    source = source_from_trimesh(m)
-    source.face_material = rng.integers(0, 2, len(source.faces)).astype(np.int32)
-    source.materials = ["a", "b"]
     mesh = build_static_mesh(source, crease_angle=crease)
     replay_collapses(mesh, source, crease_angle=crease)
 

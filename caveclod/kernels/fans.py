@@ -27,6 +27,15 @@ def corner_of(corners, f, x):
     return -1
 
 
+@nb.njit(cache=True, nogil=True)
+def replace_in_row(rows, r, old, new):
+    """Replace the first ``old`` in ``rows[r]`` (a neighbour link) by ``new``."""
+    for k in range(3):
+        if rows[r, k] == old:
+            rows[r, k] = new
+            return
+
+
 @nb.njit(cache=True, nogil=True, inline="always")
 def step_forward(corners, nbrs, f, x):
     """Face after ``f`` around ``x`` (across x's outgoing edge), or -1."""

@@ -32,6 +32,8 @@ import math
 import numba as nb
 import numpy as np
 
+from .fans import corner_of, replace_in_row
+
 INACTIVE, ACTIVE, SPLIT = 0, 1, 2
 STATE_MASK, IN_LIST = 3, 4
 
@@ -98,15 +100,6 @@ def index_records(off, cnt, rec_face, table):
 
 
 @nb.njit(cache=True, nogil=True, inline="always")
-def _pos_corner(rec_pos, r, x):
-    if rec_pos[r, 0] == x:
-        return 0
-    if rec_pos[r, 1] == x:
-        return 1
-    return 2
-
-
-@nb.njit(cache=True, nogil=True, inline="always")
 def lookup_vertex(pos_vstart, vertex_sgid, sgid, x):
     """Vertex-buffer index of (surface group id, position): D3Dindex."""
     for i in range(pos_vstart[x], pos_vstart[x + 1]):
@@ -164,7 +157,7 @@ def _move_wedge(fn0, fn2, old, new, fl, fr, fsgid, pos_vstart, vertex_sgid, face
         f = fn0
         while True:
             r = _find(face_rec, f)
-            k = _pos_corner(rec_pos, r, old)
+            k = corner_of(rec_pos, r, old)
             rec_pos[r, k] = new
             rec_tri[r, k] = lookup_vertex(pos_vstart, vertex_sgid, fsgid[f], new)
             rec_dirty[r] = 1
@@ -177,7 +170,7 @@ def _move_wedge(fn0, fn2, old, new, fl, fr, fsgid, pos_vstart, vertex_sgid, face
         f = fn2
         while True:
             r = _find(face_rec, f)
-            k = _pos_corner(rec_pos, r, old)
+            k = corner_of(rec_pos, r, old)
             rec_pos[r, k] = new
             rec_tri[r, k] = lookup_vertex(pos_vstart, vertex_sgid, fsgid[f], new)
             rec_dirty[r] = 1
@@ -206,33 +199,33 @@ def split_node(x, e, links, npos, mat, fsgid, pos_vstart, vertex_sgid,
     if fl >= 0:
         if fn0 >= 0:
             r0 = _find(face_rec, fn0)
-            vl = rec_pos[r0, (_pos_corner(rec_pos, r0, pu) + 2) % 3]
+            vl = rec_pos[r0, (corner_of(rec_pos, r0, pu) + 2) % 3]
         else:
             r1 = _find(face_rec, fn1)
-            vl = rec_pos[r1, (_pos_corner(rec_pos, r1, px) + 1) % 3]
+            vl = rec_pos[r1, (corner_of(rec_pos, r1, px) + 1) % 3]
         _add_face(fl, px, pu, vl, fr, fn0, fn1, mat, fsgid, pos_vstart, vertex_sgid,
                   face_rec, off, cnt, rec_pos, rec_nbr, rec_face, rec_tri, rec_dirty)
         if fn0 >= 0:
             r0 = _find(face_rec, fn0)
-            rec_nbr[r0, _pos_corner(rec_pos, r0, vl)] = fl      # edge vl -> u
+            rec_nbr[r0, corner_of(rec_pos, r0, vl)] = fl      # edge vl -> u
         if fn1 >= 0:
             r1 = _find(face_rec, fn1)
-            rec_nbr[r1, _pos_corner(rec_pos, r1, px)] = fl      # edge t -> vl
+            rec_nbr[r1, corner_of(rec_pos, r1, px)] = fl      # edge t -> vl
     if fr >= 0:
         if fn2 >= 0:
             r2 = _find(face_rec, fn2)
-            vr = rec_pos[r2, (_pos_corner(rec_pos, r2, pu) + 1) % 3]
+            vr = rec_pos[r2, (corner_of(rec_pos, r2, pu) + 1) % 3]
         else:
             r3 = _find(face_rec, fn3)
-            vr = rec_pos[r3, (_pos_corner(rec_pos, r3, px) + 2) % 3]
+            vr = rec_pos[r3, (corner_of(rec_pos, r3, px) + 2) % 3]
         _add_face(fr, pu, px, vr, fl, fn3, fn2, mat, fsgid, pos_vstart, vertex_sgid,
                   face_rec, off, cnt, rec_pos, rec_nbr, rec_face, rec_tri, rec_dirty)
         if fn2 >= 0:
             r2 = _find(face_rec, fn2)
-            rec_nbr[r2, _pos_corner(rec_pos, r2, pu)] = fr      # edge u -> vr
+            rec_nbr[r2, corner_of(rec_pos, r2, pu)] = fr      # edge u -> vr
         if fn3 >= 0:
             r3 = _find(face_rec, fn3)
-            rec_nbr[r3, _pos_corner(rec_pos, r3, vr)] = fr      # edge vr -> t
+            rec_nbr[r3, corner_of(rec_pos, r3, vr)] = fr      # edge vr -> t
     state[x] = (state[x] & IN_LIST) | SPLIT
     state[t] = (state[t] & IN_LIST) | ACTIVE
     state[u] = (state[u] & IN_LIST) | ACTIVE
@@ -275,14 +268,6 @@ def _remove_face(f, mat, face_rec, off, cnt, rec_pos, rec_nbr, rec_face, rec_tri
     cnt[s] -= 1
 
 
-@nb.njit(cache=True, nogil=True, inline="always")
-def _replace(rec_nbr, r, old, new):
-    for k in range(3):
-        if rec_nbr[r, k] == old:
-            rec_nbr[r, k] = new
-            return
-
-
 @nb.njit(cache=True, nogil=True)
 def collapse_legal(x, e, links, state, face_rec, rec_nbr):
     """Hoppe's ecol precondition for undoing the split of ``x``."""
@@ -315,15 +300,15 @@ def collapse_node(x, e, links, npos, mat, fsgid, pos_vstart, vertex_sgid,
                 rec_tri, rec_dirty)
     if fl >= 0:
         if fn0 >= 0:
-            _replace(rec_nbr, _find(face_rec, fn0), fl, fn1)
+            replace_in_row(rec_nbr, _find(face_rec, fn0), fl, fn1)
         if fn1 >= 0:
-            _replace(rec_nbr, _find(face_rec, fn1), fl, fn0)
+            replace_in_row(rec_nbr, _find(face_rec, fn1), fl, fn0)
         _remove_face(fl, mat, face_rec, off, cnt, rec_pos, rec_nbr, rec_face, rec_tri, rec_dirty)
     if fr >= 0:
         if fn2 >= 0:
-            _replace(rec_nbr, _find(face_rec, fn2), fr, fn3)
+            replace_in_row(rec_nbr, _find(face_rec, fn2), fr, fn3)
         if fn3 >= 0:
-            _replace(rec_nbr, _find(face_rec, fn3), fr, fn2)
+            replace_in_row(rec_nbr, _find(face_rec, fn3), fr, fn2)
         _remove_face(fr, mat, face_rec, off, cnt, rec_pos, rec_nbr, rec_face, rec_tri, rec_dirty)
     state[x] = (state[x] & IN_LIST) | ACTIVE
     state[t] = state[t] & IN_LIST

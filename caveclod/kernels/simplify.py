@@ -30,7 +30,7 @@ import numba as nb
 import numpy as np
 
 from .bounds import cone_add_cone, quadric_add_plane, quadric_eval, sphere_add_sphere
-from .fans import collect_fan, corner_of
+from .fans import collect_fan, corner_of, replace_in_row
 
 FREE, SHARP, RIGID = 0, 1, 2
 BOUNDARY_WEIGHT = 4.0   # keep borders and seams in place, relative to area
@@ -209,14 +209,6 @@ def check_collapse(u, t, P, F, N, vface, fgroup, pclass, fixed, pg_start, pg_gro
 
 
 @nb.njit(cache=True, nogil=True)
-def _replace_nbr(N, f, old, new):
-    for k in range(3):
-        if N[f, k] == old:
-            N[f, k] = new
-            return
-
-
-@nb.njit(cache=True, nogil=True)
 def do_collapse(u, t, fl, fr, P, F, N, vface, alive, Q, cur_node, parent, child, npos,
                 nfaces, nfn, sphere, cone, err, creator, m, e, fan_u, nu, fan_t):
     """Perform a legal collapse and record node ``e + m``. Returns the node.
@@ -258,16 +250,16 @@ def do_collapse(u, t, fl, fr, P, F, N, vface, alive, Q, cur_node, parent, child,
     # Re-link the outer neighbours of fl and fr to each other.
     if fl != -1:
         if fn0 != -1:
-            _replace_nbr(N, fn0, fl, fn1)
+            replace_in_row(N, fn0, fl, fn1)
         if fn1 != -1:
-            _replace_nbr(N, fn1, fl, fn0)
+            replace_in_row(N, fn1, fl, fn0)
         alive[fl] = False
         creator[fl] = s
     if fr != -1:
         if fn2 != -1:
-            _replace_nbr(N, fn2, fr, fn3)
+            replace_in_row(N, fn2, fr, fn3)
         if fn3 != -1:
-            _replace_nbr(N, fn3, fr, fn2)
+            replace_in_row(N, fn3, fr, fn2)
         alive[fr] = False
         creator[fr] = s
     for i in range(nu):
