@@ -17,8 +17,8 @@ DEFAULT_SIZE = 256
 
 
 def build(source, *, cell_size: float = 1.0, z_scale: float = 1.0, materials=None,
-          crease_angle: float = 30.0, size: int = DEFAULT_SIZE, seed: int = 7,
-          progress: bool = False) -> StaticMesh:
+          crease_angle: float = 30.0, size: int = DEFAULT_SIZE, seed: int = 7, nodata: float | None = None,
+          weld: float | None = None, progress: bool = False) -> StaticMesh:
     """Build the static CAVECLOD mesh of ``source``.
 
     Args:
@@ -33,11 +33,19 @@ def build(source, *, cell_size: float = 1.0, z_scale: float = 1.0, materials=Non
             has none.
         size: cells per side of the default terrain.
         seed: seed of the default terrain.
+        nodata: heightfield value that marks missing samples (holes); NaN,
+            a GeoTIFF's GDAL_NODATA and -32768 in int16 grids always do.
+        weld: merge positions closer than about this distance (default:
+            weld exactly); see :mod:`caveclod.weld`.
         progress: draw a progress bar on stderr.
     """
     from .hierarchy import build_static_mesh
     _check_options(crease_angle=crease_angle, cell_size=cell_size, z_scale=z_scale)
-    src = to_source(source, cell_size=cell_size, z_scale=z_scale, materials=materials, size=size, seed=seed)
+    src = to_source(source, cell_size=cell_size, z_scale=z_scale, materials=materials, size=size, seed=seed,
+                    nodata=nodata)
+    if weld is not None:
+        from .weld import weld_positions
+        src = weld_positions(src, weld)
     return build_static_mesh(src, crease_angle=crease_angle, progress=progress)
 
 
@@ -59,7 +67,8 @@ def load(path: str | os.PathLike) -> StaticMesh:
     return _load_file(path)
 
 
-def to_source(source, *, cell_size=1.0, z_scale=1.0, materials=None, size=DEFAULT_SIZE, seed=7) -> SourceMesh:
+def to_source(source, *, cell_size=1.0, z_scale=1.0, materials=None, size=DEFAULT_SIZE, seed=7,
+              nodata=None) -> SourceMesh:
     """Turn any accepted ``source`` into a validated :class:`SourceMesh`."""
     from . import meshfile, terrain
     if isinstance(source, SourceMesh):
@@ -72,7 +81,7 @@ def to_source(source, *, cell_size=1.0, z_scale=1.0, materials=None, size=DEFAUL
     if isinstance(source, (str, os.PathLike)):
         path = Path(source)
         if path.suffix.lower() in HEIGHTFIELD_SUFFIXES:
-            heights = terrain.load_heightfield(path)
+            heights = terrain.load_heightfield(path, nodata=nodata)
             classes = None
             if materials is not None:
                 classes = terrain.load_material_map(materials) if isinstance(materials, (str, os.PathLike)) \

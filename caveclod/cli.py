@@ -46,7 +46,11 @@ def _parser() -> argparse.ArgumentParser:
     b.add_argument("--cell-size", type=float, default=1.0, help="heightfield grid spacing")
     b.add_argument("--z-scale", type=float, default=1.0, help="heightfield height scale")
     b.add_argument("--materials", help="heightfield material map (.npy, one integer class per cell)")
+    b.add_argument("--nodata", type=float, help="heightfield value marking missing samples, which become holes "
+                                                "(NaN, a GeoTIFF's GDAL_NODATA and -32768 in 16-bit signed grids always do)")
     b.add_argument("--crease-angle", type=float, default=30.0, help="degrees; edges sharper than this become normal seams where the input has no normals")
+    b.add_argument("--weld", type=float, help="merge positions closer than about this distance "
+                                              "(default: only bitwise-equal positions are one)")
     b.add_argument("--quiet", action="store_true", help="no progress on stderr")
     b.set_defaults(run=_build)
 
@@ -61,7 +65,7 @@ def _parser() -> argparse.ArgumentParser:
 def _build(args) -> int:
     from .api import build
     mesh = build(args.input, cell_size=args.cell_size, z_scale=args.z_scale, materials=args.materials,
-                 crease_angle=args.crease_angle, size=args.size, seed=args.seed,
+                 crease_angle=args.crease_angle, size=args.size, seed=args.seed, nodata=args.nodata, weld=args.weld,
                  progress=not args.quiet)
     try:
         mesh.save(args.output)

@@ -55,19 +55,47 @@ SNOW_FRACTION = 0.8
 # loading
 
 
-def load_heightfield(path: str | os.PathLike) -> np.ndarray:
+SRTM_VOID = -32768   # the no-data value of signed 16-bit elevation grids (SRTM)
+
+
+def load_heightfield(path: str | os.PathLike, nodata: float | None = None) -> np.ndarray:
     """Read a heightfield file into a (rows, cols) float64 array.
 
     ``.npy`` (any real 2-D array), ``.png`` (16- or 8-bit greyscale, read with
     Pillow) and ``.tif``/``.tiff`` (integer or float greyscale, read with
     tifffile). Values come back as stored (0..65535 for a 16-bit image): pass
     ``z_scale`` to :func:`heightfield_to_source` to turn them into heights.
-    NaN samples are kept (they become holes).
+
+    Missing samples become NaN (holes): NaN itself, ``nodata`` when given,
+    the GeoTIFF ``GDAL_NODATA`` tag's value, and -32768 in signed 16-bit
+    grids (the SRTM void marker). Real elevation data marks voids that way;
+    read as heights they would be pits kilometres deep.
     """
     array = _read_grid(path, what="heightfield")
     if array.dtype.kind not in "biuf":
         raise InputError(f"heightfield {path} holds {array.dtype} values; give real numbers")
-    return np.asarray(array, dtype=np.float64)
+    voids = [] if nodata is None else [float(nodata)]
+    if os.path.splitext(os.fspath(path))[1].lower() in (".tif", ".tiff"):
+        voids += _tiff_nodata(path)
+    if array.dtype == np.int16:
+        voids.append(SRTM_VOID)
+    heights = np.asarray(array, dtype=np.float64)
+    for value in voids:
+        heights[heights == value] = np.nan
+    return heights
+
+
+def _tiff_nodata(path) -> list[float]:
+    """The GDAL_NODATA value of a GeoTIFF, as a one-item list (or empty)."""
+    import tifffile
+    with tifffile.TiffFile(path) as tif:
+        tag = tif.pages[0].tags.get("GDAL_NODATA") or tif.pages[0].tags.get(42113)
+        if tag is None:
+            return []
+        try:
+            return [float(str(tag.value).strip().strip("\x00"))]
+        except ValueError:
+            return []
 
 
 def load_material_map(path: str | os.PathLike) -> np.ndarray:

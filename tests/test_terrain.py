@@ -8,6 +8,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 from hypothesis.extra import numpy as hnp
 
+from caveclod import terrain
 from caveclod.errors import InputError
 from caveclod.terrain import (
     LAKE_LEVEL,
@@ -495,3 +496,38 @@ def test_full_size_default_terrain():
     source = default_terrain(1024)
     assert len(source.faces) == 2_097_152
     assert len(source.positions) == 1025 * 1025
+
+
+# --------------------------------------------------------------------------
+# no-data samples of real elevation data
+
+
+def _dem(seed=0):
+    rng = np.random.default_rng(seed)
+    return (rng.normal(0, 5, (20, 20)).cumsum(axis=0) + 500).astype(np.int16)
+
+
+def test_srtm_voids_in_int16_tiffs_become_holes(tmp_path):
+    tifffile = pytest.importorskip("tifffile")
+    dem = _dem()
+    dem[5:8, 5:8] = terrain.SRTM_VOID
+    tifffile.imwrite(tmp_path / "srtm.tif", dem)
+    heights = terrain.load_heightfield(tmp_path / "srtm.tif")
+    assert np.isnan(heights).sum() == 9
+    assert np.nanmin(heights) > 0
+
+
+def test_gdal_nodata_tag_is_honoured(tmp_path):
+    tifffile = pytest.importorskip("tifffile")
+    dem = _dem().astype(np.float32)
+    dem[2:4, 10:12] = -9999.0
+    tifffile.imwrite(tmp_path / "geo.tif", dem, extratags=[(42113, "s", 0, "-9999", True)])
+    assert np.isnan(terrain.load_heightfield(tmp_path / "geo.tif")).sum() == 4
+
+
+def test_explicit_nodata_value(tmp_path):
+    dem = _dem().astype(np.float64)
+    dem[0, :3] = 0.0
+    np.save(tmp_path / "dem.npy", dem)
+    assert not np.isnan(terrain.load_heightfield(tmp_path / "dem.npy")).any()
+    assert np.isnan(terrain.load_heightfield(tmp_path / "dem.npy", nodata=0.0)).sum() == 3
