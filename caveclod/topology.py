@@ -55,6 +55,15 @@ def face_neighbours(faces: np.ndarray, n_positions: int) -> Topology:
     return Topology(nbrs, edge_faces, nonmanifold, border)
 
 
+@nb.njit(cache=True, nogil=True, inline="always")
+def _link_pair(faces, nbrs, h, g):
+    """Link half-edges h and g (ids 3f + k) if they run in opposite directions."""
+    fh, kh, fg, kg = h // 3, h % 3, g // 3, g % 3
+    if faces[fh, kh] == faces[fg, (kg + 1) % 3]:
+        nbrs[fh, kh] = fg
+        nbrs[fg, kg] = fh
+
+
 @nb.njit(cache=True, nogil=True)
 def _link_edges(faces, e):
     """(nbrs, edge_faces), both (p, 3) int32; see :class:`Topology`.
@@ -81,12 +90,39 @@ def _link_edges(faces, e):
     nbrs = np.full((p, 3), -1, np.int32)
     edge_faces = np.zeros((p, 3), np.int32)
     for x in range(e):
-        for i in range(start[x], start[x + 1]):
+        lo, hi_end = start[x], start[x + 1]
+        if hi_end - lo > 32:
+            # A high-valence position (a fan centre): sort its half-edges by
+            # far end so equal edges sit together, instead of a quadratic scan.
+            far = np.empty(hi_end - lo, np.int64)
+            for i in range(lo, hi_end):
+                h = bucket[i]
+                far[i - lo] = max(faces[h // 3, h % 3], faces[h // 3, (h % 3 + 1) % 3])
+            bucket[lo:hi_end] = bucket[lo:hi_end][np.argsort(far, kind="mergesort")]
+            i = lo
+            while i < hi_end:
+                j = i
+                h = bucket[i]
+                key = max(faces[h // 3, h % 3], faces[h // 3, (h % 3 + 1) % 3])
+                while j + 1 < hi_end:
+                    g = bucket[j + 1]
+                    if max(faces[g // 3, g % 3], faces[g // 3, (g % 3 + 1) % 3]) != key:
+                        break
+                    j += 1
+                count = j - i + 1
+                for q in range(i, j + 1):
+                    h = bucket[q]
+                    edge_faces[h // 3, h % 3] = count
+                if count == 2:
+                    _link_pair(faces, nbrs, bucket[i], bucket[j])
+                i = j + 1
+            continue
+        for i in range(lo, hi_end):
             h = bucket[i]
             f, k = h // 3, h % 3
             hi = max(faces[f, k], faces[f, (k + 1) % 3])
             count, other = 0, -1
-            for j in range(start[x], start[x + 1]):
+            for j in range(lo, hi_end):
                 g = bucket[j]
                 if max(faces[g // 3, g % 3], faces[g // 3, (g % 3 + 1) % 3]) == hi:
                     count += 1

@@ -225,3 +225,28 @@ def test_surface_group_ids_differ_at_every_position(built):
     nxt = np.arange(1, len(sgid))
     within = same_pos[nxt] == same_pos[nxt - 1]
     assert (sgid[nxt][within] > sgid[nxt - 1][within]).all()
+
+
+def test_high_valence_fan_links_like_a_small_one():
+    """A fan of 2,000 triangles round one centre (a capped cylinder's lid)."""
+    import trimesh
+    from caveclod.topology import face_neighbours
+    cyl = trimesh.creation.cylinder(radius=1.0, height=1.0, sections=1000)
+    faces = cyl.faces.astype(np.int32)
+    topo = face_neighbours(faces, len(cyl.vertices))
+    # Reference: every undirected edge's faces, by dictionary.
+    users = {}
+    for f, tri in enumerate(faces):
+        for k in range(3):
+            a, b = int(tri[k]), int(tri[(k + 1) % 3])
+            users.setdefault((min(a, b), max(a, b)), []).append((f, k, a < b))
+    for (a, b), fs in users.items():
+        for f, k, _ in fs:
+            assert topo.edge_faces[f, k] == len(fs)
+            if len(fs) == 2 and fs[0][2] != fs[1][2]:
+                other = fs[1][0] if fs[0][0] == f else fs[0][0]
+                assert topo.nbrs[f, k] == other
+            else:
+                assert topo.nbrs[f, k] == -1
+    mesh = caveclod.build(cyl)
+    assert len(mesh.base_faces) <= 300
