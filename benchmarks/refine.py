@@ -106,8 +106,10 @@ def speedup(mesh, views, repeats):
     Also the best possible speed-up given how unequal the cameras' work is
     (total work over the larger camera's share).
     """
-    one = [threaded(mesh, views, 1) for _ in range(repeats)]
-    two = [threaded(mesh, views, 2) for _ in range(repeats)]
+    one, two = [], []
+    for _ in range(repeats):        # interleaved, so drift of the machine hits both alike
+        one.append(threaded(mesh, views, 1))
+        two.append(threaded(mesh, views, 2))
     bound = statistics.median(sum(b) / max(b) for _, b in one)
     return {"one_thread_seconds": [w for w, _ in one], "two_threads_seconds": [w for w, _ in two],
             "speedup_median": statistics.median(a / b for (a, _), (b, _) in zip(one, two)),
