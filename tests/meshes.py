@@ -14,6 +14,7 @@ from collections import defaultdict
 import numpy as np
 import trimesh
 
+from caveclod.errors import InputError
 from caveclod.hierarchy import prepare_source
 from caveclod.meshfile import source_from_trimesh
 from caveclod.source import SourceMesh
@@ -60,6 +61,19 @@ def holey_scan(seed=0, n=12) -> SourceMesh:
     classes = rng.integers(0, 3, (n, n))
     classes[: n // 2] = 0                      # big regions plus speckle
     return heightfield_to_source(h, cell_size=1.0, z_scale=1.0, materials=classes)
+
+
+def random_heightfield(rows: int, cols: int, seed: int, n_classes: int, holes: float) -> SourceMesh | None:
+    """A random small terrain with NaN holes and speckled materials; None
+    when every cell falls into a hole."""
+    rng = np.random.default_rng(seed)
+    h = rng.normal(0, 1, (rows, cols)).cumsum(axis=0)
+    h[rng.random(h.shape) < holes] = np.nan
+    classes = rng.integers(0, n_classes, (rows - 1, cols - 1))
+    try:
+        return heightfield_to_source(h, materials=classes)
+    except InputError:
+        return None
 
 
 def random_scan(seed: int, keep: float) -> SourceMesh | None:

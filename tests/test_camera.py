@@ -25,11 +25,11 @@ import caveclod
 from caveclod.camera import CameraState
 from caveclod.hierarchy import build_static_mesh, prepare_source
 from caveclod.surfaces import corner_vertices
-from caveclod.terrain import default_terrain, heightfield_to_source
+from caveclod.terrain import default_terrain
 from caveclod.topology import face_neighbours
 from caveclod.view import View
 
-from meshes import holey_scan, noisy_box, random_scan, uv_sphere, with_bad_topology
+from meshes import holey_scan, noisy_box, random_heightfield, random_scan, uv_sphere, with_bad_topology
 
 CASES = {
     "terrain32": lambda: default_terrain(32),
@@ -862,13 +862,8 @@ def test_cameras_work_on_a_read_only_memory_mapped_mesh(lib, tmp_path):
     n_classes=st.integers(1, 4), holes=st.floats(0, 0.3), n_views=st.integers(1, 4),
 )
 def test_property_random_heightfields(rows, cols, seed, n_classes, holes, n_views):
-    rng = np.random.default_rng(seed)
-    h = rng.normal(0, 1, (rows, cols)).cumsum(axis=0)
-    h[rng.random(h.shape) < holes] = np.nan
-    classes = rng.integers(0, n_classes, (rows - 1, cols - 1))
-    try:
-        source = heightfield_to_source(h, materials=classes)
-    except caveclod.InputError:
+    source = random_heightfield(rows, cols, seed, n_classes, holes)
+    if source is None:
         return                                  # everything fell into holes
     case = Case(source)
     cam = case.mesh.new_camera()

@@ -10,9 +10,9 @@ from hypothesis import strategies as st
 import caveclod
 from caveclod.hierarchy import build_static_mesh, prepare_source
 from caveclod.surfaces import corner_vertices
-from caveclod.terrain import default_terrain, heightfield_to_source
+from caveclod.terrain import default_terrain
 
-from meshes import holey_scan, noisy_box, random_scan, replay_collapses, uv_sphere, with_bad_topology
+from meshes import holey_scan, noisy_box, random_heightfield, random_scan, replay_collapses, uv_sphere, with_bad_topology
 
 CASES = {
     "terrain64": lambda: default_terrain(64),
@@ -130,13 +130,8 @@ def test_nonmanifold_positions_are_rigid():
 )
 def test_property_random_heightfields(rows, cols, seed, n_classes, holes):
     """Random small terrains with holes and speckled materials."""
-    rng = np.random.default_rng(seed)
-    h = rng.normal(0, 1, (rows, cols)).cumsum(axis=0)
-    h[rng.random(h.shape) < holes] = np.nan
-    classes = rng.integers(0, n_classes, (rows - 1, cols - 1))
-    try:
-        source = heightfield_to_source(h, materials=classes)
-    except caveclod.InputError:
+    source = random_heightfield(rows, cols, seed, n_classes, holes)
+    if source is None:
         return                                  # everything fell into holes
     mesh = build_static_mesh(source)
     replay_collapses(mesh, source)
