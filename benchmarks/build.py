@@ -25,8 +25,8 @@ RESULTS = Path(__file__).parent / "results"
 CHILD = r"""
 import json, sys, time
 import caveclod
-from caveclod.hierarchy import build_static_mesh
-from caveclod.terrain import default_terrain
+from caveclod.builder.hierarchy import build_static_mesh
+from caveclod.builder.terrain import default_terrain
 
 def rss_kb(field):
     for line in open("/proc/self/status"):

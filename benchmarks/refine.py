@@ -32,7 +32,7 @@ from pathlib import Path
 import numpy as np
 
 import caveclod
-from caveclod.flyover import flyover_view, mesh_bounds
+from caveclod.paths import flyover
 
 RESULTS = Path(__file__).parent / "results"
 FPS = 30
@@ -49,7 +49,7 @@ def load_mesh(args):
 
 
 def views_for(lo, hi, cameras, frames, tolerance):
-    return [[flyover_view(lo, hi, c, f / FPS, tolerance_px=tolerance) for c in range(cameras)]
+    return [[caveclod.View.from_pose(flyover(lo, hi, c, f / FPS), tolerance_px=tolerance) for c in range(cameras)]
             for f in range(frames)]
 
 
@@ -132,10 +132,10 @@ def main(argv=None) -> int:
     args = ap.parse_args(argv)
 
     mesh, label = load_mesh(args)
-    lo, hi = mesh_bounds(mesh)
+    lo, hi = mesh.bounds()
     frames = int(args.seconds * FPS)
     warm = FPS                                           # leave out the first second
-    mesh.new_camera().update(flyover_view(lo, hi, 0, 0.0))  # compile/load kernels
+    mesh.new_camera().update(caveclod.View.from_pose(flyover(lo, hi, 0, 0.0)))  # compile/load kernels
     report = {"mesh": label, "triangles": mesh.n_faces, "static_bytes": mesh.nbytes,
               "equation1_static_bytes": mesh.equation1_bytes, "frames": frames, "fps": FPS,
               "tolerance_px": args.tolerance, "cameras": {}}

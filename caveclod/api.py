@@ -8,7 +8,7 @@ from pathlib import Path
 import numpy as np
 
 from .errors import InputError
-from .source import SourceMesh
+from .builder.source import SourceMesh
 from .staticmesh import StaticMesh
 from .staticmesh import load as _load_file
 
@@ -25,7 +25,7 @@ def build(source, *, cell_size: float = 1.0, z_scale: float = 1.0, materials=Non
         source: ``"default"`` (the built-in procedural terrain), a path to a
             mesh file (anything trimesh loads) or a heightfield (``.npy``,
             16-bit ``.png``/``.tif``), a ``trimesh.Trimesh``/``Scene``, or a
-            :class:`~caveclod.source.SourceMesh`.
+            :class:`~caveclod.builder.source.SourceMesh`.
         cell_size, z_scale: heightfield grid spacing and height scale.
         materials: heightfield material map: a path to ``.npy`` or an (r, c)
             / (r-1, c-1) integer array, one class per cell.
@@ -36,15 +36,15 @@ def build(source, *, cell_size: float = 1.0, z_scale: float = 1.0, materials=Non
         nodata: heightfield value that marks missing samples (holes); NaN,
             a GeoTIFF's GDAL_NODATA and -32768 in int16 grids always do.
         weld: merge positions closer than about this distance (default:
-            weld exactly); see :mod:`caveclod.weld`.
+            weld exactly); see :mod:`caveclod.builder.weld`.
         progress: draw a progress bar on stderr.
     """
-    from .hierarchy import build_static_mesh
+    from .builder.hierarchy import build_static_mesh
     _check_options(crease_angle=crease_angle, cell_size=cell_size, z_scale=z_scale)
     src = to_source(source, cell_size=cell_size, z_scale=z_scale, materials=materials, size=size, seed=seed,
                     nodata=nodata)
     if weld is not None:
-        from .weld import weld_positions
+        from .builder.weld import weld_positions
         src = weld_positions(src, weld)
     return build_static_mesh(src, crease_angle=crease_angle, progress=progress)
 
@@ -70,7 +70,7 @@ def load(path: str | os.PathLike) -> StaticMesh:
 def to_source(source, *, cell_size=1.0, z_scale=1.0, materials=None, size=DEFAULT_SIZE, seed=7,
               nodata=None) -> SourceMesh:
     """Turn any accepted ``source`` into a validated :class:`SourceMesh`."""
-    from . import meshfile, terrain
+    from .builder import meshfile, terrain
     if isinstance(source, SourceMesh):
         source.validate()
         return source

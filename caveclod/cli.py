@@ -25,6 +25,10 @@ def main(argv: list[str] | None = None) -> int:
     except CaveclodError as exc:
         print(f"caveclod: error: {exc}", file=sys.stderr)
         return EXIT_USAGE
+    except ModuleNotFoundError as exc:
+        print(f"caveclod: error: '{args.command}' needs the Python package {exc.name!r}, which is not installed; "
+              "install the extras it needs, e.g. pip install 'caveclod[all]'", file=sys.stderr)
+        return EXIT_USAGE
     except MemoryError:
         print("caveclod: error: out of memory; build a smaller input or use a machine with more memory", file=sys.stderr)
         return EXIT_USAGE

@@ -15,7 +15,8 @@ import sys
 import numpy as np
 
 from .api import build, load
-from .flyover import flyover_view, mesh_bounds
+from .paths import flyover
+from .refine.view import View
 
 
 def main(argv=None) -> int:
@@ -41,9 +42,9 @@ def main(argv=None) -> int:
 
 def fly(mesh, n_cameras: int, seconds: float, fps: int = 30) -> None:
     """Print per-camera figures of a flyover, then the shared-state baseline."""
-    lo, hi = mesh_bounds(mesh)
+    lo, hi = mesh.bounds()
     frames = max(int(seconds * fps), 2)
-    views = [[flyover_view(lo, hi, c, f / fps) for c in range(n_cameras)] for f in range(frames)]
+    views = [[View.from_pose(flyover(lo, hi, c, f / fps)) for c in range(n_cameras)] for f in range(frames)]
     cams = [mesh.new_camera() for _ in range(n_cameras)]
     ops = np.zeros((frames, n_cameras))
     ms = np.zeros((frames, n_cameras))

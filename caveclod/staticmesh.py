@@ -162,6 +162,11 @@ class StaticMesh:
         """(e, 3) float32 position of each node position id."""
         return self.arrays["vertex_positions"][self.arrays["pos_vstart"][:-1]]
 
+    def bounds(self) -> tuple[np.ndarray, np.ndarray]:
+        """(lo, hi) float64 (3,) corners of the axis-aligned bounding box of the positions."""
+        pos = np.asarray(self.arrays["vertex_positions"], dtype=np.float64)
+        return pos.min(axis=0), pos.max(axis=0)
+
     def node_positions(self, nodes: np.ndarray) -> np.ndarray:
         """(k,) position ids of ``nodes`` (leaves or internal)."""
         nodes = np.asarray(nodes)
@@ -192,7 +197,7 @@ class StaticMesh:
         return out
 
     def class_tally(self) -> dict:
-        from .surfaces import CLASS_NAMES
+        from .builder.surfaces import CLASS_NAMES
         counts = np.bincount(np.asarray(self.arrays["position_class"]), minlength=3)
         return {name: int(c) for name, c in zip(CLASS_NAMES, counts)}
 
@@ -217,7 +222,7 @@ class StaticMesh:
 
     def new_camera(self):
         """A fresh per-camera refinement state showing the base mesh."""
-        from .camera import CameraState
+        from .refine.camera import CameraState
         return CameraState(self)
 
     # -- file -------------------------------------------------------------

@@ -15,11 +15,11 @@ import numpy as np
 import trimesh
 
 from caveclod.errors import InputError
-from caveclod.hierarchy import prepare_source
-from caveclod.meshfile import source_from_trimesh
-from caveclod.source import SourceMesh
-from caveclod.surfaces import RIGID, layout_surfaces
-from caveclod.terrain import heightfield_to_source
+from caveclod.builder.hierarchy import prepare_source
+from caveclod.builder.meshfile import source_from_trimesh
+from caveclod.builder.source import SourceMesh
+from caveclod.builder.surfaces import RIGID, layout_surfaces
+from caveclod.builder.terrain import heightfield_to_source
 
 
 def uv_sphere(count=(24, 12)) -> SourceMesh:

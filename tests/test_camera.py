@@ -22,12 +22,12 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 import caveclod
-from caveclod.camera import CameraState
-from caveclod.hierarchy import build_static_mesh, prepare_source
-from caveclod.surfaces import corner_vertices
-from caveclod.terrain import default_terrain
-from caveclod.topology import face_neighbours
-from caveclod.view import View
+from caveclod.refine.camera import CameraState
+from caveclod.builder.hierarchy import build_static_mesh, prepare_source
+from caveclod.builder.surfaces import corner_vertices
+from caveclod.builder.terrain import default_terrain
+from caveclod.builder.topology import face_neighbours
+from caveclod.refine.view import View
 
 from meshes import holey_scan, noisy_box, random_heightfield, random_scan, uv_sphere, with_bad_topology
 

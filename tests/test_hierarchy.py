@@ -8,9 +8,9 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 import caveclod
-from caveclod.hierarchy import build_static_mesh, prepare_source
-from caveclod.surfaces import corner_vertices
-from caveclod.terrain import default_terrain
+from caveclod.builder.hierarchy import build_static_mesh, prepare_source
+from caveclod.builder.surfaces import corner_vertices
+from caveclod.builder.terrain import default_terrain
 
 from meshes import holey_scan, noisy_box, random_heightfield, random_scan, replay_collapses, uv_sphere, with_bad_topology
 
@@ -201,7 +201,7 @@ def test_verify_detects_corruption(tmp_path):
 def test_large_base_mesh_says_why():
     """A scan broken into many islands cannot shrink below one face each."""
     import trimesh
-    from caveclod.meshfile import source_from_trimesh
+    from caveclod.builder.meshfile import source_from_trimesh
     pieces = [trimesh.creation.icosphere(subdivisions=0).apply_translation((3 * i, 0, 0)) for i in range(40)]
     mesh = build_static_mesh(source_from_trimesh(trimesh.util.concatenate(pieces)))
     info = mesh.info["base_mesh"]
@@ -225,7 +225,7 @@ def test_surface_group_ids_differ_at_every_position(built):
 def test_high_valence_fan_links_like_a_small_one():
     """A fan of 2,000 triangles round one centre (a capped cylinder's lid)."""
     import trimesh
-    from caveclod.topology import face_neighbours
+    from caveclod.builder.topology import face_neighbours
     cyl = trimesh.creation.cylinder(radius=1.0, height=1.0, sections=1000)
     faces = cyl.faces.astype(np.int32)
     topo = face_neighbours(faces, len(cyl.vertices))

@@ -1,4 +1,4 @@
-"""Tests of caveclod.meshfile: mesh files and trimesh objects -> SourceMesh.
+"""Tests of caveclod.builder.meshfile: mesh files and trimesh objects -> SourceMesh.
 
 Every fixture is written by the test into a temporary directory: small text
 files (OBJ, MTL) literally, binary ones (PLY, GLB, STL) through trimesh's
@@ -17,10 +17,10 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 from trimesh.visual import ColorVisuals, TextureVisuals
 
-from caveclod import meshfile
+from caveclod.builder import meshfile
 from caveclod.errors import InputError
-from caveclod.meshfile import load_mesh_file, source_from_trimesh
-from caveclod.source import SourceMesh
+from caveclod.builder.meshfile import load_mesh_file, source_from_trimesh
+from caveclod.builder.source import SourceMesh
 
 # --------------------------------------------------------------------------
 # fixture makers

@@ -21,11 +21,11 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 import caveclod
-from caveclod.camera import CameraState
-from caveclod.hierarchy import build_static_mesh
+from caveclod.refine.camera import CameraState
+from caveclod.builder.hierarchy import build_static_mesh
 from caveclod.kernels import refine as K
-from caveclod.reference import ReferenceCamera
-from caveclod.view import View
+from caveclod.refine.reference import ReferenceCamera
+from caveclod.refine.view import View
 
 from meshes import holey_scan, noisy_box, uv_sphere, with_bad_topology
 

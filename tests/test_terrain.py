@@ -8,9 +8,9 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 from hypothesis.extra import numpy as hnp
 
-from caveclod import terrain
+from caveclod.builder import terrain
 from caveclod.errors import InputError
-from caveclod.terrain import (
+from caveclod.builder.terrain import (
     LAKE_LEVEL,
     MATERIALS,
     TERRAIN_EXTENT,

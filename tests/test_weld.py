@@ -6,9 +6,9 @@ import numpy as np
 import pytest
 
 import caveclod
-from caveclod.hierarchy import build_static_mesh
-from caveclod.terrain import default_terrain
-from caveclod.weld import weld_positions
+from caveclod.builder.hierarchy import build_static_mesh
+from caveclod.builder.terrain import default_terrain
+from caveclod.builder.weld import weld_positions
 
 from meshes import replay_collapses
 
@@ -38,7 +38,7 @@ def cracked_terrain(gap=1e-6):
     extra = np.array(extra_vertices, dtype=np.int64)
     vpos_all = np.r_[vpos, copy_of[vpos[extra]]]
     uv = np.r_[src.vertex_uv, src.vertex_uv[extra]]
-    return caveclod.source.SourceMesh(positions, vpos_all, faces, src.face_material, src.materials,
+    return caveclod.builder.source.SourceMesh(positions, vpos_all, faces, src.face_material, src.materials,
                                       vertex_uv=uv)
 
 

@@ -3,7 +3,7 @@
 A camera's state is a handful of arrays; the static mesh is only read, so
 any number of cameras share it and each kernel call releases the GIL.
 
-Camera state (see :class:`caveclod.camera.CameraState`):
+Camera state (see :class:`caveclod.refine.camera.CameraState`):
 
 * ``state`` (n,) uint8 per node: INACTIVE (below the front), ACTIVE, SPLIT
   (above it), plus the IN_LIST bit while the node sits in ``active``.
@@ -40,7 +40,7 @@ STATE_MASK, IN_LIST = 3, 4
 OK, NEED_RECORDS, NEED_LIST, NEED_INDEX = 0, 1, 2, 3
 MIXED, SPLITS_ONLY, COLLAPSES_ONLY = 0, 1, 2   # what a pass may do
 
-# View parameter layout (caveclod.view).
+# View parameter layout (caveclod.refine.view).
 P_EYE, P_PLANES, P_KAPPA, P_TOL, P_CULL, P_BACKFACE = 0, 3, 23, 24, 25, 26
 
 

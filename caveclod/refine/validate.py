@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from .kernels import refine as K
+from ..kernels import refine as K
 
 
 def _fail(msg: str):
@@ -12,7 +12,7 @@ def _fail(msg: str):
 
 
 def validate_camera(cam) -> None:
-    """See :meth:`caveclod.camera.CameraState.validate`."""
+    """See :meth:`caveclod.refine.camera.CameraState.validate`."""
     mesh = cam.mesh
     e = mesh.n_positions
     parent = np.asarray(mesh.node_parent)

@@ -31,7 +31,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .errors import InputError
+from ..errors import InputError
 from .source import SourceMesh
 
 __all__ = ["load_mesh_file", "source_from_trimesh"]

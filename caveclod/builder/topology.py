@@ -15,7 +15,7 @@ from dataclasses import dataclass
 import numba as nb
 import numpy as np
 
-from .kernels.fans import collect_fan
+from ..kernels.fans import collect_fan
 
 
 @dataclass

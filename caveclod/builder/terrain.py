@@ -26,7 +26,7 @@ from collections.abc import Sequence
 
 import numpy as np
 
-from .errors import InputError
+from ..errors import InputError
 from .source import SourceMesh
 
 MATERIALS = ("water", "grass", "rock", "snow")

@@ -61,7 +61,7 @@ def layout_surfaces(face_pos, face_vertex, face_material, nbrs, nonmanifold, n_p
         face_pos: (p, 3) int32 position ids.
         face_vertex: (p, 3) int32 source vertex ids (attribute identity).
         face_material: (p,) int32.
-        nbrs: (p, 3) int32 face neighbours (see :mod:`caveclod.topology`).
+        nbrs: (p, 3) int32 face neighbours (see :mod:`caveclod.builder.topology`).
         nonmanifold: (e,) bool positions that must stay RIGID.
         n_positions: e.
     """

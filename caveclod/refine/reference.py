@@ -375,7 +375,7 @@ class ReferenceCamera:
         self.active = kept
 
     def update(self, view):
-        """Refine for ``view`` (a :class:`caveclod.view.View`); returns (splits, collapses)."""
+        """Refine for ``view`` (a :class:`caveclod.refine.view.View`); returns (splits, collapses)."""
         self.set_view(view)
         self.splits = self.collapses = 0
         if self.max_ops == math.inf and self.max_faces == math.inf:

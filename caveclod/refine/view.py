@@ -12,7 +12,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .errors import InputError
+from ..errors import InputError
 
 # Layout of the float64 parameter vector the kernels read.
 P_EYE = 0            # 3: eye position
@@ -78,6 +78,12 @@ class View:
             raise InputError("View.eye and View.target are the same point; look somewhere")
         if np.linalg.norm(np.cross(forward, self.up)) <= 1e-12 * np.linalg.norm(forward) * np.linalg.norm(self.up):
             raise InputError("View.up is parallel to the viewing direction (or zero); give an up vector across it")
+
+    @classmethod
+    def from_pose(cls, pose, **options) -> "View":
+        """A view from a :class:`caveclod.paths.Pose` (eye, target, up) and options."""
+        eye, target, up = pose
+        return cls(eye=eye, target=target, up=up, **options)
 
     def params(self) -> np.ndarray:
         """The (P_SIZE,) float64 vector the refinement kernels read."""

@@ -15,13 +15,13 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .errors import InputError
-from .kernels.bounds import empty_cones, empty_spheres
-from .kernels.simplify import gather_candidates, init_leaves, perform_collapses, rank_collapses
+from ..errors import InputError
+from ..kernels.bounds import empty_cones, empty_spheres
+from ..kernels.simplify import gather_candidates, init_leaves, perform_collapses, rank_collapses
 from .normals import add_crease_normals
-from .progress import Progress, stage
+from ..progress import Progress, stage
 from .source import SourceMesh
-from .staticmesh import StaticMesh
+from ..staticmesh import StaticMesh
 from .surfaces import RIGID, corner_vertices, layout_surfaces
 from .topology import Topology, count_components, face_neighbours
 

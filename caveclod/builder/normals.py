@@ -12,7 +12,7 @@ from __future__ import annotations
 import numba as nb
 import numpy as np
 
-from .errors import InputError
+from ..errors import InputError
 from .source import SourceMesh
 from .topology import Topology, face_neighbours
 
@@ -50,7 +50,7 @@ def add_crease_normals(source: SourceMesh, crease_angle_deg: float, topo: Topolo
 
     Vertices are split where wedges differ, so the result's vertex ids change;
     UVs and colours of the input vertices are kept. ``topo`` is the mesh's
-    :class:`~caveclod.topology.Topology` when the caller already has it.
+    :class:`~caveclod.builder.topology.Topology` when the caller already has it.
     """
     if not 0.0 <= crease_angle_deg <= 180.0:
         raise InputError(f"--crease-angle must be between 0 and 180 degrees, got {crease_angle_deg}")

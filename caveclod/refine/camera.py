@@ -12,8 +12,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from .errors import CaveclodError, InputError
-from .kernels import refine as K
+from ..errors import CaveclodError, InputError
+from ..kernels import refine as K
 from .view import View
 
 UNLIMITED = np.iinfo(np.int64).max
