@@ -43,12 +43,16 @@ class Delta:
         surfaces: {material id: SurfaceDelta} for each material that changed.
         splits, collapses: operations made.
         seconds: time the update took.
+        budget_exhausted: ``max_ops`` or ``max_faces`` stopped the update
+            short: the camera has not converged for its view yet, and later
+            updates with the same view go on refining.
     """
 
     surfaces: dict = field(default_factory=dict)
     splits: int = 0
     collapses: int = 0
     seconds: float = 0.0
+    budget_exhausted: bool = False
 
     @property
     def operations(self) -> int:
@@ -196,6 +200,8 @@ class CameraState:
                 self._pass(vp, K.COLLAPSES_ONLY)
         delta = self._collect_delta()
         delta.splits, delta.collapses = int(self.counts[0]), int(self.counts[1])
+        delta.budget_exhausted = bool(self.counts.sum() >= self.max_ops or
+                                      (self.max_faces != UNLIMITED and self.n_faces + 2 > self.max_faces))
         delta.seconds = time.perf_counter() - t0
         return delta
 
@@ -260,6 +266,15 @@ class CameraState:
         """{material: (k, 3) uint32 vertex-buffer indices}: the index buffers."""
         return {s: self.rec_tri[int(self.off[s]): int(self.off[s] + self.cnt[s])].copy()
                 for s in range(self.n_materials) if self.cnt[s] > 0}
+
+    def index_buffer(self, material: int) -> np.ndarray:
+        """(count, 3) uint32 view of one material's index buffer, without a copy.
+
+        This is the server's mirror of a client's buffer (slot k is row k);
+        it is only valid until the next :meth:`update`.
+        """
+        lo = int(self.off[material])
+        return self.rec_tri[lo: lo + int(self.cnt[material])]
 
     def active_faces(self) -> np.ndarray:
         """(k,) int32 ids of the active faces."""
