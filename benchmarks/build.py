@@ -26,7 +26,7 @@ CHILD = r"""
 import json, sys, time
 import caveclod
 from caveclod.builder.hierarchy import build_static_mesh
-from caveclod.builder.terrain import default_terrain
+from caveclod.builder.builtin import default_terrain
 
 def rss_kb(field):
     for line in open("/proc/self/status"):

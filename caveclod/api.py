@@ -17,12 +17,14 @@ DEFAULT_SIZE = 256
 
 
 def build(source, *, cell_size: float = 1.0, z_scale: float = 1.0, materials=None,
-          crease_angle: float = 30.0, size: int = DEFAULT_SIZE, seed: int = 7, nodata: float | None = None,
+          crease_angle: float | None = None, size: int = DEFAULT_SIZE, seed: int | None = None, nodata: float | None = None,
           weld: float | None = None, progress: bool = False) -> StaticMesh:
     """Build the static CAVECLOD mesh of ``source``.
 
     Args:
-        source: ``"default"`` (the built-in procedural terrain), a path to a
+        source: a built-in (``"default"``: smooth terrain, ``"rough"``:
+            rough terrain with holes, ``"scan"``: a range scan; see
+            :mod:`caveclod.builder.builtin`), a path to a
             mesh file (anything trimesh loads) or a heightfield (``.npy``,
             16-bit ``.png``/``.tif``), a ``trimesh.Trimesh``/``Scene``, or a
             :class:`~caveclod.builder.source.SourceMesh`.
@@ -30,9 +32,10 @@ def build(source, *, cell_size: float = 1.0, z_scale: float = 1.0, materials=Non
         materials: heightfield material map: a path to ``.npy`` or an (r, c)
             / (r-1, c-1) integer array, one class per cell.
         crease_angle: degrees; normals are computed with it where the input
-            has none.
-        size: cells per side of the default terrain.
-        seed: seed of the default terrain.
+            has none. None: 30 for meshes, smooth (180) for heightfields, the
+            built-in terrain's own choice for built-ins.
+        size: cells (samples) per side of a built-in.
+        seed: seed of a built-in (None: its own default).
         nodata: heightfield value that marks missing samples (holes); NaN,
             a GeoTIFF's GDAL_NODATA and -32768 in int16 grids always do.
         weld: merge positions closer than about this distance (default:
@@ -51,14 +54,15 @@ def build(source, *, cell_size: float = 1.0, z_scale: float = 1.0, materials=Non
 
 def _check_options(crease_angle, cell_size, z_scale) -> None:
     """Refuse bad numeric options before any work is done."""
-    for name, value in (("--crease-angle", crease_angle), ("--cell-size", cell_size), ("--z-scale", z_scale)):
+    for name, value in (("--crease-angle", 0.0 if crease_angle is None else crease_angle),
+                        ("--cell-size", cell_size), ("--z-scale", z_scale)):
         try:
             ok = np.isfinite(float(value))
         except (TypeError, ValueError):
             ok = False
         if not ok:
             raise InputError(f"{name} must be a finite number, got {value!r}")
-    if not 0.0 <= float(crease_angle) <= 180.0:
+    if crease_angle is not None and not 0.0 <= float(crease_angle) <= 180.0:
         raise InputError(f"--crease-angle must be between 0 and 180 degrees, got {crease_angle}")
 
 
@@ -67,17 +71,17 @@ def load(path: str | os.PathLike) -> StaticMesh:
     return _load_file(path)
 
 
-def to_source(source, *, cell_size=1.0, z_scale=1.0, materials=None, size=DEFAULT_SIZE, seed=7,
+def to_source(source, *, cell_size=1.0, z_scale=1.0, materials=None, size=DEFAULT_SIZE, seed=None,
               nodata=None) -> SourceMesh:
     """Turn any accepted ``source`` into a validated :class:`SourceMesh`."""
-    from .builder import meshfile, terrain
+    from .builder import builtin, meshfile, terrain
     if isinstance(source, SourceMesh):
         source.validate()
         return source
-    if isinstance(source, str) and source == "default":
+    if isinstance(source, str) and source in builtin.BUILTINS:
         if not isinstance(size, (int, np.integer)) or not 2 <= size <= 8192:
             raise InputError(f"--size must be an integer between 2 and 8192 cells, got {size!r}")
-        return terrain.default_terrain(size=int(size), seed=seed)
+        return builtin.BUILTINS[source](int(size)) if seed is None else builtin.BUILTINS[source](int(size), seed)
     if isinstance(source, (str, os.PathLike)):
         path = Path(source)
         if path.suffix.lower() in HEIGHTFIELD_SUFFIXES:

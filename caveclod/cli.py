@@ -41,18 +41,23 @@ def _parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(prog="caveclod", description="View-dependent continuous LOD for many cameras.")
     sub = p.add_subparsers(dest="command", required=True)
 
-    b = sub.add_parser("build", help="build a static CAVECLOD mesh (.cvc) from a mesh, a heightfield or 'default'")
-    b.add_argument("input", help="mesh file (OBJ, PLY, GLB/glTF, STL, OFF), heightfield (.npy, 16-bit .png/.tif) or 'default'")
+    b = sub.add_parser("build", help="build a static CAVECLOD mesh (.cvc) from a mesh, a heightfield or a built-in")
+    b.add_argument("input", help="mesh file (OBJ, PLY, GLB/glTF, STL, OFF), heightfield (.npy, 16-bit .png/.tif) or a "
+                                 "built-in: 'default' (smooth terrain), 'rough' (rough terrain with no-data holes), "
+                                 "'scan' (a range scan)")
     b.add_argument("-o", "--output", required=True, help="the .cvc file to write")
     b.add_argument("--json", action="store_true", help="print the build report as one JSON object on stdout")
-    b.add_argument("--size", type=int, default=256, help="cells per side of the default terrain (default 256 = 131,072 triangles)")
-    b.add_argument("--seed", type=int, default=7, help="seed of the default terrain")
+    b.add_argument("--size", type=int, default=256, help="cells per side of a built-in (default 256: 131,072 "
+                                                         "triangles of the default terrain)")
+    b.add_argument("--seed", type=int, help="seed of a built-in")
     b.add_argument("--cell-size", type=float, default=1.0, help="heightfield grid spacing")
     b.add_argument("--z-scale", type=float, default=1.0, help="heightfield height scale")
     b.add_argument("--materials", help="heightfield material map (.npy, one integer class per cell)")
     b.add_argument("--nodata", type=float, help="heightfield value marking missing samples, which become holes "
                                                 "(NaN, a GeoTIFF's GDAL_NODATA and -32768 in 16-bit signed grids always do)")
-    b.add_argument("--crease-angle", type=float, default=30.0, help="degrees; edges sharper than this become normal seams where the input has no normals")
+    b.add_argument("--crease-angle", type=float, help="degrees; edges sharper than this become normal seams where the "
+                                                     "input has no normals (default: 30 for meshes, smooth normals "
+                                                     "for heightfields)")
     b.add_argument("--weld", type=float, help="merge positions closer than about this distance "
                                               "(default: only bitwise-equal positions are one)")
     b.add_argument("--quiet", action="store_true", help="no progress on stderr")

@@ -107,7 +107,7 @@ def with_bad_topology(src: SourceMesh) -> SourceMesh:
                       src.materials, notes=list(src.notes), **extra)
 
 
-def replay_collapses(mesh, source: SourceMesh, crease_angle=30.0) -> dict:
+def replay_collapses(mesh, source: SourceMesh, crease_angle=None) -> dict:
     """Re-apply the recorded collapses to ``source``'s faces, checking each.
 
     Asserts: fl/fr hold both children; every face moves onto a position where

@@ -25,7 +25,7 @@ import caveclod
 from caveclod.refine.camera import CameraState
 from caveclod.builder.hierarchy import build_static_mesh, prepare_source
 from caveclod.builder.surfaces import corner_vertices
-from caveclod.builder.terrain import default_terrain
+from caveclod.builder.builtin import default_terrain
 from caveclod.builder.topology import face_neighbours
 from caveclod.refine.view import View
 
@@ -46,7 +46,7 @@ NAMES = sorted(CASES)
 class Case:
     """A built mesh plus everything the checks need about its original."""
 
-    def __init__(self, source, mesh=None, crease_angle=30.0):
+    def __init__(self, source, mesh=None, crease_angle=None):
         self.raw = source
         self.mesh = build_static_mesh(source, crease_angle=crease_angle) if mesh is None else mesh
         src, _ = prepare_source(source, crease_angle)

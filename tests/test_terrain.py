@@ -10,18 +10,9 @@ from hypothesis.extra import numpy as hnp
 
 from caveclod.builder import terrain
 from caveclod.errors import InputError
-from caveclod.builder.terrain import (
-    LAKE_LEVEL,
-    MATERIALS,
-    TERRAIN_EXTENT,
-    TILE_SIZES,
-    classify_terrain,
-    default_heights,
-    default_terrain,
-    heightfield_to_source,
-    load_heightfield,
-    load_material_map,
-)
+from caveclod.builder.builtin import LAKE_LEVEL, TERRAIN_EXTENT, default_heights, default_terrain
+from caveclod.builder.landcover import MATERIALS, classify_terrain, coherent_classes
+from caveclod.builder.terrain import TILE_SIZES, heightfield_to_source, load_heightfield, load_material_map
 
 ROCK = MATERIALS.index("rock")
 WATER = MATERIALS.index("water")
@@ -427,10 +418,11 @@ def test_classify_thresholds_and_holes():
     assert classify_terrain(heights, 1.0, 1.0, rock_slope_deg=10.0)[0, 0] == ROCK
 
 
-def test_without_a_map_the_terrain_is_classified():
-    heights, classes = default_heights(32)
+def test_without_a_map_the_terrain_is_classified_into_coherent_regions():
+    heights, _ = default_heights(32)
     source = heightfield_to_source(heights, cell_size=TERRAIN_EXTENT / 32)
     names = np.array(source.materials)[source.face_material[0::2]]
+    classes = coherent_classes(classify_terrain(heights, TERRAIN_EXTENT / 32, 1.0))
     np.testing.assert_array_equal(names, np.array(MATERIALS)[classes.ravel()])
 
 

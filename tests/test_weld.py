@@ -7,7 +7,7 @@ import pytest
 
 import caveclod
 from caveclod.builder.hierarchy import build_static_mesh
-from caveclod.builder.terrain import default_terrain
+from caveclod.builder.builtin import default_terrain
 from caveclod.builder.weld import weld_positions
 
 from meshes import replay_collapses

@@ -17,6 +17,7 @@ import numpy as np
 
 from ..errors import InputError
 from ..kernels.bounds import empty_cones, empty_spheres
+from ..kernels.carried import new_store
 from ..kernels.simplify import gather_candidates, init_leaves, perform_collapses, rank_collapses
 from .normals import add_crease_normals
 from ..progress import Progress, stage
@@ -28,8 +29,12 @@ from .topology import Topology, count_components, face_neighbours
 PASS_FRACTION = 0.5   # share of ranked collapses a pass may make (shallower tree)
 
 
-def build_static_mesh(source: SourceMesh, crease_angle: float = 30.0, progress: bool = False) -> StaticMesh:
-    """Run the whole offline build; see the module docstring."""
+def build_static_mesh(source: SourceMesh, crease_angle: float | None = None, progress: bool = False) -> StaticMesh:
+    """Run the whole offline build; see the module docstring.
+
+    ``crease_angle`` (degrees) applies where the source has no normals;
+    None takes the source's own default (``SourceMesh.crease_angle``).
+    """
     t0 = time.perf_counter()
     source.validate()
     stage(f"preparing {len(source.faces):,} triangles: normals, topology, surface groups", progress)
@@ -48,7 +53,7 @@ def build_static_mesh(source: SourceMesh, crease_angle: float = 30.0, progress: 
         "passes": hier.passes,
         "surface_groups": lay.n_groups,
         "classes": mesh.class_tally(),
-        "base_mesh": _base_mesh_reasons(len(hier.base), len(face_pos), topo),
+        "base_mesh": _base_mesh_reasons(hier, face_pos, topo, lay, source.face_material),
         "notes": list(source.notes),
     }
     if mesh.info["base_mesh"]["large"]:
@@ -109,6 +114,7 @@ def collapse_all(positions: np.ndarray, face_pos: np.ndarray, topo: Topology, la
     nfaces = np.full((e, 2), -1, np.int32)
     nfn = np.full((e, 4), -1, np.int32)
     creator = np.full(p, -1, np.int32)
+    pt_head, pt = new_store(p, e)            # carried points (kernels/carried.py)
     lock = np.full(e, -1, np.int64)
     workers = max(1, min(os.cpu_count() or 1, 4))
     ranges = np.linspace(0, e, workers + 1).astype(np.int64)
@@ -132,7 +138,8 @@ def collapse_all(positions: np.ndarray, face_pos: np.ndarray, topo: Topology, la
                 job.result()
             nc = gather_candidates(vface, best_t, best_c, cost, target, src)
             m = perform_collapses(P, F, N, vface, alive, group, cls, fixed, pg_start, pg_groups, Q, cur_node,
-                                  parent, child, npos, nfaces, nfn, sphere, cone, err, creator, m, lock,
+                                  parent, child, npos, nfaces, nfn, sphere, cone, err, creator,
+                                  pt_head, pt, m, lock,
                                   marks[0], pass_id, PASS_FRACTION, cost, target, src, nc, counters[0])
             pass_id += 1
             bar.update(m)
@@ -180,32 +187,59 @@ def static_arrays(source: SourceMesh, face_pos: np.ndarray, lay, hier: Hierarchy
     }
 
 
-def _base_mesh_reasons(base: int, p: int, topo: Topology) -> dict:
+def _base_mesh_reasons(hier: Hierarchy, face_pos: np.ndarray, topo: Topology, lay, face_material) -> dict:
     """What keeps the base mesh from shrinking further, for the report.
 
-    The issue's bound: at most 1% of the faces or 300, whichever is larger.
-    Every piece of the mesh keeps a face; non-manifold positions never move;
-    RIGID positions (seam corners and crossings) never float.
+    Large means over 1% of the faces or 300, whichever is larger. Every
+    piece of the mesh keeps a face; non-manifold positions never move; RIGID
+    positions (where seams meet, or end) never float; seams between
+    materials may only be slid along, so every material's region keeps
+    faces of its own. ``material_border_faces`` counts the base faces with a
+    corner on a border between two materials: what a material map costs.
     """
+    p, e = len(face_pos), len(topo.nonmanifold)
+    base = len(hier.base)
     components = int(count_components(topo.nbrs))
     pinned = int(np.count_nonzero(topo.nonmanifold))
+    rigid = int(np.count_nonzero(lay.position_class == RIGID))
+    nbrs = topo.nbrs
+    other = np.where(nbrs >= 0, face_material[np.maximum(nbrs, 0)], -1)
+    border = (nbrs >= 0) & (other != np.asarray(face_material)[:, None])
+    on_border = np.zeros(e, bool)
+    on_border[face_pos[border]] = True
+    on_border[np.roll(face_pos, -1, axis=1)[border]] = True
+    nodes = hier.base_nodes
+    corner_pos = np.where(nodes < e, nodes, hier.npos[np.maximum(nodes - e, 0)])
+    material_faces = int(np.count_nonzero(on_border[corner_pos].any(axis=1)))
     large = base > max(0.01 * p, 300)
-    why = (f"base mesh is {base:,} faces ({100 * base / p:.1f}% of {p:,}): the mesh has {components:,} "
-           f"separate pieces (each keeps at least one face) and {pinned:,} non-manifold positions that never "
-           f"move; seam corners (RIGID positions) stay too")
-    return {"faces": base, "components": components, "nonmanifold_positions": pinned, "large": large,
-            "why": why}
+    reasons = []
+    if components > 1:
+        reasons.append(f"{components:,} separate pieces, each keeping at least one face")
+    if pinned:
+        reasons.append(f"{pinned:,} non-manifold positions that never move")
+    if rigid:
+        reasons.append(f"{rigid:,} RIGID positions (where {lay.n_groups:,} surface groups' seams meet) that never move")
+    if material_faces:
+        reasons.append(f"{material_faces:,} base faces ({100 * material_faces / max(base, 1):.0f}% of them) on "
+                       "borders between materials, which collapses may only slide along")
+    why = f"base mesh is {base:,} faces ({100 * base / p:.1f}% of {p:,})"
+    why += ": " + "; ".join(reasons) if reasons else ""
+    return {"faces": base, "fraction": round(base / p, 6), "components": components,
+            "nonmanifold_positions": pinned, "rigid_positions": rigid, "surface_groups": lay.n_groups,
+            "material_border_faces": material_faces, "large": large, "why": why}
 
 
-def prepare_source(source: SourceMesh, crease_angle: float = 30.0) -> tuple[SourceMesh, Topology]:
+def prepare_source(source: SourceMesh, crease_angle: float | None = None) -> tuple[SourceMesh, Topology]:
     """The source as the build sees it: with normals, and its topology.
 
     Returns ``(source_with_normals, topology)``; a source that has normals
-    comes back unchanged. Tests use it to know the exact input corners.
+    comes back unchanged. ``crease_angle`` None takes the source's default.
+    Tests use it to know the exact input corners.
     """
     topo = face_neighbours(source.face_positions.astype(np.int32), len(source.positions))
     if source.vertex_normal is None:
-        source = add_crease_normals(source, crease_angle, topo)
+        angle = source.crease_angle if crease_angle is None else crease_angle
+        source = add_crease_normals(source, angle, topo)
     return source, topo
 
 

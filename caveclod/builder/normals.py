@@ -71,7 +71,9 @@ def add_crease_normals(source: SourceMesh, crease_angle_deg: float, topo: Topolo
         vertex_normal=normals,
         vertex_uv=None if source.vertex_uv is None else source.vertex_uv[old_vertex],
         vertex_color=None if source.vertex_color is None else source.vertex_color[old_vertex],
-        notes=source.notes + [f"computed normals with a {crease_angle_deg:g} degree crease angle"],
+        notes=source.notes + ["computed smooth normals" if crease_angle_deg >= 180.0 else
+                              f"computed normals with a {crease_angle_deg:g} degree crease angle"],
+        crease_angle=crease_angle_deg,
     )
 
 

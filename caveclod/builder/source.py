@@ -37,6 +37,11 @@ class SourceMesh:
         vertex_color: (v, 4) uint8 RGBA colours, or None.
         notes: what the loader repaired or dropped, one line each, for the
             build report (for example "dropped 12 degenerate faces").
+        crease_angle: degrees; where ``vertex_normal`` is None, the build
+            computes normals with this crease angle unless told otherwise:
+            30 for meshes (hard edges of CAD and scans become normal seams),
+            180 (smooth) for heightfields, where a crease angle would cut
+            seams all over rough relief.
     """
 
     positions: np.ndarray
@@ -48,6 +53,7 @@ class SourceMesh:
     vertex_uv: np.ndarray | None = None
     vertex_color: np.ndarray | None = None
     notes: list[str] = field(default_factory=list)
+    crease_angle: float = 30.0
 
     @property
     def face_positions(self) -> np.ndarray:

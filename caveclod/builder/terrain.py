@@ -1,5 +1,4 @@
-"""Heightfield terrain: loading, material classification, triangulation, and
-the built-in default terrain.
+"""Heightfield terrain: loading and triangulation.
 
 A heightfield of ``(rows, cols)`` samples becomes a regular triangle mesh of
 ``(rows - 1) * (cols - 1)`` cells with two triangles each. Sample ``(r, c)``
@@ -11,12 +10,13 @@ Every cell carries one material class (both of its triangles share it). The
 texture coordinates tile each material at its own scale, so where materials
 meet a position has one vertex per material: those texture seams are the
 surface-group boundaries of the paper's Three Lakes model (Kram & Shaw,
-section 4.1), while the Cliff model's seam, a sharp crease, comes from the
-crease-angle normals the builder computes (``vertex_normal`` is left None).
+section 4.1). Without a material map, cells are classed into coherent
+land-cover regions (:mod:`caveclod.builder.landcover`).
 
-The default terrain mimics both models in one landscape: lakes with flat water
-surfaces, hills, snowy peaks, and a straight-ish escarpment whose top edge is a
-sharp crease, on a fixed 10 km square at any resolution.
+Normals are left to the build (``vertex_normal`` is None), smooth by default
+(``SourceMesh.crease_angle`` is 180): on rough relief a crease angle would cut
+normal seams across most cells, and seams are edges the build may not
+remove. The built-in terrains live in :mod:`caveclod.builder.builtin`.
 """
 
 from __future__ import annotations
@@ -29,26 +29,9 @@ import numpy as np
 from ..errors import InputError
 from .source import SourceMesh
 
-MATERIALS = ("water", "grass", "rock", "snow")
-"""Default class names, indexed by class id (what :func:`classify_terrain` returns)."""
-
-WATER, GRASS, ROCK, SNOW = range(4)
-
 TILE_SIZES = {"water": 50.0, "grass": 20.0, "rock": 8.0, "snow": 32.0}
 """World units one texture repeat covers, per material name. They differ so
 that UVs differ across every material boundary (a texture seam)."""
-
-TERRAIN_EXTENT = 10_000.0
-"""Side of the default terrain square in metres, whatever its resolution."""
-
-LAKE_LEVEL = 300.0
-"""Elevation (m) of every lake surface of the default terrain; the lowest point."""
-
-ROCK_SLOPE_DEG = 35.0
-"""Cells steeper than this are rock (unless under water)."""
-
-SNOW_FRACTION = 0.8
-"""Cells above this fraction of the elevation range are snow (unless steep)."""
 
 
 # --------------------------------------------------------------------------
@@ -155,61 +138,6 @@ def _one_line(exc: Exception) -> str:
     return " ".join(str(exc).split())
 
 
-# --------------------------------------------------------------------------
-# classification
-
-
-def classify_terrain(heights: np.ndarray, cell_size: float, z_scale: float, *,
-                     water_level: float | None = None,
-                     snow_level: float | None = None,
-                     rock_slope_deg: float = ROCK_SLOPE_DEG) -> np.ndarray:
-    """Material class of every cell from its elevation and slope.
-
-    Args:
-        heights: (rows, cols) samples; NaN marks holes.
-        cell_size, z_scale: as in :func:`heightfield_to_source`.
-        water_level: world elevation (``height * z_scale``); a cell whose four
-            corners all lie at or below it is water. Default: the lowest
-            sample, i.e. water is where the terrain is flat at its lowest level
-            (lakes or sea already flattened in the data, as in the default
-            terrain).
-        snow_level: world elevation above which a cell (mean of its corners) is
-            snow. Default: 80 % of the way from the lowest to the highest sample.
-        rock_slope_deg: cells steeper than this are rock.
-
-    Returns:
-        (rows-1, cols-1) int32 class ids into :data:`MATERIALS`: water, then
-        rock where steep, then snow where high, grass otherwise. Cells touching
-        a NaN sample get -1.
-    """
-    h = _checked_heights(heights)
-    cell_size = _positive_finite("cell_size", cell_size)
-    z_scale = _positive_finite("z_scale", z_scale)
-    z = h * z_scale
-    finite = z[np.isfinite(z)]
-    if finite.size == 0:
-        raise InputError("every heightfield sample is NaN; give at least one 2x2 block of finite heights")
-    lo, hi = float(finite.min()), float(finite.max())
-    if water_level is None:
-        water_level = lo
-    if snow_level is None:
-        snow_level = lo + SNOW_FRACTION * (hi - lo)
-
-    a, b, c, d = _cell_corners(z)
-    with np.errstate(invalid="ignore"):
-        highest = np.maximum(np.maximum(a, b), np.maximum(c, d))
-        mean = (a + b + c + d) / 4.0
-        slope = _cell_slope_deg(a, b, c, d, cell_size)
-        classes = np.full(a.shape, GRASS, dtype=np.int32)
-        # Later assignments win: snow < rock < water in precedence, because
-        # steep faces shed snow and a lake surface is flat whatever its height.
-        classes[mean > snow_level] = SNOW
-        classes[slope > rock_slope_deg] = ROCK
-        classes[highest <= water_level] = WATER
-    classes[~np.isfinite(mean)] = -1
-    return classes
-
-
 def _cell_corners(grid: np.ndarray) -> tuple[np.ndarray, ...]:
     """The four (rows-1, cols-1) corner views of every cell, counter-clockwise
     from the lower-left: (r, c), (r, c+1), (r+1, c+1), (r+1, c)."""
@@ -239,10 +167,11 @@ def heightfield_to_source(heights: np.ndarray, cell_size: float = 1.0, z_scale: 
         z_scale: world units per height unit.
         materials: class id per cell, (rows-1, cols-1), or per sample,
             (rows, cols), in which case a cell takes the class of its
-            lower-left sample ``(r, c)``. Ids must be >= 0 on the cells that are
-            kept. None: classify with :func:`classify_terrain`.
+            lower-left sample ``(r, c)``, kept exactly. Ids must be >= 0 on the
+            cells that are kept. None: coherent land-cover classes from
+            elevation and slope (:mod:`caveclod.builder.landcover`).
         material_names: name of each class id (indexed by the ids in
-            ``materials``). Default: :data:`MATERIALS`, then ``"material N"``.
+            ``materials``). Default: ``landcover.MATERIALS``, then ``"material N"``.
 
     Returns:
         A mesh with (e, 3) float64 positions (the finite samples some kept
@@ -257,7 +186,8 @@ def heightfield_to_source(heights: np.ndarray, cell_size: float = 1.0, z_scale: 
     z_scale = _positive_finite("z_scale", z_scale)
     kept = _cells_with_finite_corners(h)
     if materials is None:
-        cell_class = classify_terrain(h, cell_size, z_scale)
+        from .landcover import classify_terrain, coherent_classes
+        cell_class = coherent_classes(classify_terrain(h, cell_size, z_scale))
     else:
         cell_class = _cell_classes(materials, h.shape)
     if (cell_class[kept] < 0).any():
@@ -286,6 +216,7 @@ def heightfield_to_source(heights: np.ndarray, cell_size: float = 1.0, z_scale: 
         vertex_uv=_tiled_uvs(vertex_sample, vertex_material, cols, cell_size, names),
         vertex_color=None,
         notes=notes,
+        crease_angle=180.0,
     )
     source.validate()
     return source
@@ -364,6 +295,7 @@ def _compact_classes(kept_classes: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 
 def _material_names(present: np.ndarray, material_names, classified: bool) -> list[str]:
     """Names of the present classes, in compact-id order."""
+    from .landcover import MATERIALS
     if material_names is None:
         return [MATERIALS[i] if i < len(MATERIALS) else f"material {i}" for i in present.tolist()]
     names = [str(n) for n in material_names]
@@ -457,159 +389,3 @@ def _tile_sizes(names: list[str]) -> np.ndarray:
             size *= 1.1
         sizes.append(size)
     return np.array(sizes)
-
-
-# --------------------------------------------------------------------------
-# default terrain
-
-
-def default_terrain(size: int = 256, seed: int = 7) -> SourceMesh:
-    """The built-in terrain as a mesh: ``size`` x ``size`` cells, 2 * size**2
-    triangles, on a fixed :data:`TERRAIN_EXTENT` square (cell size extent/size).
-    """
-    heights, classes = default_heights(size, seed)
-    return heightfield_to_source(heights, cell_size=TERRAIN_EXTENT / size, z_scale=1.0,
-                                 materials=classes, material_names=MATERIALS)
-
-
-def default_heights(size: int = 256, seed: int = 7) -> tuple[np.ndarray, np.ndarray]:
-    """Procedural terrain in the spirit of the paper's Three Lakes and Cliff models.
-
-    The landscape is defined on normalised [0, 1]^2 coordinates, so every size
-    shows the same terrain, only sampled finer; ``seed`` moves the features a
-    little and changes the hills.
-
-    Returns:
-        heights: (size+1, size+1) float64 metres (LAKE_LEVEL .. about 1,500).
-        classes: (size, size) int32 class per cell into :data:`MATERIALS`.
-    """
-    size = _checked_size(size)
-    rng = np.random.default_rng(seed)
-    layout = _terrain_layout(rng)
-    t = np.linspace(0.0, 1.0, size + 1)  # sample coordinates, x and y alike
-    u, v = np.meshgrid(t, t)             # u along columns (x), v along rows (y)
-    heights = (_rolling_hills(t, layout)
-               + _plateau_and_cliff(u, v, layout)
-               + _peaks(u, v, t, layout))
-    heights = _carve_lakes(heights, u, v, t, layout)
-    cell = TERRAIN_EXTENT / size
-    classes = classify_terrain(heights, cell, 1.0)
-    return heights, classes
-
-
-def _checked_size(size) -> int:
-    if isinstance(size, bool) or not isinstance(size, (int, np.integer)) or size < 1:
-        raise InputError(f"size must be a positive whole number of cells, got {size!r}")
-    return int(size)
-
-
-# Feature layout in normalised coordinates, before seeded jitter.
-_LAKES = ((0.20, 0.24, 0.20), (0.52, 0.13, 0.18), (0.80, 0.33, 0.19))  # (u, v, bowl radius)
-_PEAKS = ((0.22, 0.84, 0.090, 680.0), (0.50, 0.90, 0.095, 600.0), (0.78, 0.83, 0.085, 640.0))  # (u, v, sigma, m)
-_CLIFF_V = 0.58        # escarpment line at u = 0 ...
-_CLIFF_TILT = 0.04     # ... rising this much towards u = 1
-_CLIFF_WOBBLE = 0.015  # amplitude of its gentle meander
-_CLIFF_HEIGHT = 280.0  # metres from foot to top
-_CLIFF_WIDTH = 0.003   # horizontal run of the face (30 m): steep at any resolution
-_CLIFF_END = 0.42      # the face turns into a gentle ramp east of here ...
-_CLIFF_TAPER = 0.10    # ... over this distance
-_RAMP_WIDTH = 0.12     # run of the ramp that replaces the face
-_HILL_OCTAVES = ((3, 150.0), (6, 70.0), (12, 28.0), (24, 9.0))  # (lattice cells per side, amplitude m)
-
-
-def _terrain_layout(rng: np.random.Generator) -> dict:
-    """Seeded parameters. All random numbers are drawn here, in a fixed order
-    and amount independent of ``size``, so the terrain is scale-invariant."""
-    lake_shift = rng.uniform(-0.03, 0.03, size=(len(_LAKES), 2))
-    peak_shift = rng.uniform(-0.03, 0.03, size=(len(_PEAKS), 2))
-    peak_gain = rng.uniform(0.9, 1.1, size=len(_PEAKS))
-    lakes = [(u + du, v + dv, r) for (u, v, r), (du, dv) in zip(_LAKES, lake_shift)]
-    peaks = [(u + du, v + dv, s, a * g) for (u, v, s, a), (du, dv), g in zip(_PEAKS, peak_shift, peak_gain)]
-    return {
-        "lakes": lakes,
-        "peaks": peaks,
-        "cliff_phase": rng.uniform(0.0, 2.0 * np.pi),
-        "hills": [rng.random((f + 1, f + 1)) for f, _ in _HILL_OCTAVES],
-        "shore": rng.random((9, 9)),   # lattice that makes lake shores irregular
-        "crags": rng.random((7, 7)),   # lattice that makes peaks irregular
-    }
-
-
-def _value_noise(t: np.ndarray, lattice: np.ndarray) -> np.ndarray:
-    """Value noise in [0, 1] at the (n, n) grid t x t from an (f+1, f+1) lattice.
-
-    Quintic fade keeps it C2, so triangles stay smooth at every resolution.
-    The grid is a tensor product, so interpolate along x for every lattice
-    row first, then along y: O(f n + n^2) instead of four n^2 gathers.
-    """
-    f = lattice.shape[0] - 1
-    cell = np.minimum((t * f).astype(np.int64), f - 1)
-    frac = t * f - cell
-    w = frac ** 3 * (frac * (frac * 6.0 - 15.0) + 10.0)
-    along_x = lattice[:, cell] * (1.0 - w) + lattice[:, cell + 1] * w       # (f+1, n)
-    return along_x[cell] * (1.0 - w)[:, None] + along_x[cell + 1] * w[:, None]  # (n, n)
-
-
-def _rolling_hills(t: np.ndarray, layout: dict) -> np.ndarray:
-    """Base elevation: fBm value noise, 320..about 620 m, low frequencies only.
-
-    The finest octave (24 lattice cells, 9 m) still spans ~2.7 cells at size
-    64, and the amplitudes fall faster than the frequencies rise, so the
-    surface stays smooth (small dihedral angles) even at the coarsest size
-    we test.
-    """
-    total = sum(a for _, a in _HILL_OCTAVES)
-    noise = sum(a * _value_noise(t, lat) for (_, a), lat in zip(_HILL_OCTAVES, layout["hills"]))
-    return LAKE_LEVEL + 20.0 + 300.0 * noise / total
-
-
-def _plateau_and_cliff(u: np.ndarray, v: np.ndarray, layout: dict) -> np.ndarray:
-    """A plateau north of a straight-ish line, reached by a cliff in the west.
-
-    West of _CLIFF_END the step rises linearly over _CLIFF_WIDTH: the profile
-    has kinks at foot and top, so the top edge is a sharp crease at every
-    resolution. Eastwards the face widens into a smooth ramp, so the cliff ends
-    without a wall of creases.
-    """
-    wobble = _CLIFF_WOBBLE * np.sin(2.0 * np.pi * 1.3 * u + layout["cliff_phase"])
-    line = _CLIFF_V + _CLIFF_TILT * u + wobble
-    across = v - line  # signed distance north of the line (near enough, it is straight-ish)
-    taper = _smoothstep((u - _CLIFF_END) / _CLIFF_TAPER)
-    # Interpolate the width geometrically: a linear blend would stay near the
-    # wide ramp's width for most of the taper.
-    width = _CLIFF_WIDTH * (_RAMP_WIDTH / _CLIFF_WIDTH) ** taper
-    rise = np.clip(across / width + 0.5, 0.0, 1.0)
-    profile = (1.0 - taper) * rise + taper * _smoothstep(rise)
-    return _CLIFF_HEIGHT * profile
-
-
-def _peaks(u: np.ndarray, v: np.ndarray, t: np.ndarray, layout: dict) -> np.ndarray:
-    """Gaussian mountains on the plateau, roughened by low-frequency noise."""
-    crags = 0.75 + 0.5 * _value_noise(t, layout["crags"])
-    bumps = sum(a * np.exp(-((u - pu) ** 2 + (v - pv) ** 2) / (2.0 * s * s))
-                for pu, pv, s, a in layout["peaks"])
-    return bumps * crags
-
-
-def _carve_lakes(heights: np.ndarray, u: np.ndarray, v: np.ndarray, t: np.ndarray,
-                 layout: dict) -> np.ndarray:
-    """Pull the terrain down into bowls, then flood them to LAKE_LEVEL.
-
-    Each bowl blends the terrain towards a floor just below the lake level, so
-    the shore falls where the blend weight is near 1 and its slope is gentle:
-    the shore crease (water is flat) stays well under 20 degrees. Clamping to
-    the lake level makes every lake one flat surface at exactly LAKE_LEVEL.
-    """
-    floor = LAKE_LEVEL - 15.0
-    shore = 0.7 + 0.6 * _value_noise(t, layout["shore"])  # irregular shorelines
-    for lu, lv, radius in layout["lakes"]:
-        reach = np.hypot(u - lu, v - lv) / radius * shore
-        weight = 1.0 - _smoothstep((reach - 0.3) / 0.7)
-        heights = heights * (1.0 - weight) + floor * weight
-    return np.maximum(heights, LAKE_LEVEL)
-
-
-def _smoothstep(x: np.ndarray) -> np.ndarray:
-    """C1 ramp from 0 (x <= 0) to 1 (x >= 1)."""
-    x = np.clip(x, 0.0, 1.0)
-    return x * x * (3.0 - 2.0 * x)

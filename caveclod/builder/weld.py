@@ -66,7 +66,8 @@ def weld_positions(source: SourceMesh, tolerance: float) -> SourceMesh:
     out = SourceMesh(positions=positions[used_p], vertex_position=new_p[vpos].astype(np.int64),
                      faces=new_v[faces].astype(np.int64), face_material=material.astype(np.int32),
                      materials=list(source.materials), vertex_normal=pick(source.vertex_normal),
-                     vertex_uv=pick(source.vertex_uv), vertex_color=pick(source.vertex_color), notes=notes)
+                     vertex_uv=pick(source.vertex_uv), vertex_color=pick(source.vertex_color), notes=notes,
+                     crease_angle=source.crease_angle)
     out.validate()
     return out
 

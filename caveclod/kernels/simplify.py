@@ -1,5 +1,27 @@
 """The build: half-edge collapses chosen by quadric error, recorded as nodes.
 
+Error bounds (what the runtime's screen-space test reads) are measured, not
+estimated: every position a collapse removes becomes a *carried point* of the
+face nearest to it, and every collapse re-measures the points carried by the
+faces it reshapes (those of the floating position's fan) against the new
+local surface, reassigning each to its new nearest face. A node's error is
+the largest such distance, or its children's, so it bounds the real
+distance from the original positions of its region to the coarser surface
+(Hoppe's PM residuals, measured exactly instead of sampled). Interior points
+are measured against triangles; points that lay on a border or a seam are
+measured against the same boundary's new polyline, because sliding along a
+border moves the outline even where it moves no surface off its plane.
+
+The runtime shows meshes the build never made: a node kept coarse beside a
+neighbour refined further than it was when the node was made. Measured
+errors do not cover those, and on rough terrain they exceeded the bound by
+up to 1.8x. So errors are *saturated*: a node's error is at least that of
+every node its collapse makes adjacent (the ring of the new fan), as terrain
+LOD saturates errors over dependencies (Pajarola 1998; Lindstrom & Pascucci
+2001). Whenever the view needs a neighbour finer, it then needs this node
+finer too, and the runtime mesh stays one the build measured; the measured
+screen-space error then stays within the tolerance (tests/test_error_bound.py).
+
 Garland & Heckbert quadrics pick the collapses; Hoppe (1997) says what each
 node must remember; Kram & Shaw section 3.3 says which collapses are allowed.
 Work proceeds in passes (as meshoptimizer does): each pass ranks the best
@@ -30,6 +52,7 @@ import numba as nb
 import numpy as np
 
 from .bounds import cone_add_cone, quadric_add_plane, quadric_eval, sphere_add_sphere
+from .carried import remeasure
 from .fans import collect_fan, corner_of, replace_in_row
 
 FREE, SHARP, RIGID = 0, 1, 2
@@ -211,9 +234,12 @@ def check_collapse(u, t, P, F, N, vface, fgroup, pclass, fixed, pg_start, pg_gro
 @nb.njit(cache=True, nogil=True)
 def do_collapse(u, t, fl, fr, P, F, N, vface, alive, Q, cur_node, parent, child, npos,
                 nfaces, nfn, sphere, cone, err, creator, m, e, fan_u, nu, fan_t):
-    """Perform a legal collapse and record node ``e + m``. Returns the node.
+    """Perform a legal collapse and record node ``e + m``.
 
     ``fan_u[:nu]`` are u's faces, as :func:`check_collapse` left them.
+    Fills ``fan_t`` with t's new fan. Returns ``(node, fan size, error the
+    node has anyway)``: its children's and its new neighbours' (saturation,
+    module doc); the caller adds the measured distances.
     """
     s = e + m
     tn, un = cur_node[t], cur_node[u]
@@ -233,20 +259,6 @@ def do_collapse(u, t, fl, fr, P, F, N, vface, alive, Q, cur_node, parent, child,
         vr = F[fr, (k + 2) % 3]
         fn2, fn3 = N[fr, (k + 2) % 3], N[fr, (k + 1) % 3]
     nfn[m, 0], nfn[m, 1], nfn[m, 2], nfn[m, 3] = fn0, fn1, fn2, fn3
-    # Deviation of u from the new surface, measured before faces move.
-    dev = 0.0
-    for i in range(nu):
-        f = fan_u[i]
-        if f == fl or f == fr:
-            continue
-        k = corner_of(F, f, u)
-        a, b = F[f, (k + 1) % 3], F[f, (k + 2) % 3]
-        n = _normal(P, t, a, b)
-        ln = math.sqrt(n[0] * n[0] + n[1] * n[1] + n[2] * n[2])
-        if ln > 0.0:
-            d = abs(n[0] * (P[u, 0] - P[t, 0]) + n[1] * (P[u, 1] - P[t, 1]) + n[2] * (P[u, 2] - P[t, 2])) / ln
-            if d > dev:
-                dev = d
     # Re-link the outer neighbours of fl and fr to each other.
     if fl != -1:
         if fn0 != -1:
@@ -315,8 +327,17 @@ def do_collapse(u, t, fl, fr, P, F, N, vface, alive, Q, cur_node, parent, child,
             continue                      # already inside: skip the trigonometry
         cone_add_cone(cone[s], n0, n1, n2, 0.0)
         cos_cone = math.cos(cone[s, 3]) if cone[s, 3] < math.pi else -2.0
-    err[s] = max(err[tn], err[un] + dev)
-    return s
+    # The error s has anyway: its children's (monotone up the tree) and its
+    # new neighbours' (saturation, module doc).
+    inherited = max(err[tn], err[un])
+    for i in range(nt):
+        f = fan_t[i]
+        k = corner_of(F, f, t)
+        for q in (F[f, (k + 1) % 3], F[f, (k + 2) % 3]):
+            w = cur_node[q]
+            if w >= 0 and err[w] > inherited:
+                inherited = err[w]
+    return s, nt, inherited
 
 
 @nb.njit(cache=True, nogil=True)
@@ -400,8 +421,10 @@ def gather_candidates(vface, best_t, best_c, cost, target, src):
 @nb.njit(cache=True, nogil=True)
 def perform_collapses(P, F, N, vface, alive, fgroup, pclass, fixed, pg_start, pg_groups, Q,
                       cur_node, parent, child, npos, nfaces, nfn, sphere, cone, err, creator,
-                      m, lock, mark, pass_id, fraction, cost, target, src, nc, counter):
+                      pt_head, pt, m, lock, mark, pass_id, fraction, cost, target, src, nc, counter):
     """Perform the cheapest ranked collapses; returns the new node count m.
+
+    ``pt_head``, ``pt``: the carried points (:mod:`caveclod.kernels.carried`).
 
     At most ``fraction`` of the ranked ones (the cheapest) are tried unless
     none of those could be made. Each is checked again on the current mesh.
@@ -409,6 +432,7 @@ def perform_collapses(P, F, N, vface, alive, fgroup, pclass, fixed, pg_start, pg
     e = P.shape[0]
     fan_u = np.empty(4096, np.int32)
     fan_t = np.empty(4096, np.int32)
+    heads = np.empty(4096, np.int32)
     if nc == 0:
         return m
     # The cheapest ``fraction`` of the ranked collapses are made first (the
@@ -441,8 +465,20 @@ def perform_collapses(P, F, N, vface, alive, fgroup, pclass, fixed, pg_start, pg
             # collapses onto a position whose quadric changed since ranking.
             lock[u] = pass_id
             lock[t] = pass_id
-            do_collapse(u, t, fl, fr, P, F, N, vface, alive, Q, cur_node, parent, child, npos,
-                        nfaces, nfn, sphere, cone, err, creator, m, e, fan_u, nu, fan_t)
+            # u becomes a carried point; a SHARP u slid along the boundary of
+            # fl's group (or fr's, on a border) and is measured against it.
+            u_group = -1
+            if pclass[u] == SHARP:
+                u_group = fgroup[fl] if fl != -1 else fgroup[fr]
+            s, nt, inherited = do_collapse(u, t, fl, fr, P, F, N, vface, alive, Q, cur_node, parent, child,
+                                           npos, nfaces, nfn, sphere, cone, err, creator, m, e, fan_u, nu, fan_t)
+            dev = remeasure(u, u_group, fl, fr, fan_u, nu, fan_t, nt, P, F, N, fgroup, alive, pt_head, pt,
+                            heads, inherited)
+            err[s] = dev
+            # Each point lies within dev of a fan face, and the fan lies in
+            # the sphere: growing it by dev makes it hold every point charged
+            # to s.
+            sphere[s, 3] += dev
             m += 1
             made += 1
         if made > 0:

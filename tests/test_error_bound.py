@@ -1,0 +1,186 @@
+"""Error bounds that hold, measured from outside.
+
+For each mesh, cameras at several views refine until they converge; then
+:func:`caveclod.refine.measure.pixel_errors` measures, renderer-free, how far
+every original position in view lies from the triangles the camera draws,
+in pixels. At a tolerance of t pixels the 99th percentile must stay within
+t and the maximum within 1.5 t: on rough terrain with holes, a range scan
+with an open border, holes and a cut-up UV atlas, seam meshes, and the
+smooth terrain.
+
+The distance kernels behind the measurement (and the build's own error
+measurement) are checked against plainly written references first.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+import caveclod
+from caveclod.builder.builtin import default_terrain, range_scan, rough_terrain
+from caveclod.builder.hierarchy import build_static_mesh
+from caveclod.kernels.distance import point_segment_dist2, point_triangle_dist2
+from caveclod.kernels.nearest import build_bvh, nearest_dist2
+from caveclod.paths import circle, flyover, line, rotate
+from caveclod.refine.measure import pixel_errors
+
+from meshes import holey_scan, noisy_box, uv_sphere
+
+CASES = {
+    "rough": lambda: rough_terrain(64),
+    "scan": lambda: range_scan(48),
+    "holey_scan": lambda: holey_scan(n=32),
+    "terrain": lambda: default_terrain(64),
+    "uv_sphere": lambda: uv_sphere((40, 20)),
+    "noisy_box": noisy_box,
+}
+
+
+@pytest.fixture(scope="module")
+def meshes():
+    cache = {}
+
+    def get(name):
+        if name not in cache:
+            cache[name] = build_static_mesh(CASES[name]())
+        return cache[name]
+    return get
+
+
+def views_of(mesh, tolerance):
+    """Terrain: the paper's flyovers and the cache paper's paths. Object:
+    an orbit at several distances and heights."""
+    lo, hi = mesh.bounds()
+    ext = hi - lo
+    if ext[2] < max(ext[0], ext[1]) / 3:
+        poses = [flyover(lo, hi, c, 2.0 * c) for c in range(4)]
+        poses += [circle(lo, hi, 0, 5.0), rotate(lo, hi, 1, 2.0), line(lo, hi, 2, 7.0)]
+    else:
+        c = (lo + hi) / 2
+        r = float(np.linalg.norm(ext))
+        poses = []
+        for k in range(6):
+            angle = 0.7 + 0.9 * k
+            eye = c + r * (0.5 + 0.35 * k) * np.array([math.cos(angle), math.sin(angle), 0.25 * (k - 2.5)])
+            poses.append((tuple(eye), tuple(c), (0.0, 0.0, 1.0)))
+    return [caveclod.View.from_pose(p, tolerance_px=tolerance) for p in poses]
+
+
+def converged(mesh, view, limit=6):
+    cam = mesh.new_camera()
+    for _ in range(limit):
+        if cam.update(view).operations == 0:
+            return cam
+    raise AssertionError(f"no convergence in {limit} updates")
+
+
+@pytest.mark.parametrize("name", sorted(CASES))
+@pytest.mark.parametrize("tolerance", [1.0, 3.0])
+def test_screen_space_error_stays_within_the_tolerance(meshes, name, tolerance):
+    mesh = meshes(name)
+    errors = [pixel_errors(mesh, converged(mesh, view).triangles(), view) for view in views_of(mesh, tolerance)]
+    px = np.concatenate(errors)
+    assert len(px) > 500, "the views see too little of the mesh to say anything"
+    assert np.percentile(px, 99) <= tolerance, f"p99 {np.percentile(px, 99):.3f} px at {tolerance} px"
+    assert px.max() <= 1.5 * tolerance, f"max {px.max():.3f} px at {tolerance} px"
+    assert (px > 0).any(), "nothing was coarsened: the test would not see a bad bound"
+
+
+def test_a_lost_corner_is_an_error(meshes):
+    """A flat rectangle of one material coarsens by sliding its corners
+    along the border: the outline moves while every face stays in the plane,
+    so the error must come from the border, not the plane."""
+    heights = np.zeros((9, 13))
+    mesh = build_static_mesh(caveclod.builder.terrain.heightfield_to_source(heights, materials=np.zeros((8, 12))))
+    base = converged(mesh, caveclod.View(eye=(6.0, 4.0, 1e6), target=(6.0, 4.0, 0.0), up=(0, 1, 0)))
+    tri = np.concatenate(list(base.triangles().values()))
+    P = np.asarray(mesh.positions, np.float64)
+    V = np.asarray(mesh.vertex_positions, np.float64)
+    gap = np.sqrt(nearest_dist2(P, V, tri.astype(np.int64), *build_bvh(V, tri.astype(np.int64)))).max()
+    roots = np.flatnonzero(np.asarray(mesh.node_parent) < 0)
+    root_err = np.asarray(mesh.node_error)[roots[roots >= mesh.n_positions] - mesh.n_positions]
+    assert gap > 0.5, "the base mesh should have lost some of the outline"
+    assert root_err.max() >= gap
+
+
+@pytest.mark.parametrize("name", ["rough", "scan", "noisy_box"])
+def test_node_errors_cover_the_base_mesh(meshes, name):
+    """Every original position lies within the largest root error of the base mesh."""
+    mesh = meshes(name)
+    base = mesh.new_camera()
+    tri = np.concatenate(list(base.triangles().values())).astype(np.int64)
+    V = np.asarray(mesh.vertex_positions, np.float64)
+    d = np.sqrt(nearest_dist2(np.asarray(mesh.positions, np.float64), V, tri, *build_bvh(V, tri)))
+    err = np.asarray(mesh.node_error, np.float64)
+    roots = np.flatnonzero(np.asarray(mesh.node_parent) < 0)
+    internal = roots[roots >= mesh.n_positions] - mesh.n_positions
+    assert d.max() <= err[internal].max() * (1 + 1e-6) + 1e-9
+
+
+def test_errors_grow_up_every_path(meshes):
+    """A parent's error bounds its children's (the runtime relies on it)."""
+    mesh = meshes("rough")
+    e = mesh.n_positions
+    parent = np.asarray(mesh.node_parent)
+    err = np.r_[np.zeros(e), np.asarray(mesh.node_error, np.float64)]
+    child = np.flatnonzero(parent >= 0)
+    assert (err[parent[child]] >= err[child]).all()
+
+
+# ---------------------------------------------------------------- distance kernels
+
+coord = st.floats(-10, 10, allow_nan=False, width=64)
+point3 = st.tuples(coord, coord, coord)
+
+
+def reference_point_triangle(p, a, b, c) -> float:
+    """Nearest point by cases: inside the projection, else the nearest edge."""
+    p, a, b, c = (np.asarray(v, float) for v in (p, a, b, c))
+    n = np.cross(b - a, c - a)
+    edges = min(reference_point_segment(p, a, b), reference_point_segment(p, b, c),
+                reference_point_segment(p, c, a))
+    if np.dot(n, n) < 1e-18:
+        return edges
+    q = p - np.dot(p - a, n) / np.dot(n, n) * n             # projection on the plane
+    inside = all(np.dot(np.cross(y - x, q - x), n) >= 0 for x, y in ((a, b), (b, c), (c, a)))
+    return float(np.dot(p - q, p - q)) if inside else edges
+
+
+def reference_point_segment(p, a, b) -> float:
+    p, a, b = (np.asarray(v, float) for v in (p, a, b))
+    ab = b - a
+    t = 0.0 if np.dot(ab, ab) == 0 else min(1.0, max(0.0, np.dot(p - a, ab) / np.dot(ab, ab)))
+    d = p - (a + t * ab)
+    return float(np.dot(d, d))
+
+
+@settings(max_examples=300, deadline=None)
+@given(point3, point3, point3, point3)
+def test_point_triangle_distance_matches_the_reference(p, a, b, c):
+    got = point_triangle_dist2(*p, *a, *b, *c)
+    want = reference_point_triangle(p, a, b, c)
+    assert math.isclose(got, want, rel_tol=1e-6, abs_tol=1e-6)
+
+
+@settings(max_examples=100, deadline=None)
+@given(point3, point3, point3)
+def test_point_segment_distance_matches_the_reference(p, a, b):
+    assert math.isclose(point_segment_dist2(*p, *a, *b), reference_point_segment(p, a, b), rel_tol=1e-9,
+                        abs_tol=1e-9)
+
+
+@pytest.mark.parametrize("seed", range(4))
+def test_bvh_nearest_equals_brute_force(seed):
+    rng = np.random.default_rng(seed)
+    V = rng.normal(size=(200, 3)) * [10, 10, 1]
+    T = rng.integers(0, 200, (300, 3))
+    T = T[(T[:, 0] != T[:, 1]) & (T[:, 1] != T[:, 2]) & (T[:, 0] != T[:, 2])]
+    points = rng.normal(size=(100, 3)) * 12
+    got = nearest_dist2(points, V, T, *build_bvh(V, T))
+    want = [min(point_triangle_dist2(*p, *V[t[0]], *V[t[1]], *V[t[2]]) for t in T) for p in points]
+    np.testing.assert_allclose(got, want, rtol=1e-12)
