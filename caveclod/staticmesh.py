@@ -162,6 +162,17 @@ class StaticMesh:
         """(e, 3) float32 position of each node position id."""
         return self.arrays["vertex_positions"][self.arrays["pos_vstart"][:-1]]
 
+    @property
+    def vertex_position_ids(self) -> np.ndarray:
+        """(d,) int32 position id of each vertex-buffer entry (inverse of the
+        CSR ``pos_vstart``; derived once per process, not stored)."""
+        ids = self.__dict__.get("_vertex_position_ids")
+        if ids is None:
+            start = np.asarray(self.arrays["pos_vstart"])
+            ids = np.repeat(np.arange(len(start) - 1, dtype=np.int32), np.diff(start))
+            self.__dict__["_vertex_position_ids"] = ids
+        return ids
+
     def bounds(self) -> tuple[np.ndarray, np.ndarray]:
         """(lo, hi) float64 (3,) corners of the axis-aligned bounding box of the positions."""
         pos = np.asarray(self.arrays["vertex_positions"], dtype=np.float64)
@@ -220,10 +231,14 @@ class StaticMesh:
         out.update({k: v for k, v in self.info.items() if k not in out})
         return out
 
-    def new_camera(self):
-        """A fresh per-camera refinement state showing the base mesh."""
+    def new_camera(self, **options):
+        """A fresh per-camera refinement state showing the base mesh.
+
+        ``options``: :class:`~caveclod.refine.camera.CameraState`'s
+        (``max_ops``, ``max_faces``, ``expiries``).
+        """
         from .refine.camera import CameraState
-        return CameraState(self)
+        return CameraState(self, **options)
 
     # -- file -------------------------------------------------------------
     def save(self, path: str | os.PathLike) -> None:

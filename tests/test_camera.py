@@ -74,10 +74,9 @@ class Case:
         ext = self.hi - self.lo
         self.flat = ext[2] < 0.35 * max(ext[0], ext[1])      # a terrain: stay above it
         self.depth = tree_depth(np.asarray(m.node_parent))
-        # Coarsening climbs the tree about one level per update (Hoppe's
-        # traversal reconsiders a collapsed parent once per pass), so going
-        # back to the base may take as many updates as the tree is deep.
-        self.coarsen_updates = self.depth + 3
+        # Coarsening converges within two updates (collapse candidates),
+        # plus one that finds nothing to do.
+        self.coarsen_updates = 3
 
     def original_by_material(self) -> dict:
         return {int(s): self.orig_tri[self.face_material == s] for s in np.unique(self.face_material)}
@@ -191,12 +190,12 @@ def check_mesh(case, cam):
     faces = cam.active_faces().astype(np.int64)
     tris_by_mat = cam.triangles()
     assert len(faces) == cam.n_faces
-    # The records' corner positions agree with the vertex ids sent to the client.
+    # Every corner's vertex belongs to its face's surface group id.
     rows = record_rows(cam)
     assert np.array_equal(cam.rec_face[rows], faces)
-    tris = np.concatenate([tris_by_mat[s] for s in sorted(tris_by_mat)]) if tris_by_mat else np.zeros((0, 3))
-    assert np.array_equal(case.pos_of_vertex[tris.astype(np.int64)], cam.rec_pos[rows].astype(np.int64)), \
-        "a corner's vertex is not at the corner's position"
+    assert np.array_equal(np.asarray(case.mesh.face_sgid)[faces][:, None].repeat(3, axis=1),
+                          np.asarray(case.mesh.vertex_sgid)[cam.rec_tri[rows]]), \
+        "a corner's vertex belongs to another surface group"
     check_surface(case, faces, tris_by_mat)
 
 
@@ -307,7 +306,7 @@ def replay(buffers: dict, delta, cam, what=""):
 def snapshot(cam) -> dict:
     """Copies of every array the camera holds (its whole refinement state)."""
     arrays = {k: np.array(v, copy=True) for k, v in vars(cam).items() if isinstance(v, np.ndarray)}
-    assert "state" in arrays and "rec_pos" in arrays
+    assert "state" in arrays and "rec_tri" in arrays
     return arrays
 
 

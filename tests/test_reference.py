@@ -74,7 +74,8 @@ def compiled_faces(cam) -> dict:
     out = {}
     for s in range(cam.n_materials):
         for r in range(int(cam.off[s]), int(cam.off[s] + cam.cnt[s])):
-            out[int(cam.rec_face[r])] = (tuple(cam.rec_pos[r].tolist()), tuple(cam.rec_nbr[r].tolist()))
+            pos = cam.mesh.vertex_position_ids[cam.rec_tri[r]]
+            out[int(cam.rec_face[r])] = (tuple(pos.tolist()), tuple(cam.rec_nbr[r].tolist()))
     return out
 
 

@@ -3,28 +3,60 @@
 A camera's state is a handful of arrays; the static mesh is only read, so
 any number of cameras share it and each kernel call releases the GIL.
 
-Camera state (see :class:`caveclod.refine.camera.CameraState`):
+Camera state (see :class:`caveclod.refine.camera.CameraState`), sized to fit
+the paper's Equation 1 per-camera term ``4n + 4p + 16 + 12 n_a + 36 p_a``:
 
 * ``state`` (n,) uint8 per node: INACTIVE (below the front), ACTIVE, SPLIT
-  (above it), plus the IN_LIST bit while the node sits in ``active``.
-* ``face_rec`` (h, 2) int32: a hash table (open addressing, linear
-  probing) from each active face to its record. Sized by the active faces,
-  not by the mesh: a dense per-face array was most of a camera's bytes.
+  (above it), plus the IN_LIST bit while the node has an entry in the active
+  list, the QUEUED bit while it waits in the collapse-candidate stack, and
+  the RECHECK bit when its entry must be evaluated whatever its expiries.
+* ``face_rec`` (p,) int32: the record of each active face, -1 if inactive
+  (Equation 1's 4p).
 * Records of active faces, pooled: material ``s`` owns records
   ``off[s] .. off[s] + cnt[s]`` of a capacity ``cap[s]``, and record
-  ``off[s] + k`` *is* slot ``k`` of that material's index buffer: ``pos``
-  (3 corner positions), ``nbr`` (3 neighbour faces, edge k = corner k ->
-  k+1), ``face``, ``tri`` (3 vertex-buffer indices, the mirror of the
-  client's index buffer) and ``dirty`` (slot written since the last delta).
+  ``off[s] + k`` *is* slot ``k`` of that material's index buffer: ``tri``
+  (3 vertex-buffer indices: the mirror of the client's index buffer; a
+  corner's position is ``vpos[tri]``, so corners need no array of their
+  own), ``nbr`` (3 neighbour faces, edge k = corner k -> k+1) and ``face``;
+  ``dirty`` is a bitset of the records written since the last delta.
   Removing a face moves the material's last record into its slot, so every
   index buffer stays dense.
-
-Corners store *positions*, not nodes: a stationary child shares its parent's
-position, so only the floating child's wedge changes when a node splits.
+* The active list: node ids with two float32 *expiries* each (Equation 1's
+  12 bytes per active node), see below.
 
 Split of node s into t (stationary) and u (floating), faces fl = (t, u, vl),
 fr = (u, t, vr) and recorded neighbours fn = (fl_u, fl_t, fr_u, fr_t); see
 :mod:`caveclod.kernels.simplify` for the picture.
+
+One update is one pass over the active list in id order, Hoppe's traversal:
+a node that needs detail is split (forcing the splits it depends on); a
+stationary child whose sibling is active and whose parent no longer needs
+detail collapses the pair when the collapse is legal. Two additions:
+
+* **Collapse candidates.** A collapse can make others possible: its parent's
+  (the sibling pair is now complete) and those of the nodes that created the
+  four faces it re-links (their neighbours now match what their collapse
+  requires). Those nodes are pushed on a stack and tried at once, so after a
+  camera jump coarsening converges in an update or two instead of climbing
+  one tree level per update. (Splits never make another collapse legal: the
+  faces they create were dead when any node that could check them collapsed.)
+* **Expiries.** Each kept entry records how far the camera may move before
+  the node's answer could change: ``texp`` on the camera's travelled
+  distance ``odo[0]`` (sum of eye displacements) and ``aexp`` on its turned
+  angle ``odo[1]`` (sum of the largest change of a frustum plane normal). An
+  entry whose expiries lie ahead is kept without reading anything else, so
+  a converged camera's pass is a sequential scan. Safe because every test
+  is Lipschitz in the pose: a node's screen-space test ``err kappa / tol -
+  (|c - eye| - r)`` moves by at most the eye's displacement, and a frustum
+  plane's ``n . (c - eye) + r`` by at most ``|dn| (D + dT) + dT``; each
+  expiry leaves half of the margin to each term. Everything else that
+  changes a node's answer is an operation on its neighbourhood, and those
+  push collapse candidates; an entry whose node changed state is revisited.
+  A stationary child evaluated while its sibling was split carries no
+  expiry for its parent's test; when the sibling comes back (a candidate
+  push) and the parent still needs detail, the child is marked RECHECK.
+  Budgets and changed criteria turn expiries off; back-face answers are
+  re-checked every pass.
 """
 
 import math
@@ -32,71 +64,17 @@ import math
 import numba as nb
 import numpy as np
 
-from .fans import corner_of, replace_in_row
-
 INACTIVE, ACTIVE, SPLIT = 0, 1, 2
-STATE_MASK, IN_LIST = 3, 4
+STATE_MASK, IN_LIST, QUEUED, RECHECK = 3, 4, 8, 16
 
-OK, NEED_RECORDS, NEED_LIST, NEED_INDEX = 0, 1, 2, 3
+OK, NEED_RECORDS, NEED_LIST, NEED_QUEUE = 0, 1, 2, 3
 MIXED, SPLITS_ONLY, COLLAPSES_ONLY = 0, 1, 2   # what a pass may do
 
 # View parameter layout (caveclod.refine.view).
 P_EYE, P_PLANES, P_KAPPA, P_TOL, P_CULL, P_BACKFACE = 0, 3, 23, 24, 25, 26
 
-
-@nb.njit(cache=True, nogil=True, inline="always")
-def _slot_of(table, f):
-    """Where face ``f`` sits in the hash table, or the empty slot it would take."""
-    mask = table.shape[0] - 1
-    i = (f * 2654435761) & mask               # Knuth's multiplicative hash
-    while table[i, 0] != f and table[i, 0] != -1:
-        i = (i + 1) & mask
-    return i
-
-
-@nb.njit(cache=True, nogil=True, inline="always")
-def _find(table, f):
-    """Record of active face ``f``, or -1 if the face is not active."""
-    return table[_slot_of(table, f), 1]
-
-
-@nb.njit(cache=True, nogil=True, inline="always")
-def _store(table, f, r):
-    i = _slot_of(table, f)
-    table[i, 0] = f
-    table[i, 1] = r
-
-
-@nb.njit(cache=True, nogil=True)
-def _forget(table, f):
-    """Delete ``f``, shifting later entries back (no tombstones)."""
-    mask = table.shape[0] - 1
-    i = _slot_of(table, f)
-    if table[i, 0] == -1:
-        return
-    j = i
-    while True:
-        table[i, 0] = -1
-        table[i, 1] = -1
-        while True:
-            j = (j + 1) & mask
-            if table[j, 0] == -1:
-                return
-            home = (table[j, 0] * 2654435761) & mask
-            # Move j back to i unless its home lies cyclically in (i, j].
-            if (i <= j and (home <= i or home > j)) or (i > j and home <= i and home > j):
-                break
-        table[i, 0] = table[j, 0]
-        table[i, 1] = table[j, 1]
-        i = j
-
-
-@nb.njit(cache=True, nogil=True)
-def index_records(off, cnt, rec_face, table):
-    """Fill an empty hash ``table`` (-1) with every active face's record."""
-    for s in range(cnt.shape[0]):
-        for r in range(off[s], off[s] + cnt[s]):
-            _store(table, rec_face[r], r)
+NEVER = -np.inf      # an expiry that has passed: evaluate the entry
+FOREVER = np.inf     # an answer no camera motion changes
 
 
 @nb.njit(cache=True, nogil=True, inline="always")
@@ -113,40 +91,113 @@ def node_position(e, npos, x):
     return x if x < e else npos[x - e]
 
 
+@nb.njit(cache=True, nogil=True, inline="always")
+def corner_at(rec_tri, vpos, r, x):
+    """Corner index (0..2) of record ``r`` that sits at position ``x``, or -1."""
+    for k in range(3):
+        if vpos[rec_tri[r, k]] == x:
+            return k
+    return -1
+
+
+@nb.njit(cache=True, nogil=True, inline="always")
+def _replace_nbr(rec_nbr, r, old, new):
+    for k in range(3):
+        if rec_nbr[r, k] == old:
+            rec_nbr[r, k] = new
+            return
+
+
+# ---------------------------------------------------------------- the view test
+
+
 @nb.njit(cache=True, nogil=True)
-def need_refine(j, bound, cone, vp):
-    """Whether internal node ``j`` (index into node arrays) needs detail.
+def test_node(j, bound, cone, vp):
+    """Whether internal node ``j`` (index into node arrays) needs detail,
+    and for how long the answer holds: returns (need, tmargin, rmargin, dist).
 
     ``bound[j]`` is (centre xyz, radius, error bound), one row so that the
-    test touches one cache line.
+    test touches one cache line. The answer holds while the eye travels less
+    than ``tmargin`` and, for ``rmargin``, while ``dT + dA (dist + dT) <
+    rmargin`` (module doc). Margins of 0 say the answer must be re-checked.
     """
     cx, cy, cz, r = bound[j, 0], bound[j, 1], bound[j, 2], bound[j, 3]
-    if vp[P_CULL] != 0.0:
-        for i in range(5):
-            b = P_PLANES + 4 * i
-            if vp[b] * cx + vp[b + 1] * cy + vp[b + 2] * cz + vp[b + 3] < -r:
-                return False                 # wholly outside the frustum
     dx, dy, dz = cx - vp[P_EYE], cy - vp[P_EYE + 1], cz - vp[P_EYE + 2]
     length = math.sqrt(dx * dx + dy * dy + dz * dz)
-    if vp[P_BACKFACE] != 0.0 and length > r and cone[j, 3] < 0.5 * math.pi:
-        # Back-facing when every normal of the cone points away from every
-        # direction towards the sphere: angle(axis, view) - spreads > 90 deg
-        # measured from the eye, i.e. the cone lies within the far half.
-        cosphi = (cone[j, 0] * dx + cone[j, 1] * dy + cone[j, 2] * dz) / length
-        phi = math.acos(min(1.0, max(-1.0, cosphi)))
-        if phi + cone[j, 3] + math.asin(r / length) < 0.5 * math.pi:
-            return False
+    inside = FOREVER                      # smallest plane margin while inside all
+    if vp[P_CULL] != 0.0:
+        outside = 0.0
+        for i in range(5):
+            b = P_PLANES + 4 * i
+            g = vp[b] * cx + vp[b + 1] * cy + vp[b + 2] * cz + vp[b + 3] + r
+            if g < 0.0:
+                outside = max(outside, -g)
+            elif g < inside:
+                inside = g
+        if outside > 0.0:
+            return False, 0.0, outside, length          # wholly outside a plane
+    if vp[P_BACKFACE] != 0.0:
+        if length > r and cone[j, 3] < 0.5 * math.pi:
+            # Back-facing when every normal of the cone points away from every
+            # direction towards the sphere: angle(axis, view) - spreads > 90 deg
+            # measured from the eye, i.e. the cone lies within the far half.
+            cosphi = (cone[j, 0] * dx + cone[j, 1] * dy + cone[j, 2] * dz) / length
+            phi = math.acos(min(1.0, max(-1.0, cosphi)))
+            if phi + cone[j, 3] + math.asin(r / length) < 0.5 * math.pi:
+                return False, 0.0, 0.0, length
+        inside = 0.0                     # back-face answers are re-checked every pass
     if vp[P_TOL] <= 0.0:
-        return True
+        return True, FOREVER, inside, length
     dist = length - r
-    if dist <= 0.0:
-        return True
-    return bound[j, 4] * vp[P_KAPPA] > vp[P_TOL] * dist
+    s = bound[j, 4] * vp[P_KAPPA] / vp[P_TOL] - dist
+    if dist <= 0.0 or s > 0.0:
+        return True, max(s, 0.0), inside, length
+    return False, -s, 0.0, length
+
+
+@nb.njit(cache=True, nogil=True, inline="always")
+def need_refine(j, bound, cone, vp):
+    """Whether internal node ``j`` needs detail for the view ``vp``."""
+    need, _, _, _ = test_node(j, bound, cone, vp)
+    return need
+
+
+@nb.njit(cache=True, nogil=True, inline="always")
+def _expiry(odo, tm, rm, dist, need, te, ae):
+    """Tighten (te, ae) by one answer's margins (module doc); returns them.
+
+    A need=True answer holds while every condition holds (take both
+    margins); a need=False one while either reason does (take the better)."""
+    if need:
+        t = min(tm, 0.5 * rm)
+        a = FOREVER if rm == FOREVER else odo[1] + 0.5 * rm / (dist + 0.5 * rm + 1e-300)
+        return min(te, odo[0] + t), min(ae, a)
+    if tm >= rm:
+        return min(te, odo[0] + tm), ae
+    return min(te, odo[0] + 0.5 * rm), min(ae, odo[1] + 0.5 * rm / (dist + 0.5 * rm + 1e-300))
+
+
+@nb.njit(cache=True, nogil=True, inline="always")
+def _down32(x):
+    """``x`` as float32, rounded towards -inf (an expiry never grows)."""
+    y = np.float32(x)
+    if y > x:
+        y = np.nextafter(y, np.float32(-np.inf))
+    return y
+
+
+# ---------------------------------------------------------------- records
+
+
+@nb.njit(cache=True, nogil=True, inline="always")
+def _mark(r, dirty):
+    """Record ``r`` (a slot) was written: set its bit in the ``dirty`` bitset."""
+    dirty[r >> 6] |= np.uint64(1) << np.uint64(r & 63)
 
 
 @nb.njit(cache=True, nogil=True)
-def _move_wedge(fn0, fn2, old, new, fl, fr, fsgid, pos_vstart, vertex_sgid, face_rec, rec_pos, rec_nbr,
-                rec_tri, rec_dirty):
+def _move_wedge(fn0, fn2, old, new, fl, fr, fsgid, pos_vstart, vertex_sgid, vpos, face_rec, rec_tri, rec_nbr,
+                dirty):
     """Move the floating child's wedge of faces from position ``old`` to ``new``.
 
     The wedge runs from ``fn0`` (fl_u) round ``old`` to ``fn2`` (fr_u); if
@@ -156,11 +207,10 @@ def _move_wedge(fn0, fn2, old, new, fl, fr, fsgid, pos_vstart, vertex_sgid, face
     if fn0 >= 0:
         f = fn0
         while True:
-            r = _find(face_rec, f)
-            k = corner_of(rec_pos, r, old)
-            rec_pos[r, k] = new
+            r = face_rec[f]
+            k = corner_at(rec_tri, vpos, r, old)
             rec_tri[r, k] = lookup_vertex(pos_vstart, vertex_sgid, fsgid[f], new)
-            rec_dirty[r] = 1
+            _mark(r, dirty)
             if f == fn2:
                 break
             f = rec_nbr[r, k]                # across the outgoing edge at the corner
@@ -169,19 +219,55 @@ def _move_wedge(fn0, fn2, old, new, fl, fr, fsgid, pos_vstart, vertex_sgid, face
     elif fn2 >= 0:
         f = fn2
         while True:
-            r = _find(face_rec, f)
-            k = corner_of(rec_pos, r, old)
-            rec_pos[r, k] = new
+            r = face_rec[f]
+            k = corner_at(rec_tri, vpos, r, old)
             rec_tri[r, k] = lookup_vertex(pos_vstart, vertex_sgid, fsgid[f], new)
-            rec_dirty[r] = 1
+            _mark(r, dirty)
             f = rec_nbr[r, (k + 2) % 3]      # across the incoming edge
             if f < 0 or f == fl:
                 break
 
 
 @nb.njit(cache=True, nogil=True)
-def split_node(x, e, links, npos, mat, fsgid, pos_vstart, vertex_sgid,
-               state, face_rec, off, cnt, rec_pos, rec_nbr, rec_face, rec_tri, rec_dirty):
+def _add_face(f, a, b, c, n0, n1, n2, mat, fsgid, pos_vstart, vertex_sgid, face_rec, off, cnt,
+              rec_tri, rec_nbr, rec_face, dirty):
+    """Append face ``f`` on positions (a, b, c) with neighbours (n0, n1, n2)."""
+    s = mat[f]
+    r = off[s] + cnt[s]
+    cnt[s] += 1
+    face_rec[f] = r
+    rec_face[r] = f
+    g = fsgid[f]
+    rec_tri[r, 0] = lookup_vertex(pos_vstart, vertex_sgid, g, a)
+    rec_tri[r, 1] = lookup_vertex(pos_vstart, vertex_sgid, g, b)
+    rec_tri[r, 2] = lookup_vertex(pos_vstart, vertex_sgid, g, c)
+    rec_nbr[r, 0], rec_nbr[r, 1], rec_nbr[r, 2] = n0, n1, n2
+    _mark(r, dirty)
+
+
+@nb.njit(cache=True, nogil=True)
+def _remove_face(f, mat, face_rec, off, cnt, rec_tri, rec_nbr, rec_face, dirty):
+    """Remove face ``f``; the material's last face fills its slot."""
+    s = mat[f]
+    r = face_rec[f]
+    last = off[s] + cnt[s] - 1
+    if r != last:
+        for k in range(3):
+            rec_tri[r, k] = rec_tri[last, k]
+            rec_nbr[r, k] = rec_nbr[last, k]
+        rec_face[r] = rec_face[last]
+        face_rec[rec_face[r]] = r
+        _mark(r, dirty)
+    face_rec[f] = -1
+    cnt[s] -= 1
+
+
+# ---------------------------------------------------------------- split and collapse
+
+
+@nb.njit(cache=True, nogil=True)
+def split_node(x, e, links, npos, mat, fsgid, pos_vstart, vertex_sgid, vpos, state, face_rec, off, cnt,
+               rec_tri, rec_nbr, rec_face, dirty):
     """Split active node ``x`` whose required faces are all active.
 
     The caller has checked legality and capacity (two records).
@@ -193,79 +279,42 @@ def split_node(x, e, links, npos, mat, fsgid, pos_vstart, vertex_sgid,
     px = npos[j]
     pu = node_position(e, npos, u)
     # 1. The floating child's wedge: faces from fl_u round to fr_u move to u.
-    _move_wedge(fn0, fn2, px, pu, fl, fr, fsgid, pos_vstart, vertex_sgid, face_rec, rec_pos, rec_nbr,
-                rec_tri, rec_dirty)
+    _move_wedge(fn0, fn2, px, pu, fl, fr, fsgid, pos_vstart, vertex_sgid, vpos, face_rec, rec_tri, rec_nbr,
+                dirty)
     # 2. The two new faces, linked into their neighbours.
     if fl >= 0:
         if fn0 >= 0:
-            r0 = _find(face_rec, fn0)
-            vl = rec_pos[r0, (corner_of(rec_pos, r0, pu) + 2) % 3]
+            r0 = face_rec[fn0]
+            vl = vpos[rec_tri[r0, (corner_at(rec_tri, vpos, r0, pu) + 2) % 3]]
         else:
-            r1 = _find(face_rec, fn1)
-            vl = rec_pos[r1, (corner_of(rec_pos, r1, px) + 1) % 3]
-        _add_face(fl, px, pu, vl, fr, fn0, fn1, mat, fsgid, pos_vstart, vertex_sgid,
-                  face_rec, off, cnt, rec_pos, rec_nbr, rec_face, rec_tri, rec_dirty)
+            r1 = face_rec[fn1]
+            vl = vpos[rec_tri[r1, (corner_at(rec_tri, vpos, r1, px) + 1) % 3]]
+        _add_face(fl, px, pu, vl, fr, fn0, fn1, mat, fsgid, pos_vstart, vertex_sgid, face_rec, off, cnt,
+                  rec_tri, rec_nbr, rec_face, dirty)
         if fn0 >= 0:
-            r0 = _find(face_rec, fn0)
-            rec_nbr[r0, corner_of(rec_pos, r0, vl)] = fl      # edge vl -> u
+            r0 = face_rec[fn0]
+            rec_nbr[r0, corner_at(rec_tri, vpos, r0, vl)] = fl      # edge vl -> u
         if fn1 >= 0:
-            r1 = _find(face_rec, fn1)
-            rec_nbr[r1, corner_of(rec_pos, r1, px)] = fl      # edge t -> vl
+            r1 = face_rec[fn1]
+            rec_nbr[r1, corner_at(rec_tri, vpos, r1, px)] = fl      # edge t -> vl
     if fr >= 0:
         if fn2 >= 0:
-            r2 = _find(face_rec, fn2)
-            vr = rec_pos[r2, (corner_of(rec_pos, r2, pu) + 1) % 3]
+            r2 = face_rec[fn2]
+            vr = vpos[rec_tri[r2, (corner_at(rec_tri, vpos, r2, pu) + 1) % 3]]
         else:
-            r3 = _find(face_rec, fn3)
-            vr = rec_pos[r3, (corner_of(rec_pos, r3, px) + 2) % 3]
-        _add_face(fr, pu, px, vr, fl, fn3, fn2, mat, fsgid, pos_vstart, vertex_sgid,
-                  face_rec, off, cnt, rec_pos, rec_nbr, rec_face, rec_tri, rec_dirty)
+            r3 = face_rec[fn3]
+            vr = vpos[rec_tri[r3, (corner_at(rec_tri, vpos, r3, px) + 2) % 3]]
+        _add_face(fr, pu, px, vr, fl, fn3, fn2, mat, fsgid, pos_vstart, vertex_sgid, face_rec, off, cnt,
+                  rec_tri, rec_nbr, rec_face, dirty)
         if fn2 >= 0:
-            r2 = _find(face_rec, fn2)
-            rec_nbr[r2, corner_of(rec_pos, r2, pu)] = fr      # edge u -> vr
+            r2 = face_rec[fn2]
+            rec_nbr[r2, corner_at(rec_tri, vpos, r2, pu)] = fr      # edge u -> vr
         if fn3 >= 0:
-            r3 = _find(face_rec, fn3)
-            rec_nbr[r3, corner_of(rec_pos, r3, vr)] = fr      # edge vr -> t
-    state[x] = (state[x] & IN_LIST) | SPLIT
-    state[t] = (state[t] & IN_LIST) | ACTIVE
-    state[u] = (state[u] & IN_LIST) | ACTIVE
-
-
-@nb.njit(cache=True, nogil=True)
-def _add_face(f, a, b, c, n0, n1, n2, mat, fsgid, pos_vstart, vertex_sgid,
-              face_rec, off, cnt, rec_pos, rec_nbr, rec_face, rec_tri, rec_dirty):
-    """Append face ``f`` = (a, b, c) with neighbours (n0, n1, n2)."""
-    s = mat[f]
-    slot = cnt[s]
-    cnt[s] += 1
-    r = off[s] + slot
-    _store(face_rec, f, r)
-    rec_face[r] = f
-    rec_pos[r, 0], rec_pos[r, 1], rec_pos[r, 2] = a, b, c
-    rec_nbr[r, 0], rec_nbr[r, 1], rec_nbr[r, 2] = n0, n1, n2
-    g = fsgid[f]
-    rec_tri[r, 0] = lookup_vertex(pos_vstart, vertex_sgid, g, a)
-    rec_tri[r, 1] = lookup_vertex(pos_vstart, vertex_sgid, g, b)
-    rec_tri[r, 2] = lookup_vertex(pos_vstart, vertex_sgid, g, c)
-    rec_dirty[r] = 1
-
-
-@nb.njit(cache=True, nogil=True)
-def _remove_face(f, mat, face_rec, off, cnt, rec_pos, rec_nbr, rec_face, rec_tri, rec_dirty):
-    """Remove face ``f``; the material's last face fills its slot."""
-    s = mat[f]
-    r = _find(face_rec, f)
-    last = off[s] + cnt[s] - 1
-    if r != last:
-        for k in range(3):
-            rec_pos[r, k] = rec_pos[last, k]
-            rec_nbr[r, k] = rec_nbr[last, k]
-            rec_tri[r, k] = rec_tri[last, k]
-        rec_face[r] = rec_face[last]
-        rec_dirty[r] = 1
-        _store(face_rec, rec_face[r], r)
-    _forget(face_rec, f)
-    cnt[s] -= 1
+            r3 = face_rec[fn3]
+            rec_nbr[r3, corner_at(rec_tri, vpos, r3, vr)] = fr      # edge vr -> t
+    state[x] = (state[x] & ~STATE_MASK) | SPLIT
+    state[t] = (state[t] & ~STATE_MASK) | ACTIVE
+    state[u] = (state[u] & ~STATE_MASK) | ACTIVE
 
 
 @nb.njit(cache=True, nogil=True)
@@ -276,19 +325,19 @@ def collapse_legal(x, e, links, state, face_rec, rec_nbr):
         return False
     fl, fr = links[j, 2], links[j, 3]
     if fl >= 0:
-        r = _find(face_rec, fl)
+        r = face_rec[fl]
         if rec_nbr[r, 1] != links[j, 4] or rec_nbr[r, 2] != links[j, 5]:
             return False
     if fr >= 0:
-        r = _find(face_rec, fr)
+        r = face_rec[fr]
         if rec_nbr[r, 1] != links[j, 7] or rec_nbr[r, 2] != links[j, 6]:
             return False
     return True
 
 
 @nb.njit(cache=True, nogil=True)
-def collapse_node(x, e, links, npos, mat, fsgid, pos_vstart, vertex_sgid,
-                  state, face_rec, off, cnt, rec_pos, rec_nbr, rec_face, rec_tri, rec_dirty):
+def collapse_node(x, e, links, npos, mat, fsgid, pos_vstart, vertex_sgid, vpos, state, face_rec, off, cnt,
+                  rec_tri, rec_nbr, rec_face, dirty):
     """Undo the split of ``x`` (the caller checked :func:`collapse_legal`)."""
     j = x - e
     t, u = links[j, 0], links[j, 1]
@@ -296,23 +345,23 @@ def collapse_node(x, e, links, npos, mat, fsgid, pos_vstart, vertex_sgid,
     fn0, fn1, fn2, fn3 = links[j, 4], links[j, 5], links[j, 6], links[j, 7]
     px = npos[j]
     pu = node_position(e, npos, u)
-    _move_wedge(fn0, fn2, pu, px, fl, fr, fsgid, pos_vstart, vertex_sgid, face_rec, rec_pos, rec_nbr,
-                rec_tri, rec_dirty)
+    _move_wedge(fn0, fn2, pu, px, fl, fr, fsgid, pos_vstart, vertex_sgid, vpos, face_rec, rec_tri, rec_nbr,
+                dirty)
     if fl >= 0:
         if fn0 >= 0:
-            replace_in_row(rec_nbr, _find(face_rec, fn0), fl, fn1)
+            _replace_nbr(rec_nbr, face_rec[fn0], fl, fn1)
         if fn1 >= 0:
-            replace_in_row(rec_nbr, _find(face_rec, fn1), fl, fn0)
-        _remove_face(fl, mat, face_rec, off, cnt, rec_pos, rec_nbr, rec_face, rec_tri, rec_dirty)
+            _replace_nbr(rec_nbr, face_rec[fn1], fl, fn0)
+        _remove_face(fl, mat, face_rec, off, cnt, rec_tri, rec_nbr, rec_face, dirty)
     if fr >= 0:
         if fn2 >= 0:
-            replace_in_row(rec_nbr, _find(face_rec, fn2), fr, fn3)
+            _replace_nbr(rec_nbr, face_rec[fn2], fr, fn3)
         if fn3 >= 0:
-            replace_in_row(rec_nbr, _find(face_rec, fn3), fr, fn2)
-        _remove_face(fr, mat, face_rec, off, cnt, rec_pos, rec_nbr, rec_face, rec_tri, rec_dirty)
-    state[x] = (state[x] & IN_LIST) | ACTIVE
-    state[t] = state[t] & IN_LIST
-    state[u] = state[u] & IN_LIST
+            _replace_nbr(rec_nbr, face_rec[fn3], fr, fn2)
+        _remove_face(fr, mat, face_rec, off, cnt, rec_tri, rec_nbr, rec_face, dirty)
+    state[x] = (state[x] & ~STATE_MASK) | ACTIVE
+    state[t] = state[t] & ~STATE_MASK
+    state[u] = state[u] & ~STATE_MASK
 
 
 @nb.njit(cache=True, nogil=True, inline="always")
@@ -330,10 +379,14 @@ def _room_for_split(j, links, mat, cnt, cap):
     return -1
 
 
+# ---------------------------------------------------------------- the active list
+
+
 @nb.njit(cache=True, nogil=True)
-def sort_active(active, n):
-    """Sort ``active[:n]``: a sorted run (last pass's survivors, written in
-    order) followed by a short tail of nodes appended during that pass.
+def sort_active(active, texp, aexp, n):
+    """Sort ``active[:n]`` (with its expiries) by node id: a sorted run (last
+    pass's survivors, written in order) followed by a short tail of nodes
+    appended during that pass.
 
     Sorting the tail and merging is linear; a plain quicksort degrades on
     this nearly sorted input (4 ms instead of 0.1 ms for 11k nodes).
@@ -343,150 +396,246 @@ def sort_active(active, n):
         k += 1
     if k >= n:
         return
-    tail = np.sort(active[k:n])
-    head = active[:k].copy()
+    order = np.argsort(active[k:n]) + k
+    tail, tail_t, tail_a = active[order], texp[order], aexp[order]
+    head, head_t, head_a = active[:k].copy(), texp[:k].copy(), aexp[:k].copy()
     i = j = 0
     for o in range(n):
         if j >= tail.shape[0] or (i < k and head[i] <= tail[j]):
-            active[o] = head[i]
+            active[o], texp[o], aexp[o] = head[i], head_t[i], head_a[i]
             i += 1
         else:
-            active[o] = tail[j]
+            active[o], texp[o], aexp[o] = tail[j], tail_t[j], tail_a[j]
             j += 1
 
 
+@nb.njit(cache=True, nogil=True, inline="always")
+def _append(x, active, texp, aexp, n, state):
+    """Give active node ``x`` an entry at the back of the list unless it has one."""
+    if (state[x] & IN_LIST) == 0:
+        state[x] |= IN_LIST
+        active[n] = x
+        texp[n] = NEVER
+        aexp[n] = NEVER
+        n += 1
+    return n
+
+
+@nb.njit(cache=True, nogil=True, inline="always")
+def _push(c, e, state, queue, q):
+    """Push split node ``c`` as a collapse candidate (once)."""
+    if c >= e and (state[c] & STATE_MASK) == SPLIT and (state[c] & QUEUED) == 0:
+        state[c] |= QUEUED
+        queue[q] = c
+        q += 1
+    return q
+
+
+@nb.njit(cache=True, nogil=True, inline="always")
+def _push_after_collapse(x, e, parent, links, face_creator, state, queue, q):
+    """The candidates a collapse of ``x`` may have made legal (module doc)."""
+    if parent[x] >= 0:
+        q = _push(parent[x], e, state, queue, q)
+    for k in range(4):
+        f = links[x - e, 4 + k]
+        if f >= 0 and face_creator[f] >= 0:
+            q = _push(face_creator[f], e, state, queue, q)
+    return q
+
+
+# ---------------------------------------------------------------- one pass
+
+
 @nb.njit(cache=True, nogil=True)
-def adapt(e, parent, links, npos, bound, cone, face_creator, mat, fsgid,
-          pos_vstart, vertex_sgid, state, face_rec, off, cnt, cap, rec_pos, rec_nbr, rec_face,
-          rec_tri, rec_dirty, active, n_active, vp, max_ops, max_faces, counts, resume, mode):
+def _skip_run(active, texp, aexp, state, odo, i, w, n, expire):
+    """Keep entries from ``i`` on whose expiries lie ahead, drop those whose
+    node is no longer active, and stop at the first entry to evaluate.
+
+    Returns the new (read, write) positions. A tight loop of its own: most
+    entries of a moving camera end here, and inside the pass's big loop the
+    same work took three times as long.
+    """
+    t, a = odo[0], odo[1]
+    while i < n:
+        x = active[i]
+        st = state[x]
+        if (st & STATE_MASK) != ACTIVE:
+            state[x] = st & ~IN_LIST & 0xFF     # split or collapsed away since
+            i += 1
+            continue
+        te, ae = texp[i], aexp[i]
+        if not expire or (st & RECHECK) != 0 or t >= te or a >= ae:
+            break
+        active[w], texp[w], aexp[w] = x, te, ae
+        i += 1
+        w += 1
+    return i, w
+
+
+
+@nb.njit(cache=True, nogil=True)
+def adapt(e, parent, links, npos, bound, cone, face_creator, mat, fsgid, pos_vstart, vertex_sgid, vpos,
+          state, face_rec, off, cnt, cap, rec_tri, rec_nbr, rec_face, dirty,
+          active, texp, aexp, n_active, queue, vp, odo, max_ops, max_faces, counts, resume, mode, expire):
     """One pass of incremental selective refinement over the active nodes.
 
     Splits (forcing the splits a split needs) where the view needs detail and
-    collapses sibling pairs whose parent no longer needs it, while fewer than
+    collapses sibling pairs whose parent no longer needs it, and the
+    candidates each collapse pushes (module doc), while fewer than
     ``max_ops`` operations were made and fewer than ``max_faces`` faces are
-    active. ``counts`` (2,) int64 accumulates splits and collapses. ``mode``
-    MIXED does both in one pass (Hoppe); SPLITS_ONLY / COLLAPSES_ONLY let a
+    active. ``counts`` (4,) int64 accumulates splits and collapses, its
+    third entry is set when a budget stopped the pass short, and its fourth
+    counts the entries evaluated (not skipped by their expiries). ``mode`` MIXED
+    does both in one pass (Hoppe); SPLITS_ONLY / COLLAPSES_ONLY let a
     budgeted update refine first and coarsen with what budget is left.
+    ``expire`` False evaluates every entry and records no expiries (budgets,
+    tests of the expiries themselves). ``odo`` (2,) float64 is the camera's
+    travelled distance and turned angle.
 
     Returns (status, material): OK, or NEED_RECORDS for that material /
-    NEED_LIST: grow the arrays and call again, and the call *continues the
-    same pass* where this one stopped: ``resume`` (3,) int64 holds the read
-    and write positions and a flag, so decisions never depend on how much
-    room the arrays happened to have. (The node being force-split when room
+    NEED_LIST / NEED_QUEUE (``queue``, the collapse candidates): grow the
+    arrays and call again, and the call *continues the same pass* where this
+    one stopped: ``resume`` (4,) int64 holds the read and write positions, a
+    flag and the candidates left in ``queue``, so decisions never depend on
+    how much room the arrays happened to have. (The node being force-split when room
     ran out is visited again; its forced split restarts and, being
     deterministic, makes the same decisions.)
     """
     n = n_active[0]
-    if resume[2]:
-        i, w = resume[0], resume[1]
-        resume[2] = 0
-    else:
-        # Visit nodes in id order: their static rows are then read front to
-        # back instead of at random, which halves the cost of a pass.
-        sort_active(active, n)
-        i = 0
-        w = 0
-    stack = np.empty(256, np.int64)
     n_faces = 0
     for s in range(cnt.shape[0]):
         n_faces += cnt[s]
     status, need_mat = OK, -1
-    while i < n:
+    q = 0
+    if resume[2]:
+        i, w, q = resume[0], resume[1], resume[3]
+        resume[2] = 0
+        # Candidates left when room ran out go first, as they would have.
+        q, n, n_faces, status = _collapse_candidates(
+            e, parent, links, npos, bound, cone, face_creator, mat, fsgid, pos_vstart, vertex_sgid,
+            vpos, state, face_rec, off, cnt, rec_tri, rec_nbr, rec_face, dirty, active, texp, aexp, n, vp,
+            max_ops, counts, queue, q, n_faces)
+    else:
+        # Visit nodes in id order: their static rows are then read front to
+        # back instead of at random, which halves the cost of a pass.
+        sort_active(active, texp, aexp, n)
+        i = 0
+        w = 0
+    stack = np.empty(256, np.int64)
+    while status == OK:
+        i, w = _skip_run(active, texp, aexp, state, odo, i, w, n, expire)
+        if i >= n:
+            break
         x = active[i]
         i += 1
-        st = state[x]
-        if (st & STATE_MASK) != ACTIVE:
-            state[x] = st & ~IN_LIST & 0xFF
-            continue
+        state[x] = state[x] & ~RECHECK & 0xFF
+        counts[3] += 1
+        te, ae = FOREVER, FOREVER
         ops = counts[0] + counts[1]
-        if mode != COLLAPSES_ONLY and x >= e and ops < max_ops and need_refine(x - e, bound, cone, vp):
-            # Force the split of x: Hoppe's stack of unmet preconditions.
-            stack[0] = x
-            sp = 1
-            while sp > 0:
-                y = stack[sp - 1]
-                sy = state[y] & STATE_MASK
-                if sy == SPLIT or y < e:
-                    sp -= 1
-                    continue
-                if sp + 5 > stack.shape[0]:
-                    bigger = np.empty(2 * stack.shape[0], np.int64)
-                    bigger[:sp] = stack[:sp]
-                    stack = bigger
-                if sy == INACTIVE:
-                    stack[sp] = parent[y]
-                    sp += 1
-                    continue
-                jy = y - e
-                missing = False
-                for q in range(4):
-                    f = links[jy, 4 + q]
-                    if f >= 0 and _find(face_rec, f) < 0:
-                        stack[sp] = face_creator[f]
-                        sp += 1
-                        missing = True
-                if missing:
-                    continue
-                if counts[0] + counts[1] >= max_ops or n_faces + 2 > max_faces:
-                    break
-                s_need = _room_for_split(jy, links, mat, cnt, cap)
-                if s_need >= 0:
-                    status, need_mat = NEED_RECORDS, s_need
-                    break
-                if n + 2 > active.shape[0]:
-                    status = NEED_LIST
-                    break
-                if 2 * (n_faces + 2) > face_rec.shape[0]:   # keep the table at most half full
-                    status = NEED_INDEX
-                    break
-                split_node(y, e, links, npos, mat, fsgid, pos_vstart, vertex_sgid,
-                           state, face_rec, off, cnt, rec_pos, rec_nbr, rec_face, rec_tri, rec_dirty)
-                counts[0] += 1
-                n_faces += (links[jy, 2] >= 0) + (links[jy, 3] >= 0)
-                for c in range(2):
-                    ch = links[jy, c]
-                    if (state[ch] & IN_LIST) == 0:
-                        state[ch] |= IN_LIST
-                        active[n] = ch
-                        n += 1
-                sp -= 1
-            if status != OK:
-                i -= 1                       # x is visited again on resume
-                break
-            if (state[x] & STATE_MASK) == ACTIVE:
-                active[w] = x
-                w += 1
-            else:
-                state[x] = state[x] & ~IN_LIST & 0xFF
+        if ops >= max_ops:
+            counts[2] = 1
+            active[w], texp[w], aexp[w] = x, NEVER, NEVER
+            w += 1
             continue
+        if x >= e and mode != COLLAPSES_ONLY:
+            need, tm, rm, dist = test_node(x - e, bound, cone, vp)
+            if need:
+                # Force the split of x: Hoppe's stack of unmet preconditions.
+                stack[0] = x
+                sp = 1
+                while sp > 0:
+                    y = stack[sp - 1]
+                    sy = state[y] & STATE_MASK
+                    if sy == SPLIT or y < e:
+                        sp -= 1
+                        continue
+                    if sp + 5 > stack.shape[0]:
+                        bigger = np.empty(2 * stack.shape[0], np.int64)
+                        bigger[:sp] = stack[:sp]
+                        stack = bigger
+                    if sy == INACTIVE:
+                        stack[sp] = parent[y]
+                        sp += 1
+                        continue
+                    jy = y - e
+                    missing = False
+                    for k in range(4):
+                        f = links[jy, 4 + k]
+                        if f >= 0 and face_rec[f] < 0:
+                            stack[sp] = face_creator[f]
+                            sp += 1
+                            missing = True
+                    if missing:
+                        continue
+                    if counts[0] + counts[1] >= max_ops or n_faces + 2 > max_faces:
+                        counts[2] = 1
+                        break
+                    s_need = _room_for_split(jy, links, mat, cnt, cap)
+                    if s_need >= 0:
+                        status, need_mat = NEED_RECORDS, s_need
+                        break
+                    if n + 2 > active.shape[0]:
+                        status = NEED_LIST
+                        break
+                    split_node(y, e, links, npos, mat, fsgid, pos_vstart, vertex_sgid, vpos, state, face_rec,
+                               off, cnt, rec_tri, rec_nbr, rec_face, dirty)
+                    counts[0] += 1
+                    n_faces += (links[jy, 2] >= 0) + (links[jy, 3] >= 0)
+                    n = _append(links[jy, 0], active, texp, aexp, n, state)
+                    n = _append(links[jy, 1], active, texp, aexp, n, state)
+                    sp -= 1
+                if status != OK:
+                    i -= 1                       # x is visited again on resume
+                    break
+                if (state[x] & STATE_MASK) == ACTIVE:      # a budget stopped it
+                    active[w], texp[w], aexp[w] = x, NEVER, NEVER
+                    w += 1
+                else:
+                    state[x] = state[x] & ~IN_LIST & 0xFF
+                continue
+            te, ae = _expiry(odo, tm, rm, dist, need, te, ae)
         p = parent[x]
         # The stationary child speaks for the pair, and only when its sibling
         # is active too: a collapse needs both, and this halves the
-        # (cache-missing) parent tests.
-        if mode != SPLITS_ONLY and p >= 0 and ops < max_ops and links[p - e, 0] == x and \
-                (state[links[p - e, 1]] & STATE_MASK) == ACTIVE and \
-                not need_refine(p - e, bound, cone, vp) and \
-                collapse_legal(p, e, links, state, face_rec, rec_nbr):
-            if (state[p] & IN_LIST) == 0 and n + 1 > active.shape[0]:
-                i -= 1
-                status = NEED_LIST
-                break
-            jp = p - e
-            collapse_node(p, e, links, npos, mat, fsgid, pos_vstart, vertex_sgid,
-                          state, face_rec, off, cnt, rec_pos, rec_nbr, rec_face, rec_tri, rec_dirty)
-            counts[1] += 1
-            n_faces -= (links[jp, 2] >= 0) + (links[jp, 3] >= 0)
-            if (state[p] & IN_LIST) == 0:
-                state[p] |= IN_LIST
-                active[n] = p
-                n += 1
-            state[x] = state[x] & ~IN_LIST & 0xFF
-            continue
-        active[w] = x
+        # (cache-missing) parent tests. The sibling's activation, or a change
+        # in the collapse's legality, pushes the parent as a candidate.
+        if mode != SPLITS_ONLY and p >= 0 and links[p - e, 0] == x and \
+                (state[links[p - e, 1]] & STATE_MASK) == ACTIVE:
+            need, tm, rm, dist = test_node(p - e, bound, cone, vp)
+            if not need:
+                if collapse_legal(p, e, links, state, face_rec, rec_nbr):
+                    if (state[p] & IN_LIST) == 0 and n + 1 > active.shape[0]:
+                        i -= 1
+                        status = NEED_LIST
+                        break
+                    if q + 5 > queue.shape[0]:
+                        i -= 1
+                        status = NEED_QUEUE
+                        break
+                    collapse_node(p, e, links, npos, mat, fsgid, pos_vstart, vertex_sgid, vpos, state,
+                                  face_rec, off, cnt, rec_tri, rec_nbr, rec_face, dirty)
+                    counts[1] += 1
+                    n_faces -= (links[p - e, 2] >= 0) + (links[p - e, 3] >= 0)
+                    n = _append(p, active, texp, aexp, n, state)
+                    state[x] = state[x] & ~IN_LIST & 0xFF
+                    q = _push_after_collapse(p, e, parent, links, face_creator, state, queue, q)
+                    q, n, n_faces, status = _collapse_candidates(
+                        e, parent, links, npos, bound, cone, face_creator, mat, fsgid, pos_vstart, vertex_sgid,
+                        vpos, state, face_rec, off, cnt, rec_tri, rec_nbr, rec_face, dirty, active, texp, aexp, n, vp,
+            max_ops, counts, queue, q, n_faces)
+                    if status != OK:
+                        break                    # the queue keeps what is left for the resumed pass
+                    continue
+                # Illegal now: whatever makes it legal pushes p as a candidate.
+            else:
+                te, ae = _expiry(odo, tm, rm, dist, need, te, ae)
+        if not expire:
+            te, ae = NEVER, NEVER
+        active[w], texp[w], aexp[w] = x, _down32(te), _down32(ae)
         w += 1
     if status != OK:
         # Stopped for room: remember where, keep the list as it is.
-        resume[0], resume[1], resume[2] = i, w, 1
+        resume[0], resume[1], resume[2], resume[3] = i, w, 1, q
         n_active[0] = n
         return status, need_mat
     n_active[0] = w
@@ -494,17 +643,83 @@ def adapt(e, parent, links, npos, bound, cone, face_creator, mat, fsgid,
 
 
 @nb.njit(cache=True, nogil=True)
-def collect_writes(off, cnt, rec_tri, rec_dirty, out_mat, out_slot, out_tri):
-    """Gather dirty slots of every material (clearing them); returns how many.
+def _collapse_candidates(e, parent, links, npos, bound, cone, face_creator, mat, fsgid, pos_vstart, vertex_sgid,
+                         vpos, state, face_rec, off, cnt, rec_tri, rec_nbr, rec_face, dirty, active, texp, aexp, n, vp,
+            max_ops, counts, queue, q, n_faces):
+    """Try the pushed candidates, last pushed first, until none is left.
 
-    ``out_*`` must hold ``cnt.sum()`` entries.
+    Returns (q, n, n_faces, status): NEED_LIST / NEED_QUEUE when a collapse
+    found no room in the list or the queue; the candidates stay in ``queue``
+    for the resumed pass.
+    """
+    while q > 0:
+        c = queue[q - 1]
+        if (state[c] & STATE_MASK) != SPLIT:
+            q -= 1
+            state[c] = state[c] & ~QUEUED & 0xFF
+            continue
+        j = c - e
+        t = links[j, 0]
+        if (state[t] & STATE_MASK) != ACTIVE or (state[links[j, 1]] & STATE_MASK) != ACTIVE:
+            q -= 1
+            state[c] = state[c] & ~QUEUED & 0xFF
+            continue
+        if need_refine(j, bound, cone, vp):
+            # The view keeps c split; its stationary child's entry may hold no
+            # expiry for this test (module doc): have it evaluated next pass.
+            state[t] |= RECHECK
+            q -= 1
+            state[c] = state[c] & ~QUEUED & 0xFF
+            continue
+        if not collapse_legal(c, e, links, state, face_rec, rec_nbr):
+            q -= 1
+            state[c] = state[c] & ~QUEUED & 0xFF
+            continue
+        if counts[0] + counts[1] >= max_ops:
+            counts[2] = 1
+            q -= 1
+            state[c] = state[c] & ~QUEUED & 0xFF
+            continue
+        if (state[c] & IN_LIST) == 0 and n + 1 > active.shape[0]:
+            return q, n, n_faces, NEED_LIST
+        if q - 1 + 5 > queue.shape[0]:
+            return q, n, n_faces, NEED_QUEUE
+        q -= 1
+        state[c] = state[c] & ~QUEUED & 0xFF
+        collapse_node(c, e, links, npos, mat, fsgid, pos_vstart, vertex_sgid, vpos, state, face_rec, off, cnt,
+                      rec_tri, rec_nbr, rec_face, dirty)
+        counts[1] += 1
+        n_faces -= (links[j, 2] >= 0) + (links[j, 3] >= 0)
+        n = _append(c, active, texp, aexp, n, state)
+        q = _push_after_collapse(c, e, parent, links, face_creator, state, queue, q)
+    return q, n, n_faces, OK
+
+
+@nb.njit(cache=True, nogil=True)
+def collect_writes(off, cnt, rec_tri, dirty, out_mat, out_slot, out_tri):
+    """Gather the slots written since the last call, in (material, slot)
+    order, clearing ``dirty``; returns how many.
+
+    ``out_*`` must hold ``cnt.sum()`` entries. Records beyond their
+    material's count (removed since) are skipped. The bitset is scanned a
+    word (64 records) at a time, so this costs a microsecond per 64k faces
+    when little changed.
     """
     k = 0
-    for s in range(cnt.shape[0]):
-        for slot in range(cnt[s]):
-            r = off[s] + slot
-            if rec_dirty[r]:
-                rec_dirty[r] = 0
+    s = 0
+    for wi in range(dirty.shape[0]):
+        word = dirty[wi]
+        if word == 0:
+            continue
+        dirty[wi] = 0
+        for b in range(64):
+            if (word >> np.uint64(b)) & np.uint64(1) == 0:
+                continue
+            r = wi * 64 + b
+            while s + 1 < off.shape[0] and off[s + 1] <= r:
+                s += 1
+            slot = r - off[s]
+            if slot < cnt[s]:
                 out_mat[k] = s
                 out_slot[k] = slot
                 out_tri[k, 0] = rec_tri[r, 0]

@@ -7,6 +7,7 @@ cameras updated from different threads refine truly in parallel.
 
 from __future__ import annotations
 
+import math
 import time
 from dataclasses import dataclass, field
 
@@ -14,9 +15,11 @@ import numpy as np
 
 from ..errors import CaveclodError, InputError
 from ..kernels import refine as K
-from .view import View
+from .view import P_BACKFACE, P_CULL, P_EYE, P_KAPPA, P_PLANES, P_TOL, View
 
 UNLIMITED = np.iinfo(np.int64).max
+REBASE_TURNS = 100.0        # radians the odometer may turn before expiries are rebased
+REBASE_EXTENTS = 100.0      # mesh diagonals it may travel (float32 expiries keep ~1e-5 of it)
 
 
 @dataclass
@@ -46,6 +49,8 @@ class Delta:
         budget_exhausted: ``max_ops`` or ``max_faces`` stopped the update
             short: the camera has not converged for its view yet, and later
             updates with the same view go on refining.
+        tested: active nodes whose answer was worked out; the others were
+            skipped because no motion since could have changed it.
     """
 
     surfaces: dict = field(default_factory=dict)
@@ -53,6 +58,7 @@ class Delta:
     collapses: int = 0
     seconds: float = 0.0
     budget_exhausted: bool = False
+    tested: int = 0
 
     @property
     def operations(self) -> int:
@@ -70,12 +76,7 @@ class Delta:
         return buffers
 
 
-def _empty_index(faces: int) -> np.ndarray:
-    """An empty face -> record hash table with room for about ``faces``."""
-    size = 64
-    while size < 4 * faces:
-        size *= 2
-    return np.full((size, 2), -1, np.int32)
+RECORD_ARRAYS = ("rec_tri", "rec_nbr", "rec_face")
 
 
 class CameraState:
@@ -84,100 +85,131 @@ class CameraState:
     ``mesh.new_camera()`` makes one showing the base mesh. Options:
     ``max_ops`` (operations per update) and ``max_faces`` (active faces)
     bound the work and size of an update; both default to unlimited.
+    ``expiries=False`` re-evaluates every active node on every update
+    instead of skipping those whose answer cannot have changed (for tests
+    and measurements; the results are the same).
     """
 
-    def __init__(self, mesh, max_ops: int | None = None, max_faces: int | None = None):
+    def __init__(self, mesh, max_ops: int | None = None, max_faces: int | None = None, expiries: bool = True):
         self.mesh = mesh
         self.max_ops = UNLIMITED if max_ops is None else int(max_ops)
         self.max_faces = UNLIMITED if max_faces is None else int(max_faces)
+        self.expiries = bool(expiries) and self.max_ops == UNLIMITED and self.max_faces == UNLIMITED
         a = {k: np.asarray(v) for k, v in mesh.arrays.items()}   # plain views of the maps
         self._static = (
             mesh.n_positions, a["node_parent"], a["node_links"], a["node_position"],
             a["node_bound"], a["node_cone"], a["face_creator"],
-            a["face_material"], a["face_sgid"], a["pos_vstart"], a["vertex_sgid"],
+            a["face_material"], a["face_sgid"], a["pos_vstart"], a["vertex_sgid"], mesh.vertex_position_ids,
         )
-        self._e = mesh.n_positions
         n, p = mesh.n_nodes, mesh.n_faces
         self.n_materials = max(mesh.n_materials, int(a["face_material"].max(initial=0)) + 1)
         self.state = np.zeros(n, np.uint8)
-        self.face_rec = _empty_index(len(mesh.arrays["base_faces"]))
+        self.face_rec = np.full(p, -1, np.int32)
         base = a["base_faces"]
         base_count = np.bincount(a["face_material"][base], minlength=self.n_materials)
+        self._faces_of_material = np.bincount(a["face_material"], minlength=self.n_materials)
         self.cnt = np.zeros(self.n_materials, np.int64)
-        self._layout(np.maximum(base_count + base_count // 2, 64))
+        self._layout(np.maximum(base_count + base_count // 4, 4))
         self._sent = np.zeros(self.n_materials, np.int64)   # buffer lengths the last delta announced
         self._add_base(a)
-        self.counts = np.zeros(2, np.int64)
-        self._resume = np.zeros(3, np.int64)      # where an interrupted pass goes on
+        self.queue = np.empty(32, np.int32)                # collapse candidates of a pass
+        self.counts = np.zeros(4, np.int64)
+        self._resume = np.zeros(4, np.int64)      # where an interrupted pass goes on
+        self.odo = np.zeros(2)                    # distance travelled, angle turned
+        self._last_view = None
+        lo, hi = mesh.bounds()
+        self._rebase_distance = REBASE_EXTENTS * max(float(np.linalg.norm(hi - lo)), 1e-30)
 
     # -- set-up -------------------------------------------------------------
     def _layout(self, capacity: np.ndarray, old: dict | None = None) -> None:
-        """(Re)allocate the record pool with ``capacity`` per material."""
-        self.cap = capacity.astype(np.int64)
+        """(Re)allocate the record pool with ``capacity`` per material.
+
+        Records move, so the written-slot bits are re-set where the records
+        they mark went (and every moved record's face points at it again).
+        """
+        self.cap = np.minimum(capacity.astype(np.int64), self._faces_of_material)
         self.off = np.zeros(self.n_materials, np.int64)
         np.cumsum(self.cap[:-1], out=self.off[1:])
         total = int(self.cap.sum())
         new = {
-            "rec_pos": np.zeros((total, 3), np.int32),
+            "rec_tri": np.zeros((total, 3), np.uint32),
             "rec_nbr": np.full((total, 3), -1, np.int32),
             "rec_face": np.full(total, -1, np.int32),
-            "rec_tri": np.zeros((total, 3), np.uint32),
-            "rec_dirty": np.zeros(total, np.uint8),
         }
+        dirty = np.zeros((total + 63) // 64, np.uint64)
         if old is not None:
             for s in range(self.n_materials):
                 c = int(self.cnt[s])
-                src = slice(int(old["off"][s]), int(old["off"][s]) + c)
-                dst = slice(int(self.off[s]), int(self.off[s]) + c)
+                src = np.arange(int(old["off"][s]), int(old["off"][s]) + c)
+                dst = np.arange(int(self.off[s]), int(self.off[s]) + c)
                 for k in new:
                     new[k][dst] = old[k][src]
+                was = (old["dirty"][src >> 6] >> (src & 63).astype(np.uint64)) & np.uint64(1)
+                moved = dst[was != 0]
+                np.bitwise_or.at(dirty, moved >> 6, np.uint64(1) << (moved & 63).astype(np.uint64))
+                self.face_rec[new["rec_face"][dst]] = dst
         for k, v in new.items():
             setattr(self, k, v)
-        if old is not None:
-            self._reindex(len(self.face_rec))      # records moved
+        self.dirty = dirty
 
     def _grow_records(self, material: int) -> None:
-        old = {k: getattr(self, k) for k in ("rec_pos", "rec_nbr", "rec_face", "rec_tri", "rec_dirty")}
-        old["off"] = self.off
+        old = {k: getattr(self, k) for k in RECORD_ARRAYS}
+        old["off"], old["dirty"] = self.off, self.dirty
         cap = self.cap.copy()
-        # Grow by half: a camera's bytes are what adding a camera costs, so
-        # slack is kept small; re-layout is O(active faces) and rare.
-        cap[material] = max(cap[material] + cap[material] // 2, 64)
+        # Grow by a quarter: a camera's bytes are what adding a camera costs,
+        # so slack is kept small; re-layout is O(active faces) and rare.
+        cap[material] = cap[material] + max(cap[material] // 4, 8)
         self._layout(cap, old)
 
-    def _reindex(self, size: int) -> None:
-        """Rebuild the face -> record hash table with ``size`` slots."""
-        self.face_rec = np.full((size, 2), -1, np.int32)
-        K.index_records(self.off, self.cnt, self.rec_face, self.face_rec)
+    def _trim(self) -> None:
+        """Give back room a pass no longer uses (after a jump to a coarser
+        view): halve what is more than twice the need, so that the camera's
+        bytes follow its active counts (Equation 1) without thrashing."""
+        n = int(self.n_active[0])
+        if len(self.active) > max(2 * n, 32):
+            size = n + n // 4 + 8
+            for name in ("active", "texp", "aexp"):
+                setattr(self, name, getattr(self, name)[:size].copy())
+        if (self.cap > 2 * self.cnt + 4).any():
+            old = {k: getattr(self, k) for k in RECORD_ARRAYS}
+            old["off"], old["dirty"] = self.off, self.dirty
+            self._layout(np.where(self.cap > 2 * self.cnt + 4, self.cnt + self.cnt // 4 + 4, self.cap), old)
 
     def _grow_list(self) -> None:
-        bigger = np.empty(max(len(self.active) + len(self.active) // 2, 64), np.int32)
-        bigger[: self.n_active[0]] = self.active[: self.n_active[0]]
-        self.active = bigger
+        size = max(len(self.active) + len(self.active) // 4, 16)
+        for name, fill in (("active", -1), ("texp", -np.inf), ("aexp", -np.inf)):
+            old = getattr(self, name)
+            bigger = np.full(size, fill, old.dtype)
+            bigger[: self.n_active[0]] = old[: self.n_active[0]]
+            setattr(self, name, bigger)
+
+    def _grow_queue(self) -> None:
+        bigger = np.empty(2 * len(self.queue), np.int32)
+        bigger[: len(self.queue)] = self.queue
+        self.queue = bigger
 
     def _add_base(self, a: dict) -> None:
         roots = np.flatnonzero(a["node_parent"] < 0).astype(np.int32)
         self.state[roots] = K.ACTIVE | K.IN_LIST
-        self.active = np.empty(max(len(roots) + len(roots) // 2, 64), np.int32)
+        size = max(len(roots) + len(roots) // 4, 16)
+        self.active = np.empty(size, np.int32)
+        self.texp = np.full(size, -np.inf, np.float32)
+        self.aexp = np.full(size, -np.inf, np.float32)
         self.active[: len(roots)] = roots
         self.n_active = np.array([len(roots)], np.int64)
         faces = a["base_faces"]
         pos = self.mesh.node_positions(a["base_face_nodes"].ravel()).reshape(-1, 3)
         mat = a["face_material"][faces]
-        for f, corners, nbrs, s in zip(faces, pos, a["base_face_nbrs"], mat):
-            r = int(self.off[s] + self.cnt[s])
-            self.cnt[s] += 1
-            self.rec_face[r] = f
-            self.rec_pos[r] = corners
-            self.rec_nbr[r] = nbrs
-            self.rec_dirty[r] = 1
-        self.rec_tri[:] = 0
-        K.index_records(self.off, self.cnt, self.rec_face, self.face_rec)
+        tri = self.mesh.lookup_vertices(np.repeat(a["face_sgid"][faces], 3), pos.ravel()).reshape(-1, 3)
         for s in range(self.n_materials):
-            sl = slice(int(self.off[s]), int(self.off[s] + self.cnt[s]))
-            if self.cnt[s]:
-                self.rec_tri[sl] = self.mesh.lookup_vertices(
-                    np.repeat(a["face_sgid"][self.rec_face[sl]], 3), self.rec_pos[sl].ravel()).reshape(-1, 3)
+            pick = np.flatnonzero(mat == s)
+            r = int(self.off[s]) + np.arange(len(pick))
+            self.cnt[s] = len(pick)
+            self.rec_face[r] = faces[pick]
+            self.rec_tri[r] = tri[pick]
+            self.rec_nbr[r] = a["base_face_nbrs"][pick]
+            self.face_rec[faces[pick]] = r
+            np.bitwise_or.at(self.dirty, r >> 6, np.uint64(1) << (r & 63).astype(np.uint64))
 
     # -- refinement -----------------------------------------------------------
     def update(self, view: View) -> Delta:
@@ -188,6 +220,7 @@ class CameraState:
         vp = view.params()
         if not np.isfinite(vp).all():     # a View built around its own checks
             raise InputError("the view has NaN or infinite numbers; send a finite pose")
+        self._advance_odometer(vp)
         self.counts[:] = 0
         if self.max_ops == UNLIMITED and self.max_faces == UNLIMITED:
             self._pass(vp, K.MIXED)
@@ -196,31 +229,58 @@ class CameraState:
             # and coarsening with what is left keeps the next update from
             # collapsing the half-made dependencies again (no oscillation).
             self._pass(vp, K.SPLITS_ONLY)
-            if self.counts.sum() < self.max_ops:
+            if self.counts[0] + self.counts[1] < self.max_ops:
                 self._pass(vp, K.COLLAPSES_ONLY)
         delta = self._collect_delta()
+        self._trim()
         delta.splits, delta.collapses = int(self.counts[0]), int(self.counts[1])
-        delta.budget_exhausted = bool(self.counts.sum() >= self.max_ops or
-                                      (self.max_faces != UNLIMITED and self.n_faces + 2 > self.max_faces))
+        delta.budget_exhausted = bool(self.counts[2])
+        delta.tested = int(self.counts[3])
         delta.seconds = time.perf_counter() - t0
         return delta
 
+    def _advance_odometer(self, vp: np.ndarray) -> None:
+        """Add the eye's travel and the frustum's turn since the last view to
+        :attr:`odo` (what the active list's expiries are read against); a
+        change of criteria (viewport height, field of view, tolerance,
+        culling) expires every entry instead."""
+        last = self._last_view
+        now = vp.tolist()
+        self._last_view = now
+        if last is None or any(last[k] != now[k] for k in (P_KAPPA, P_TOL, P_CULL, P_BACKFACE)):
+            self.texp[:] = -np.inf
+            return
+        self.odo[0] += math.dist(now[P_EYE:P_EYE + 3], last[P_EYE:P_EYE + 3])
+        self.odo[1] += max(math.dist(now[b:b + 3], last[b:b + 3]) for b in range(P_PLANES, P_PLANES + 20, 4))
+        if self.odo[0] > self._rebase_distance or self.odo[1] > REBASE_TURNS:
+            # float32 expiries lose precision far from zero: count from here.
+            n = int(self.n_active[0])
+            for exp, base in ((self.texp, self.odo[0]), (self.aexp, self.odo[1])):
+                shifted = exp[:n].astype(np.float64) - base
+                down = shifted.astype(np.float32)
+                up = down.astype(np.float64) > shifted
+                down[up] = np.nextafter(down[up], np.float32(-np.inf))
+                exp[:n] = down
+            self.odo[:] = 0.0
+
     def _pass(self, vp: np.ndarray, mode: int) -> None:
         """Run one refinement pass to its end, growing arrays when asked."""
+        expire = self.expiries and mode == K.MIXED
         try:
             while True:
                 status, material = K.adapt(*self._static, self.state, self.face_rec, self.off, self.cnt,
-                                           self.cap, self.rec_pos, self.rec_nbr, self.rec_face, self.rec_tri,
-                                           self.rec_dirty, self.active, self.n_active, vp, self.max_ops,
-                                           self.max_faces, self.counts, self._resume, mode)
+                                           self.cap, self.rec_tri, self.rec_nbr, self.rec_face, self.dirty,
+                                           self.active, self.texp, self.aexp,
+                                           self.n_active, self.queue, vp, self.odo, self.max_ops,
+                                           self.max_faces, self.counts, self._resume, mode, expire)
                 if status == K.OK:
                     return
                 if status == K.NEED_RECORDS:
                     self._grow_records(int(material))
                 elif status == K.NEED_LIST:
                     self._grow_list()
-                elif status == K.NEED_INDEX:
-                    self._reindex(2 * len(self.face_rec))
+                elif status == K.NEED_QUEUE:
+                    self._grow_queue()
                 else:  # pragma: no cover - the kernel has no other status
                     raise CaveclodError(f"refinement kernel returned status {status}")
         finally:
@@ -231,26 +291,30 @@ class CameraState:
         """Close an interrupted pass (growth failed): keep the listed nodes.
 
         Entries before the write position were kept, those from the read
-        position on were not reached; what lies between is stale.
+        position on were not reached; what lies between is stale. Waiting
+        collapse candidates are dropped.
         """
-        i, w, _ = self._resume
-        n = self.n_active[0]
-        self.active[w: w + n - i] = self.active[i:n].copy()
+        i, w, _, q = (int(v) for v in self._resume)
+        n = int(self.n_active[0])
+        for arr in (self.active, self.texp, self.aexp):
+            arr[w: w + n - i] = arr[i:n].copy()
         self.n_active[0] = w + n - i
+        self.state[self.queue[:q]] &= np.uint8(0xFF & ~K.QUEUED)
         self._resume[:] = 0
 
     def _collect_delta(self) -> Delta:
-        total = int(self.cnt.sum())
-        mats = np.empty(total, np.int32)
-        slots = np.empty(total, np.uint32)
-        tris = np.empty((total, 3), np.uint32)
-        k = K.collect_writes(self.off, self.cnt, self.rec_tri, self.rec_dirty, mats, slots, tris)
+        k = int(self.cnt.sum())
+        mats = np.empty(k, np.int64)
+        slots = np.empty(k, np.uint32)
+        tris = np.empty((k, 3), np.uint32)
+        k = K.collect_writes(self.off, self.cnt, self.rec_tri, self.dirty, mats, slots, tris)
         mats, slots, tris = mats[:k], slots[:k], tris[:k]
         delta = Delta()
-        changed = set(np.unique(mats).tolist()) | set(np.flatnonzero(self.cnt != self._sent).tolist())
-        for s in sorted(changed):
-            pick = mats == s
-            delta.surfaces[int(s)] = SurfaceDelta(slots[pick], tris[pick], int(self.cnt[s]))
+        bounds = np.searchsorted(mats, np.arange(self.n_materials + 1))
+        for s in range(self.n_materials):
+            lo, hi = int(bounds[s]), int(bounds[s + 1])
+            if hi > lo or self.cnt[s] != self._sent[s]:
+                delta.surfaces[s] = SurfaceDelta(slots[lo:hi], tris[lo:hi], int(self.cnt[s]))
         self._sent[:] = self.cnt
         return delta
 
@@ -292,9 +356,9 @@ class CameraState:
     @property
     def nbytes(self) -> int:
         """Bytes this camera owns (the static mesh is shared, not counted)."""
-        arrays = (self.state, self.face_rec, self.rec_pos, self.rec_nbr, self.rec_face, self.rec_tri,
-                  self.rec_dirty, self.active, self.n_active, self.off, self.cnt, self.cap, self._sent,
-                  self.counts, self._resume)
+        arrays = (self.state, self.face_rec, self.rec_tri, self.rec_nbr, self.rec_face, self.dirty,
+                  self.active, self.texp, self.aexp, self.n_active, self.queue,
+                  self.off, self.cnt, self.cap, self._sent, self.counts, self._resume, self.odo)
         return int(sum(x.nbytes for x in arrays))
 
     def validate(self) -> None:

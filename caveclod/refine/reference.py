@@ -18,6 +18,13 @@ the specification of one update:
    speaks for the pair), the parent does not need detail and the collapse
    back into the parent is legal, the pair collapses and the parent joins
    the list.
+4. After a collapse, the collapses it may have made possible are tried at
+   once, last pushed first: the collapsed node's parent and the nodes that
+   created its four required faces (each pushed once, while it is split).
+   A candidate collapses when both its children are active, it does not
+   need detail and its collapse is legal; its own candidates are pushed in
+   turn.
+5. Once the operation budget is spent, nodes are kept as they are.
 
 Node ids: leaves ``0 .. e-1`` are positions; internal node ``x`` has its
 static data at index ``x - e``. A split of ``s`` into ``t`` (stationary, at
@@ -358,7 +365,10 @@ class ReferenceCamera:
             if self.node_state(x) != ACTIVE:
                 self.in_list.discard(x)           # split or collapsed away meanwhile
                 continue
-            if splits and not self.is_leaf(x) and self.ops() < self.max_ops and self.need_refine(x):
+            if self.ops() >= self.max_ops:
+                kept.append(x)
+                continue
+            if splits and not self.is_leaf(x) and self.need_refine(x):
                 self.force_split(x)
                 if self.node_state(x) == ACTIVE:  # the budget ran out first
                     kept.append(x)
@@ -366,13 +376,44 @@ class ReferenceCamera:
                     self.in_list.discard(x)
                 continue
             s = self.parent[x]
-            if collapses and s >= 0 and self.children[s - self.e][0] == x and self.ops() < self.max_ops \
+            if collapses and s >= 0 and self.children[s - self.e][0] == x \
                     and not self.need_refine(s) and self.collapse_legal(s):
                 self.collapse(s)
                 self.in_list.discard(x)
+                self.try_candidates(self.candidates_of(s))
                 continue
             kept.append(x)
         self.active = kept
+
+    def candidates_of(self, s):
+        """Nodes whose collapse the collapse of ``s`` may have made legal, in push order."""
+        fn = self.required[s - self.e]
+        return [self.parent[s]] + [self.creator[f] if f >= 0 else -1 for f in fn]
+
+    def try_candidates(self, pushed):
+        """Collapse candidates, last pushed first; each is pushed once while split."""
+        stack, queued = [], set()
+
+        def push(nodes):
+            for c in nodes:
+                if c >= self.e and self.node_state(c) == SPLIT and c not in queued:
+                    queued.add(c)
+                    stack.append(c)
+
+        push(pushed)
+        while stack:
+            c = stack.pop()
+            queued.discard(c)
+            if self.node_state(c) != SPLIT:
+                continue
+            t, u = self.children[c - self.e]
+            if self.node_state(t) != ACTIVE or self.node_state(u) != ACTIVE or self.need_refine(c) \
+                    or not self.collapse_legal(c):
+                continue
+            if self.ops() >= self.max_ops:
+                continue
+            self.collapse(c)
+            push(self.candidates_of(c))
 
     def update(self, view):
         """Refine for ``view`` (a :class:`caveclod.refine.view.View`); returns (splits, collapses)."""

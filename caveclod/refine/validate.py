@@ -40,6 +40,8 @@ def validate_camera(cam) -> None:
     listed = cam.active[: cam.n_active[0]]
     if len(np.unique(listed)) != len(listed):
         _fail("a node is listed twice in the active list")
+    if (cam.state & K.QUEUED).any():
+        _fail("a collapse candidate is still marked queued after the pass")
     if not np.array_equal(np.sort(listed[state[listed] == K.ACTIVE]), active):
         _fail("active list does not hold exactly the active nodes")
     inlist = np.zeros(n, bool)
@@ -52,12 +54,7 @@ def validate_camera(cam) -> None:
     want = np.ones(len(creator), bool)
     made = creator >= 0
     want[made] = state[creator[made]] == K.SPLIT
-    table = cam.face_rec
-    keys = table[:, 0][table[:, 0] >= 0]
-    indexed = np.zeros(len(creator), bool)
-    indexed[keys] = True
-    if len(keys) != len(np.unique(keys)):
-        _fail("a face is in the face -> record table twice")
+    indexed = cam.face_rec >= 0
     if not np.array_equal(want, indexed):
         _fail("a face is active while its creator is not split, or the reverse")
 
@@ -72,13 +69,14 @@ def validate_camera(cam) -> None:
         faces = cam.rec_face[r]
         if (mat[faces] != s).any():
             _fail(f"a face sits in the index buffer of another material ({s})")
-        recorded = dict(zip(table[:, 0].tolist(), table[:, 1].tolist()))
-        if [recorded.get(int(f)) for f in faces] != r.tolist():
-            _fail(f"the face -> record table and the records disagree in material {s}")
+        if not np.array_equal(cam.face_rec[faces], r):
+            _fail(f"the face -> record map and the records disagree in material {s}")
         recs.append(r)
     recs = np.concatenate(recs) if recs else np.zeros(0, np.int64)
     faces = cam.rec_face[recs]
-    pos = cam.rec_pos[recs].astype(np.int64)
+    if int(indexed.sum()) != len(recs):
+        _fail("the face -> record map holds a face no record holds")
+    pos = mesh.vertex_position_ids[cam.rec_tri[recs]].astype(np.int64)
     nbr = cam.rec_nbr[recs]
 
     if ((pos[:, 0] == pos[:, 1]) | (pos[:, 1] == pos[:, 2]) | (pos[:, 2] == pos[:, 0])).any():

@@ -86,25 +86,37 @@ class View:
         return cls(eye=eye, target=target, up=up, **options)
 
     def params(self) -> np.ndarray:
-        """The (P_SIZE,) float64 vector the refinement kernels read."""
-        eye = np.asarray(self.eye)
-        f = np.subtract(self.target, eye)
-        f /= np.linalg.norm(f)
-        r = np.cross(f, self.up)
-        r /= np.linalg.norm(r)
-        u = np.cross(r, f)
+        """The (P_SIZE,) float64 vector the refinement kernels read (computed
+        once per view; plain floats, because numpy's small-vector calls cost
+        more than the refinement of a converged camera)."""
+        cached = self.__dict__.get("_params")
+        if cached is not None:
+            return cached
+        ex, ey, ez = self.eye
+        f = _unit((self.target[0] - ex, self.target[1] - ey, self.target[2] - ez))
+        r = _unit(_cross(f, self.up))
+        u = _cross(r, f)
         ty = math.tan(math.radians(self.fov_y) / 2.0)
         tx = ty * self.width / self.height
         # Inward normals of the four side planes through the eye, and near.
-        normals = [f * tx + r, f * tx - r, f * ty + u, f * ty - u, f]
-        out = np.zeros(P_SIZE)
-        out[P_EYE:P_EYE + 3] = eye
-        for i, n in enumerate(normals):
-            n = n / np.linalg.norm(n)
-            out[P_PLANES + 4 * i:P_PLANES + 4 * i + 3] = n
-            out[P_PLANES + 4 * i + 3] = -float(n @ eye)
-        out[P_KAPPA] = self.height / (2.0 * ty)
-        out[P_TOL] = float(self.tolerance_px)
-        out[P_CULL] = 1.0 if self.cull else 0.0
-        out[P_BACKFACE] = 1.0 if self.backface else 0.0
-        return out
+        normals = [tuple(a * tx + b for a, b in zip(f, r)), tuple(a * tx - b for a, b in zip(f, r)),
+                   tuple(a * ty + b for a, b in zip(f, u)), tuple(a * ty - b for a, b in zip(f, u)), f]
+        out = [ex, ey, ez]
+        for n in normals:
+            n = _unit(n)
+            out += [n[0], n[1], n[2], -(n[0] * ex + n[1] * ey + n[2] * ez)]
+        out += [self.height / (2.0 * ty), float(self.tolerance_px), 1.0 if self.cull else 0.0,
+                1.0 if self.backface else 0.0]
+        vp = np.array(out)
+        vp.flags.writeable = False
+        object.__setattr__(self, "_params", vp)
+        return vp
+
+
+def _cross(a, b) -> tuple:
+    return (a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0])
+
+
+def _unit(a) -> tuple:
+    n = math.sqrt(a[0] * a[0] + a[1] * a[1] + a[2] * a[2])
+    return (a[0] / n, a[1] / n, a[2] / n)
