@@ -1,9 +1,10 @@
 """The paper's experiments: multi-camera flyovers, per-camera vs shared state.
 
-    python benchmarks/refine.py [--mesh X.cvc | --size 708] [--seconds 20]
+    python benchmarks/refine.py [--terrains default rough | --mesh X.cvc] [--size 708] [--seconds 20]
 
-For 1, 2, 3 and 4 cameras flying over different parts of the mesh at 30 Hz
-(1280x720, 60 degree field of view, 1 px tolerance):
+On the smooth default terrain and the rough one (1M triangles at --size
+708), for 1, 2, 3 and 4 cameras flying over different parts of the mesh at
+30 Hz (1280x720, 60 degree field of view, 1 px tolerance):
 
 * **per-camera**: each camera has its own CameraState (CAVECLOD);
 * **baseline**: one CameraState re-refined for camera A, then B, ... each
@@ -12,10 +13,12 @@ For 1, 2, 3 and 4 cameras flying over different parts of the mesh at 30 Hz
 Reported: split+collapse operations per camera-second in both modes and
 their ratio (paper Figs. 10-11), update time per camera-frame (p50, p99),
 active faces per camera (Fig. 13), bytes per added camera against the static
-mesh and against Equation 1 (Table 1, Fig. 14), and the speed-up of 2
-threads over 1 updating 2 cameras. The first second (refining up from the
-base mesh) is left out of rates and times. Writes
-``benchmarks/results/refine.json`` and ``refine_*.png``.
+mesh and against Equation 1's per-camera term for the same active counts
+(Table 1, Fig. 14), the speed-up of 2 threads over 1 updating 2 cameras, the
+cost of a converged update per active node (with expiries and without), and
+the updates a jump takes to converge in either direction. The first second
+(refining up from the base mesh) is left out of rates and times. Writes
+``benchmarks/results/refine.json`` and ``refine_<terrain>_*.png``.
 """
 
 from __future__ import annotations
@@ -38,14 +41,15 @@ RESULTS = Path(__file__).parent / "results"
 FPS = 30
 
 
-def load_mesh(args):
-    if args.mesh:
-        return caveclod.load(args.mesh), str(args.mesh)
-    path = RESULTS / f"default_{args.size}.cvc"
+def load_mesh(name: str, size: int):
+    """A built-in, built once into benchmarks/results/ (or a .cvc path)."""
+    if name.endswith(".cvc"):
+        return caveclod.load(name), name
+    path = RESULTS / f"{name}_{size}.cvc"
     if not path.exists():
         path.parent.mkdir(parents=True, exist_ok=True)
-        caveclod.build("default", size=args.size).save(path)
-    return caveclod.load(path), f"default --size {args.size}"
+        caveclod.build(name, size=size).save(path)
+    return caveclod.load(path), f"{name} --size {size}"
 
 
 def views_for(lo, hi, cameras, frames, tolerance):
@@ -121,17 +125,52 @@ def equation1_per_camera(mesh, cam) -> int:
     return 4 * mesh.n_nodes + 4 * mesh.n_faces + 16 + 12 * len(cam.active_nodes()) + 36 * cam.n_faces
 
 
-def main(argv=None) -> int:
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--mesh", type=Path, help="a .cvc file (default: the built-in terrain)")
-    ap.add_argument("--size", type=int, default=708, help="default terrain cells per side (708 = 1.0M triangles)")
-    ap.add_argument("--seconds", type=float, default=20.0, help="simulated flyover length")
-    ap.add_argument("--tolerance", type=float, default=1.0, help="screen-space tolerance in pixels")
-    ap.add_argument("--repeats", type=int, default=3, help="repeats of each timing (medians are reported)")
-    ap.add_argument("--out", type=Path, default=RESULTS / "refine.json")
-    args = ap.parse_args(argv)
+def converged_cost(mesh, lo, hi, tolerance, repeats=50):
+    """Microseconds of an update that changes nothing, per active node,
+    with expiries (a converged camera's real cost) and without (every
+    active node tested): median over the four flyover cameras."""
+    out = {"with_expiries_us_per_active_node": [], "without_expiries_us_per_active_node": [],
+           "with_expiries_us": [], "without_expiries_us": [], "active_nodes": []}
+    for c in range(4):
+        view = caveclod.View.from_pose(flyover(lo, hi, c, 0.0), tolerance_px=tolerance)
+        for key, options in (("with", {}), ("without", {"expiries": False})):
+            cam = mesh.new_camera(**options)
+            for _ in range(5):
+                if cam.update(view).operations == 0:
+                    break
+            times = []
+            for _ in range(repeats):
+                t0 = time.perf_counter()
+                cam.update(view)
+                times.append(time.perf_counter() - t0)
+            us = 1e6 * statistics.median(times)
+            nodes = len(cam.active_nodes())
+            out[f"{key}_expiries_us"].append(us)
+            out[f"{key}_expiries_us_per_active_node"].append(us / nodes)
+        out["active_nodes"].append(nodes)
+    return {k: statistics.median(v) for k, v in out.items()}
 
-    mesh, label = load_mesh(args)
+
+def jumps(mesh, lo, hi, tolerance):
+    """Updates until an update makes no operation, after jumps both ways."""
+    ext = float(np.linalg.norm(hi - lo))
+    centre = (lo + hi) / 2
+    far = caveclod.View(eye=tuple(centre + ext * np.array([20.0, 3.0, 6.0])), target=tuple(centre),
+                        tolerance_px=tolerance)
+    out = {}
+    for c in range(4):
+        near = caveclod.View.from_pose(flyover(lo, hi, c, 0.0), tolerance_px=tolerance)
+        cam = mesh.new_camera()
+        for label, view in (("refine", near), ("coarsen", far), ("refine_again", near)):
+            k = 0
+            while cam.update(view).operations and k < 20:
+                k += 1
+            out.setdefault(label, []).append(k)
+    return {k: max(v) for k, v in out.items()}
+
+
+def run_terrain(name, args):
+    mesh, label = load_mesh(name, args.size)
     lo, hi = mesh.bounds()
     frames = int(args.seconds * FPS)
     warm = FPS                                           # leave out the first second
@@ -154,6 +193,7 @@ def main(argv=None) -> int:
         bl_rate = bops[warm:].sum() / (n_cams * sim)
         t_ms = secs[warm:].ravel() * 1000
         cam_bytes = [c.nbytes for c in cams]
+        eq1 = [equation1_per_camera(mesh, c) for c in cams]
         row = {
             "ops_per_camera_second": pc_rate,
             "baseline_ops_per_camera_second": bl_rate,
@@ -165,16 +205,17 @@ def main(argv=None) -> int:
             "active_faces_mean": float(faces[warm:].mean()),
             "bytes_per_camera": cam_bytes,
             "camera_over_static": max(cam_bytes) / mesh.nbytes,
-            "equation1_bytes_per_camera": [equation1_per_camera(mesh, c) for c in cams],
-            "equation1_camera_over_static": max(equation1_per_camera(mesh, c) for c in cams) / mesh.equation1_bytes,
+            "equation1_bytes_per_camera": eq1,
+            "camera_over_equation1": max(b / q for b, q in zip(cam_bytes, eq1)),
+            "equation1_camera_over_static": max(eq1) / mesh.equation1_bytes,
         }
         report["cameras"][n_cams] = row
         series[n_cams] = (ops, bops, faces, t_ms)
-        print(f"{n_cams} camera(s): per-camera {pc_rate:,.0f} ops/cam-s, baseline {bl_rate:,.0f} "
+        print(f"{name} {n_cams} camera(s): per-camera {pc_rate:,.0f} ops/cam-s, baseline {bl_rate:,.0f} "
               f"({row['baseline_over_per_camera']:.1f}x); update p50 {row['update_ms_p50']:.2f} ms "
               f"p99 {row['update_ms_p99']:.2f} ms; {row['active_faces_mean']:,.0f} faces/camera; "
-              f"camera = {100 * row['camera_over_static']:.1f}% of static "
-              f"(Eq. 1: {100 * row['equation1_camera_over_static']:.1f}%)", flush=True)
+              f"camera = {100 * row['camera_over_static']:.1f}% of static, "
+              f"{row['camera_over_equation1']:.2f} of Eq. 1's per-camera term", flush=True)
 
     # Two threads, two cameras: the paper's cameras A and B (which see
     # unequal amounts of terrain), and two cameras of equal load (each its
@@ -184,18 +225,39 @@ def main(argv=None) -> int:
     report["threads"] = {"cores": os.cpu_count(),
                          "cameras_a_b": speedup(mesh, paper, args.repeats),
                          "equal_load": speedup(mesh, equal, args.repeats)}
-    for name, row in (("cameras A, B", report["threads"]["cameras_a_b"]),
+    for what, row in (("cameras A, B", report["threads"]["cameras_a_b"]),
                       ("equal load", report["threads"]["equal_load"])):
-        print(f"2 threads vs 1, {name}: speed-up {row['speedup_median']:.2f}x "
+        print(f"{name} 2 threads vs 1, {what}: speed-up {row['speedup_median']:.2f}x "
               f"(imbalance allows {row['speedup_bound_from_imbalance']:.2f}x); "
               f"1 thread {statistics.median(row['one_thread_seconds']):.2f} s", flush=True)
+    report["converged_update"] = converged_cost(mesh, lo, hi, args.tolerance)
+    report["updates_to_converge"] = jumps(mesh, lo, hi, args.tolerance)
+    cu = report["converged_update"]
+    print(f"{name} converged update: {cu['with_expiries_us']:.0f} us with expiries "
+          f"({1000 * cu['with_expiries_us_per_active_node']:.1f} ns per active node), "
+          f"{cu['without_expiries_us']:.0f} us without ({1000 * cu['without_expiries_us_per_active_node']:.1f} ns); "
+          f"updates to converge after a jump: {report['updates_to_converge']}", flush=True)
+    _plot(series, report, args.out.parent, name)
+    return report
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--terrains", nargs="+", default=["default", "rough"],
+                    help="built-ins (or .cvc paths) to fly over")
+    ap.add_argument("--size", type=int, default=708, help="cells per side of the built-ins (708 = 1.0M triangles)")
+    ap.add_argument("--seconds", type=float, default=20.0, help="simulated flyover length")
+    ap.add_argument("--tolerance", type=float, default=1.0, help="screen-space tolerance in pixels")
+    ap.add_argument("--repeats", type=int, default=3, help="repeats of each timing (medians are reported)")
+    ap.add_argument("--out", type=Path, default=RESULTS / "refine.json")
+    args = ap.parse_args(argv)
+    report = {"terrains": {name: run_terrain(name, args) for name in args.terrains}}
     args.out.parent.mkdir(parents=True, exist_ok=True)
     args.out.write_text(json.dumps(report, indent=1))
-    _plot(series, report, args.out.parent)
     return 0
 
 
-def _plot(series, report, folder: Path) -> None:
+def _plot(series, report, folder: Path, name: str) -> None:
     import matplotlib
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
@@ -215,7 +277,7 @@ def _plot(series, report, folder: Path) -> None:
     a.set_yscale("symlog")
     a.legend()
     fig.tight_layout()
-    fig.savefig(folder / "refine_ops.png", dpi=100)
+    fig.savefig(folder / f"refine_{name}_ops.png", dpi=100)
 
     fig, (a, b) = plt.subplots(1, 2, figsize=(11, 4))
     for c, name in enumerate("ABCD"):
@@ -236,19 +298,19 @@ def _plot(series, report, folder: Path) -> None:
     b.set_ylim(0, None)
     b.legend()
     fig.tight_layout()
-    fig.savefig(folder / "refine_faces_memory.png", dpi=100)
+    fig.savefig(folder / f"refine_{name}_faces_memory.png", dpi=100)
 
     fig, ax = plt.subplots(figsize=(5.5, 4))
     for k in n:
         x = np.sort(series[int(k)][3])
         ax.plot(x, np.linspace(0, 1, len(x)), label=f"{k} camera(s)")
-    ax.axvline(5.0, color="k", ls="--", lw=1, label="5 ms")
+    ax.axvline(2.0, color="k", ls="--", lw=1, label="2 ms")
     ax.set_xlabel("update time per camera-frame (ms)")
     ax.set_ylabel("fraction of frames")
     ax.set_xscale("log")
     ax.legend()
     fig.tight_layout()
-    fig.savefig(folder / "refine_update_cdf.png", dpi=100)
+    fig.savefig(folder / f"refine_{name}_update_cdf.png", dpi=100)
 
 
 if __name__ == "__main__":
