@@ -220,10 +220,10 @@ class StaticMesh:
         out.update({k: v for k, v in self.info.items() if k not in out})
         return out
 
-    def new_camera(self):
-        """A fresh per-camera refinement state showing the base mesh."""
+    def new_camera(self, max_ops: int | None = None, max_faces: int | None = None):
+        """A fresh per-camera refinement state showing the base mesh (budgets: see CameraState)."""
         from .refine.camera import CameraState
-        return CameraState(self)
+        return CameraState(self, max_ops=max_ops, max_faces=max_faces)
 
     # -- file -------------------------------------------------------------
     def save(self, path: str | os.PathLike) -> None:
