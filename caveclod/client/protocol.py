@@ -76,6 +76,8 @@ class FrameUpdate:
 
     Attributes:
         frame_seq: its number.
+        pose_seq: the highest pose_seq the server had received when it made
+            the frame: every pose up to it is answered or superseded.
         cameras: {camera: CameraUpdate} for the cameras it carried.
         nbytes: serialized bytes of its parts.
         parts: how many Frame messages it came in.
@@ -84,6 +86,7 @@ class FrameUpdate:
     """
 
     frame_seq: int
+    pose_seq: int = 0
     cameras: dict = field(default_factory=dict)
     nbytes: int = 0
     parts: int = 0
@@ -262,7 +265,7 @@ class SessionProtocol:
                 out.append(self.keyframe_message(None, pb.KEYFRAME_REASON_BAD_FRAME,
                                                  f"frame {frame.frame_seq} after {self.last_applied}"))
                 self.bad_frames += 1
-            self._frame = FrameUpdate(frame.frame_seq)
+            self._frame = FrameUpdate(frame.frame_seq, frame.pose_seq)
             self._crcs, self._untrusted = {}, set()
         elif frame.frame_seq != self._frame.frame_seq:
             raise ProtocolError(f"part of frame {frame.frame_seq} inside frame {self._frame.frame_seq}")
