@@ -35,6 +35,9 @@ class Metrics:
         self.pose_to_frame = Histogram("caveclod_pose_to_frame_seconds",
                                        "From a pose's arrival to the frame answering it", buckets=LATENCY_BUCKETS,
                                        registry=r)
+        self.state_bytes = Gauge("caveclod_camera_state_bytes",
+                                 "Bytes of the refinement states of every camera held (the meshes not counted)",
+                                 registry=r)
         self.keyframe_requests = Counter("caveclod_keyframe_requests_total", "KeyframeRequests by reason",
                                          ["reason"], registry=r)
         self.session_ends = Counter("caveclod_session_ends_total",

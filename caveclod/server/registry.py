@@ -36,6 +36,7 @@ class Sessions:
         self.sessions: dict[str, Session] = {}
         self.draining = False
         self.ready = threading.Event()
+        metrics.state_bytes.set_function(self.nbytes)
 
     # -- open / resume ---------------------------------------------------------------
     def open(self, msg: pb.Open) -> tuple[Session, int, bool]:
@@ -49,6 +50,8 @@ class Sessions:
         view_options, budgets = self._options(msg.options)
         self.ready.wait()
         with self.lock:
+            if self.draining:                # drained while this Open waited for the kernels
+                raise DRAINED_REFUSAL
             old = self.sessions.get(msg.resume_token) if msg.resume_token else None
             if old is not None and self._expired(old, time.monotonic()):
                 self._drop(old, "expired")
@@ -143,6 +146,12 @@ class Sessions:
         """(attached, detached) sessions."""
         attached = sum(1 for s in self.sessions.values() if s.attached)
         return attached, len(self.sessions) - attached
+
+    def nbytes(self) -> int:
+        """Bytes of every held session's camera states."""
+        with self.lock:
+            sessions = list(self.sessions.values())
+        return sum(s.nbytes for s in sessions)
 
     def _gauges(self) -> None:
         self.metrics.set_sessions(*self.counts())

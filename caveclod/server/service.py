@@ -18,6 +18,7 @@ from . import logs
 from .session import CLOSED, End, Refused
 
 SERVICE = "caveclod.v1.Lod"
+HALF_CLOSE_SECONDS = 0.25
 
 
 class LodService:
@@ -57,7 +58,7 @@ class LodService:
                 session.cond.notify_all()
 
         context.add_callback(on_done)
-        threading.Thread(target=_read, args=(requests, session, generation), daemon=True,
+        threading.Thread(target=_read, args=(requests, stopped, session, generation), daemon=True,
                          name=f"reader-{session.token[:8]}").start()
         end = End(grpc.StatusCode.CANCELLED, "the stream broke", False)
         try:
@@ -95,12 +96,16 @@ class LodService:
                 self.metrics.bytes_out(chunk.ByteSize())
 
 
-def _read(requests, session, generation: int) -> None:
+def _read(requests, stopped: threading.Event, session, generation: int) -> None:
     """The stream's reader: hands each client message to the session.
 
     A bad message ends the stream (and the session) with the Refused code;
     a half-close is a Close; a broken stream just stops the loop (the
-    writer learns of it from the RPC's done callback).
+    writer learns of it from the RPC's done callback, which sets
+    ``stopped``). gRPC may end the request iterator of a broken call just
+    as it ends one that was half-closed, and report the cancellation a
+    moment later: a half-close is one that no cancellation follows within
+    HALF_CLOSE_SECONDS.
     """
     try:
         for msg in requests:
@@ -113,7 +118,8 @@ def _read(requests, session, generation: int) -> None:
                            detail=msg.keyframe_request.detail[:200])
             if not session.accept(msg, generation):
                 return
-        session.finish(CLOSED, generation)
+        if not stopped.wait(HALF_CLOSE_SECONDS):
+            session.finish(CLOSED, generation)
     except Refused as r:
         session.finish(End(r.code, r.message, True), generation)
     except grpc.RpcError:
