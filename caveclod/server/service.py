@@ -68,10 +68,8 @@ class LodService:
                 if isinstance(out, End):
                     end = out
                     break
-                for part in out:
-                    yield part
-                    self.metrics.bytes_out(part.ByteSize())
-                self.metrics.frames.inc()
+                self.metrics.frame_sent(sum(part.ByteSize() for part in out))   # counted as handed to gRPC
+                yield from out
         finally:
             self.sessions.stream_ended(session, generation, end)
         if end.code not in (grpc.StatusCode.OK, grpc.StatusCode.CANCELLED):
@@ -88,12 +86,12 @@ class LodService:
             ack_window=session.ack_window, resume_ttl_s=self.sessions.config.resume_ttl,
             last_frame_seq=session.frame_seq if resumed else 0,
             last_pose_seq=session.last_pose_seq if resumed else 0)
-        yield info
         self.metrics.bytes_out(info.ByteSize())
+        yield info
         if not cached:
             for chunk in served.vertex_chunks():
-                yield chunk
                 self.metrics.bytes_out(chunk.ByteSize())
+                yield chunk
 
 
 def _read(requests, stopped: threading.Event, session, generation: int) -> None:
