@@ -71,14 +71,15 @@ def test_prometheus_metrics(make_server, tmp_path):
         with client.session("terrain", width=640, height=360) as s:
             lo, hi = s.vertex_buffer.positions.min(0), s.vertex_buffer.positions.max(0)
             for i in range(5):
-                s.send_pose(0, *flyover(lo, hi, 0, i / 30))
-                s.next_frame(timeout=5)
+                seq = s.send_pose(0, *flyover(lo, hi, 0, i / 30))
+                while s.next_frame(timeout=5).pose_seq < seq:
+                    pass
             text = urllib.request.urlopen(f"http://127.0.0.1:{server.metrics_port}/metrics", timeout=10).read().decode()
     values = {line.split(" ")[0]: float(line.split(" ")[1]) for line in text.splitlines()
               if line and not line.startswith("#")}
     assert values["caveclod_sessions_active"] == 1
     assert values["caveclod_sessions_resumable"] == 0
-    assert values["caveclod_frames_total"] >= 5
+    assert values["caveclod_frames_total"] >= 5, values
     assert values["caveclod_bytes_sent_total"] > s.vertex_buffer.payload.__len__()
     assert values["caveclod_refine_seconds_count"] >= 5
     assert values["caveclod_pose_to_frame_seconds_count"] >= 5
