@@ -27,8 +27,10 @@ import time
 from collections import Counter
 from dataclasses import dataclass, field
 
+import grpc
 import numpy as np
 
+from ..errors import InputError
 from ..paths import pose as path_pose
 from .aio import AsyncClient, AsyncSession
 from .session import SessionEnded
@@ -131,7 +133,7 @@ async def run(args) -> dict:
         meshes = await client.list_meshes()
         names = [m.name for m in meshes]
         if args.mesh is not None and args.mesh not in names:
-            raise SystemExit(f"caveclod: error: the server has no mesh {args.mesh!r}; it serves {', '.join(names)}")
+            raise InputError(f"the server has no mesh {args.mesh!r}; it serves {', '.join(names)}")
         mesh = meshes[names.index(args.mesh)] if args.mesh else meshes[0]
         cpu0, wall0 = time.process_time(), time.perf_counter()
         t0 = time.perf_counter() + 0.5 + 0.02 * args.sessions         # time to open every session first
@@ -175,12 +177,8 @@ def main(args) -> int:
         return 2
     try:
         report = asyncio.run(run(args))
-    except SessionEnded as exc:       # ListMeshes refused: no session could start
-        print(f"caveclod: error: {exc}", file=sys.stderr)
-        return 1
-    except Exception as exc:          # grpc.RpcError from ListMeshes, unreachable server
-        details = exc.details() if hasattr(exc, "details") else str(exc)
-        print(f"caveclod: error: cannot reach {args.target}: {details}", file=sys.stderr)
+    except grpc.RpcError as exc:      # ListMeshes failed: no session could start
+        print(f"caveclod: error: {args.target}: {exc.code().name}: {exc.details()}", file=sys.stderr)
         return 1
     latencies = report.pop("latencies_ms")
     if args.plot:
