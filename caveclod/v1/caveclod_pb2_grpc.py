@@ -64,13 +64,31 @@ class LodServicer:
         Frame messages. Frame 1 is a keyframe of every camera; later frames are
         deltas, except where a camera is marked keyframe.
 
+        Frame 1 is sent right after SessionInfo and the vertex chunks, without
+        waiting for a pose: it answers whatever poses had arrived by the time
+        it is made (each such camera refined once for its newest pose, with
+        stats), and shows every camera with no pose yet as the base mesh, with
+        CameraFrame.pose_seq 0 and no stats.
+
         Latest pose wins: the server keeps only the newest pose of each camera.
         A pose that arrives while an older one waits replaces it; superseded
         poses are never refined for and never answered. Every other pose is
         answered: the first frame refined for it carries its pose_seq in
         CameraFrame.pose_seq (with no surface deltas when nothing changed), so a
         client can time pose -> frame latency by pose_seq. Later frames carry
-        the same pose_seq again while a budget lets refinement for it go on.
+        the same pose_seq again while refinement for it goes on.
+
+        Updates per pose. The server makes at most one refinement update per
+        camera per frame. A new pose gets one update, in the next frame made.
+        While a camera's last update made operations or was stopped by a
+        budget (it has not converged) and no newer pose has arrived, the server
+        goes on updating it for the same pose in following frames, until an
+        update makes no operation: at once when a budget stopped it, otherwise
+        after a short pause (50 ms in caveclod serve) in which a moving camera
+        has usually sent its next pose. Every CameraFrame that carries stats
+        reports exactly one update's operations, so replaying, for each such
+        CameraFrame, one update with the view of its pose_seq rebuilds the
+        server's state exactly.
 
         Ack window: the server sends frame N (keyframes included) only once the
         client has acked frame N - ack_window (SessionInfo.ack_window). While
@@ -88,8 +106,16 @@ class LodServicer:
         carries the session token and the last frame it applied in full. If the
         server still holds the session, it continues it (frame numbers go on);
         if that frame is not the last one the server sent, the next frame is a
-        keyframe of every camera. An unknown or expired token starts a fresh
-        session instead (SessionInfo.resumed = false).
+        keyframe of every camera. The ack window starts afresh: frames in flight
+        on the old stream are gone. An unknown or expired token starts a fresh
+        session instead (SessionInfo.resumed = false). A stream that is still
+        attached to the session when it is resumed elsewhere ends with ABORTED.
+
+        Sessions and the server's limits: a session counts toward the server's
+        session limit from its Open until it is closed, ended by an error or a
+        drain, or left without a stream for resume_ttl_s; in the server's
+        metrics, caveclod_sessions_active counts sessions with a connected
+        stream and caveclod_sessions_resumable those waiting for a resume.
         """
         context.set_code(grpc.StatusCode.UNIMPLEMENTED)
         context.set_details('Method not implemented!')
