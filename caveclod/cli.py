@@ -108,6 +108,9 @@ def _parser() -> argparse.ArgumentParser:
     t.add_argument("--sessions", type=int, default=1, help="concurrent sessions (default 1)")
     t.add_argument("--cameras", type=int, default=1, help="cameras per session (default 1)")
     t.add_argument("--duration", type=float, default=10.0, metavar="S", help="seconds of poses (default 10)")
+    t.add_argument("--warmup", type=float, default=1.0, metavar="S",
+                   help="seconds at the start whose poses are not timed (cameras refine up from the base mesh; "
+                        "default 1)")
     t.add_argument("--rate", type=float, default=30.0, metavar="HZ", help="poses per second per camera (default 30)")
     t.add_argument("--trajectory", choices=("flyover", "circle", "rotate", "line"), default="flyover",
                    help="camera path (caveclod.paths; default flyover)")
@@ -119,6 +122,7 @@ def _parser() -> argparse.ArgumentParser:
     t.add_argument("--tls-ca", metavar="F", help="PEM CA certificate: connect with TLS and trust it")
     t.add_argument("--cache-dir", help="vertex buffer cache (default $XDG_CACHE_HOME/caveclod/vertex-buffers)")
     t.add_argument("--json", action="store_true", help="print one JSON object with the figures on stdout")
+    t.add_argument("--samples", action="store_true", help="with --json: add every latency sample (ms) as latencies_ms")
     t.add_argument("--plot", metavar="FILE", help="write a pose->frame latency plot (PNG; needs matplotlib)")
     t.set_defaults(run=_loadtest)
     return p

@@ -10,7 +10,9 @@ so it includes both ends' queueing. A progress line goes to stderr every
 second.
 
 Figures (``--json`` prints them as one object): ``sessions``, ``frames``,
-``frames_per_second``, ``latency_ms`` (p50, p95, p99, max), ``bytes_per_frame``
+``frames_per_second``, ``latency_ms`` (p50, p95, p99, max; poses answered
+after the first ``--warmup`` seconds, while cameras refine up from the base
+mesh, are not timed), ``bytes_per_frame``
 (all frames), ``bytes_per_changed_triangle`` (delta frames: their bytes over
 the triangles they write; keyframes left out), ``divergences`` (CRC
 mismatches), ``errors`` (streams that ended with a status, by code), and the
@@ -71,8 +73,12 @@ async def _fly(session: AsyncSession, index: int, args, lo, hi, t0: float, tally
         tick += period
 
 
-async def _receive(session: AsyncSession, until: float, tally: Tally) -> None:
-    """Apply frames until ``until`` (perf_counter), recording what they cost."""
+async def _receive(session: AsyncSession, until: float, timed_from: float, tally: Tally) -> None:
+    """Apply frames until ``until`` (perf_counter), recording what they cost.
+
+    Latencies are recorded from ``timed_from`` on: the first poses refine
+    every camera up from the base mesh, which is not the steady state.
+    """
     while True:
         left = until - time.perf_counter()
         if left <= 0:
@@ -89,7 +95,8 @@ async def _receive(session: AsyncSession, until: float, tally: Tally) -> None:
             tally.delta_frames += 1
             tally.delta_bytes += frame.nbytes
             tally.delta_triangles += sum(cam.triangles_written for cam in frame.cameras.values())
-        tally.latencies.extend(cam.latency for cam in frame.cameras.values() if cam.latency is not None)
+        if time.perf_counter() >= timed_from:
+            tally.latencies.extend(cam.latency for cam in frame.cameras.values() if cam.latency is not None)
 
 
 async def _one(client: AsyncClient, index: int, args, mesh, tally: Tally, t0: float) -> None:
@@ -101,7 +108,7 @@ async def _one(client: AsyncClient, index: int, args, mesh, tally: Tally, t0: fl
                                        fov_y=args.fov, tolerance_px=args.tolerance)
         flying = asyncio.ensure_future(_fly(session, index, args, lo, hi, t0, tally))
         try:
-            await _receive(session, t0 + args.duration + TAIL_SECONDS, tally)
+            await _receive(session, t0 + args.duration + TAIL_SECONDS, t0 + args.warmup, tally)
         finally:
             flying.cancel()
         await session.close("loadtest done")
@@ -151,10 +158,10 @@ async def run(args) -> dict:
     pct["max"] = round(float(lat.max()), 2) if len(lat) else None
     return {
         "target": args.target, "mesh": mesh.name, "mesh_faces": mesh.faces, "sessions": args.sessions,
-        "cameras": args.cameras, "duration_s": args.duration, "rate_hz": args.rate, "trajectory": args.trajectory,
+        "cameras": args.cameras, "duration_s": args.duration, "warmup_s": args.warmup, "rate_hz": args.rate, "trajectory": args.trajectory,
         "viewport": [args.width, args.height], "fov_y": args.fov, "tolerance_px": args.tolerance,
         "frames": tally.frames, "frames_per_second": round(tally.frames / args.duration, 1),
-        "keyframes": tally.keyframes, "poses_sent": tally.poses_sent, "poses_answered": len(lat),
+        "keyframes": tally.keyframes, "poses_sent": tally.poses_sent, "poses_timed": len(lat),
         "latency_ms": pct,
         "bytes_per_frame": round(tally.bytes / tally.frames, 1) if tally.frames else None,
         "bytes_per_changed_triangle": round(tally.delta_bytes / tally.delta_triangles, 2)
@@ -172,15 +179,15 @@ def main(args) -> int:
         if getattr(args, name) < 1:
             print(f"caveclod: error: --{name} must be at least 1", file=sys.stderr)
             return 2
-    if args.duration <= 0 or args.rate <= 0:
-        print("caveclod: error: --duration and --rate must be positive", file=sys.stderr)
+    if args.duration <= 0 or args.rate <= 0 or args.warmup < 0:
+        print("caveclod: error: --duration and --rate must be positive, --warmup at least 0", file=sys.stderr)
         return 2
     try:
         report = asyncio.run(run(args))
     except grpc.RpcError as exc:      # ListMeshes failed: no session could start
         print(f"caveclod: error: {args.target}: {exc.code().name}: {exc.details()}", file=sys.stderr)
         return 1
-    latencies = report.pop("latencies_ms")
+    latencies = report["latencies_ms"] if args.samples else report.pop("latencies_ms")
     if args.plot:
         plot_latency(latencies, report, args.plot)
     if args.json:

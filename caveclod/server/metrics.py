@@ -30,6 +30,9 @@ class Metrics:
                                   "Serialized bytes of ServerMessages sent on Session streams", registry=r)
         self.operations = Counter("caveclod_refine_operations_total", "Vertex splits and edge collapses made",
                                   registry=r)
+        self.refine_cpu = Counter("caveclod_refine_cpu_seconds_total",
+                                  "CPU time of the threads refining cameras, in updates (its rate: cores used)",
+                                  registry=r)
         self.refine_seconds = Histogram("caveclod_refine_seconds", "Time of one camera update",
                                         buckets=REFINE_BUCKETS, registry=r)
         self.pose_to_frame = Histogram("caveclod_pose_to_frame_seconds",
@@ -60,9 +63,10 @@ class Metrics:
         self.sessions_active.set(attached)
         self.sessions_resumable.set(detached)
 
-    def refined(self, seconds: float, operations: int) -> None:
+    def refined(self, seconds: float, operations: int, cpu_seconds: float) -> None:
         self.refine_seconds.observe(seconds)
         self.operations.inc(operations)
+        self.refine_cpu.inc(cpu_seconds)
 
     def pose_answered(self, seconds: float) -> None:
         self.pose_to_frame.observe(seconds)

@@ -268,14 +268,16 @@ class Session:
         out = wire.CameraFrameData(camera=c, pose_seq=0, keyframe=keyframe)
         touched = range(self.n_materials) if keyframe else ()
         if pose is not None:
+            cpu = time.thread_time()
             delta = cam.update(pose.view)
+            cpu = time.thread_time() - cpu          # the CPU refinement really used, not wall time
             self.current[c] = pose
             converged = delta.operations == 0 and not delta.budget_exhausted
             self.due[c] = None if converged else time.monotonic() + (0.0 if delta.budget_exhausted else self.settle)
             out.stats = {"splits": delta.splits, "collapses": delta.collapses,
                          "update_us": int(1e6 * delta.seconds), "active_faces": cam.n_faces,
                          "budget_exhausted": delta.budget_exhausted}
-            self.hooks.refined(delta.seconds, delta.operations)
+            self.hooks.refined(delta.seconds, delta.operations, cpu)
             if not keyframe:
                 for m, d in sorted(delta.surfaces.items()):
                     out.surfaces.append(wire.Surface(m, d.count, d.slots, d.tris,
