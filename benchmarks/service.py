@@ -62,6 +62,12 @@ def cpu_seconds(pid: int) -> float:
     return (int(fields[11]) + int(fields[12])) / TICK
 
 
+def machine_busy() -> float:
+    """CPU seconds the whole machine has been busy (every process, ours or not, and steal)."""
+    user, nice, system, idle, iowait, irq, softirq, steal = (int(x) for x in open("/proc/stat").readline().split()[1:9])
+    return (user + nice + system + irq + softirq + steal) / TICK
+
+
 def metrics(port: int) -> dict:
     text = urllib.request.urlopen(f"http://127.0.0.1:{port}/metrics", timeout=10).read().decode()
     return {line.split(" ")[0]: float(line.split(" ")[1]) for line in text.splitlines()
@@ -108,17 +114,23 @@ def loadtest(port: int, sessions: int, duration: float, plot: Path | None = None
     return json.loads(out)
 
 
-def capacity(mesh: Path, sessions: int, duration: float) -> dict:
-    """One load level: server and load generator, with both processes' CPU."""
-    server = Server(mesh, "--max-sessions", str(max(64, sessions)))
+def capacity(mesh: Path, sessions: int, duration: float, command: list | None = None) -> dict:
+    """One load level: server (``caveclod serve``, or ``command``) and load generator, with both processes' CPU."""
+    server = Server(mesh, "--max-sessions", str(max(64, sessions)), command=command)
     try:
-        m0, cpu0, t0 = metrics(server.metrics_port), cpu_seconds(server.proc.pid), time.perf_counter()
+        m0, cpu0, busy0, t0 = metrics(server.metrics_port), cpu_seconds(server.proc.pid), machine_busy(), \
+            time.perf_counter()
         report = loadtest(server.port, sessions, duration)
-        m1, cpu1, t1 = metrics(server.metrics_port), cpu_seconds(server.proc.pid), time.perf_counter()
+        m1, cpu1, busy1, t1 = metrics(server.metrics_port), cpu_seconds(server.proc.pid), machine_busy(), \
+            time.perf_counter()
     finally:
         server.stop()
     wall = t1 - t0
     report["server_cpu_cores"] = round((cpu1 - cpu0) / wall, 2)
+    report["server_cpu_ms_per_frame"] = round(1e3 * (cpu1 - cpu0) / max(report["frames"], 1), 2)
+    # Whatever else ran on the machine meanwhile (the loadtest's own start-up included): the noise.
+    report["other_cpu_cores"] = round((busy1 - busy0) / wall - report["server_cpu_cores"]
+                                      - report["client_cpu_cores"], 2)
     report["server_refine_cpu_cores"] = round(
         (m1["caveclod_refine_cpu_seconds_total"] - m0["caveclod_refine_cpu_seconds_total"]) / wall, 2)
     report["wall_s"] = round(wall, 1)
@@ -254,7 +266,8 @@ def main() -> int:
                   f"{r['frames_per_second']} frames/s  {r['bytes_per_frame']} B/frame  "
                   f"{r['bytes_per_changed_triangle']} B/changed tri  divergences {r['divergences']}  "
                   f"errors {r['errors']}  cpu: server {r['server_cpu_cores']} (refine "
-                  f"{r['server_refine_cpu_cores']}), loadtest {r['client_cpu_cores']}", file=sys.stderr)
+                  f"{r['server_refine_cpu_cores']}), loadtest {r['client_cpu_cores']}, others "
+                  f"{r['other_cpu_cores']}", file=sys.stderr)
         plot(levels, RESULTS / "service_latency.png")
         for r in levels:
             r.pop("latencies_ms")
