@@ -27,12 +27,11 @@ import json
 import statistics
 import sys
 import threading
-import time
 from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).parent))
-from service import RESULTS, Server, capacity, mesh_path  # noqa: E402
+from service import RESULTS, capacity, mesh_path  # noqa: E402
 
 
 def serve_aio(argv: list) -> int:

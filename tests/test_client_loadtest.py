@@ -19,7 +19,7 @@ def test_loadtest_reports_json_and_exits_0(server, tmp_path, capsys):
     assert report["frames"] >= 3 * 20 and report["frames_per_second"] > 0
     assert set(report["latency_ms"]) == {"p50", "p95", "p99", "max"}
     assert 0 < report["latency_ms"]["p50"] <= report["latency_ms"]["p99"] <= report["latency_ms"]["max"]
-    assert report["poses_sent"] == 3 * 2 * 40
+    assert 0.8 * 3 * 2 * 40 <= report["poses_sent"] <= 3 * 2 * 40        # ticks missed while opening are skipped
     assert report["bytes_per_frame"] > 0 and report["bytes_per_changed_triangle"] > 12
     assert "loadtest:" in err and "latency p50" in err              # the progress line
     assert plot.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"

@@ -66,6 +66,8 @@ async def _fly(session: AsyncSession, index: int, args, lo, hi, t0: float, tally
         delay = t0 + tick - time.perf_counter()
         if delay > 0:
             await asyncio.sleep(delay)
+        elif delay < -period:                            # late (a slow open): skip the missed ticks, no burst
+            tick += (-delay // period) * period
         for c in range(args.cameras):
             eye, target, up = path_pose(args.trajectory, lo, hi, index * args.cameras + c, tick)
             session.send_pose(c, eye, target, up)

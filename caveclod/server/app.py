@@ -19,7 +19,6 @@ from grpc_health.v1 import health, health_pb2, health_pb2_grpc
 from grpc_reflection.v1alpha import reflection
 
 from ..errors import CaveclodError
-from ..v1 import caveclod_pb2 as pb
 from . import logs
 from .auth import BearerTokenInterceptor
 from .config import ServerConfig

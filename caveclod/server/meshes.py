@@ -27,10 +27,13 @@ class ServedMesh:
     def __init__(self, name: str, mesh):
         self.name = name
         self.mesh = mesh
-        self._lock = threading.Lock()     # cached_property is not thread-safe on its own
+        self._lock = threading.Lock()
+        self._crc: int | None = None
+        self._info: pb.MeshInfo | None = None
 
     @cached_property
     def blocks(self) -> list[wire.VertexBlock]:
+        """The planar vertex payload's blocks (views of the mapped arrays)."""
         m = self.mesh
         return wire.vertex_blocks(m.vertex_positions, m.vertex_normals, m.vertex_uvs, m.vertex_colors)
 
@@ -42,15 +45,15 @@ class ServedMesh:
     def payload_crc32(self) -> int:
         """CRC-32 of the planar vertex payload (reads it once: ~10 ms per million vertices)."""
         with self._lock:
-            if "_crc" not in self.__dict__:
+            if self._crc is None:
                 self._crc = wire.payload_crc32(b.data for b in self.blocks)
             return self._crc
 
     @property
     def info(self) -> pb.MeshInfo:
-        """MeshInfo with counts, materials, bounds and hashes."""
+        """MeshInfo with counts, materials, bounds and hashes (the bounds read every position once)."""
         with self._lock:
-            if "_info" not in self.__dict__:
+            if self._info is None:
                 m = self.mesh
                 self._info = wire.mesh_info(
                     self.name, faces=m.n_faces, vertices=m.n_vertices, positions=m.n_positions,

@@ -21,6 +21,7 @@ from .session import End, Refused, Session
 
 DRAINED = End(grpc.StatusCode.UNAVAILABLE,
               "the server is shutting down; open a new session, on another replica if there is one", True)
+DRAINED_REFUSAL = Refused(DRAINED.code, DRAINED.message)
 
 
 class Sessions:
@@ -156,5 +157,3 @@ class Sessions:
     def _gauges(self) -> None:
         self.metrics.set_sessions(*self.counts())
 
-
-DRAINED_REFUSAL = Refused(grpc.StatusCode.UNAVAILABLE, DRAINED.message)
