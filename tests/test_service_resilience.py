@@ -54,6 +54,22 @@ def test_a_dropped_connection_is_resumed_with_the_token(server, tmp_path):
             assert _mirror_equals(server, s)
 
 
+def test_keepalive_reaps_a_peer_behind_a_silent_network_cut(make_server, tmp_path):
+    """No FIN, no RST: only the server's keepalive pings find out that the peer is gone."""
+    server = make_server(keepalive_seconds=0.5, keepalive_timeout=0.5, resume_ttl=0)
+    from caveclod.client import Client
+    with proxy_to(server.port) as proxy:
+        client = Client(f"127.0.0.1:{proxy.port}", cache_dir=tmp_path)
+        try:
+            s = client.session("terrain", width=640, height=360, retries=0)
+            assert s.next_frame(timeout=10).frame_seq == 1
+            assert server.sessions.counts() == (1, 0)
+            proxy.frozen = True
+            assert wait_until(lambda: not server.sessions.sessions, timeout=15), "the dead peer was not reaped"
+        finally:
+            client.close()
+
+
 def test_a_resume_takes_the_session_from_the_old_stream(server):
     results = {}
 

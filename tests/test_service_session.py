@@ -79,7 +79,7 @@ def test_random_walk_client_equals_mirror_equals_core(server, terrain_path, tole
         size = hi - lo
         eyes = [lo + size * [rng.random(), rng.random(), 1.2] for _ in range(3)]
         frames = 0
-        for step in range(60):
+        for step in range(100):
             moved = [c for c in range(3) if rng.random() < 0.6] or [int(rng.integers(3))]
             for c in moved:
                 for _ in range(1 + int(rng.random() < 0.2)):     # now and then a pose superseded at once
@@ -101,7 +101,7 @@ def test_random_walk_client_equals_mirror_equals_core(server, terrain_path, tole
             _check_frame(driver, server, core, views, update)
             driver.ack()
             frames += 1
-        assert frames >= 60
+        assert frames >= 100
         assert all(cam.n_faces > 0 for cam in core)
     finally:
         driver.close()

@@ -30,10 +30,16 @@ from .cache import VertexBufferCache
 from .protocol import FrameUpdate, ProtocolError, SessionProtocol, VertexBuffer
 
 # Keepalive: ping an idle connection every 20 s (the server accepts one per
-# 10 s) so a dead server is noticed; frames are at most a few MiB.
+# 10 s) and give up on it after 10 s without an answer, so a dead server or
+# a cut network is noticed and the session resumed (the same settings as
+# the server's, see caveclod.server.app.grpc_options); frames are at most a
+# few MiB.
 CHANNEL_OPTIONS = [
     ("grpc.keepalive_time_ms", 20_000),
     ("grpc.keepalive_timeout_ms", 10_000),
+    ("grpc.http2.ping_timeout_ms", 10_000),
+    ("grpc.http2.max_pings_without_data", 0),
+    ("grpc.http2.min_time_between_pings_ms", 20_000),
     ("grpc.max_receive_message_length", 8 << 20),
 ]
 RETRIABLE = (grpc.StatusCode.UNAVAILABLE,)     # a broken connection, a draining or restarting server

@@ -139,10 +139,19 @@ def grpc_options(config: ServerConfig) -> list:
     """Channel arguments: keepalive that reaps dead peers, small receive limit."""
     return [
         # Ping a connection idle for keepalive_seconds; drop it when the ping
-        # is not answered in keepalive_timeout (a vanished peer, a network cut).
+        # is not answered in keepalive_timeout (a vanished peer, a network
+        # cut). With this gRPC the unanswered ping is timed by
+        # ping_timeout_ms (default: a minute), not by keepalive_timeout_ms
+        # alone: set both. An idle session sends no data between frames, so
+        # also lift the limits that stop pings without data (two pings, then
+        # silence; five minutes between pings): tests/test_service_resilience.py
+        # checks that a silently cut peer is reaped in seconds.
         ("grpc.keepalive_time_ms", int(1000 * config.keepalive_seconds)),
         ("grpc.keepalive_timeout_ms", int(1000 * config.keepalive_timeout)),
+        ("grpc.http2.ping_timeout_ms", int(1000 * config.keepalive_timeout)),
         ("grpc.keepalive_permit_without_calls", 1),
+        ("grpc.http2.max_pings_without_data", 0),
+        ("grpc.http2.min_time_between_pings_ms", int(1000 * config.keepalive_seconds)),
         # Let clients keep their own keepalive pings every 10 s without being
         # told "too many pings".
         ("grpc.http2.min_recv_ping_interval_without_data_ms", 10_000),
