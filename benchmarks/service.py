@@ -16,13 +16,15 @@ Then:
 
 * **parallel refinement**: 2 sessions whose cameras jump between far
   poses, each answered at once by a large update, for ``--parallel-seconds``;
-  the rate of ``caveclod_refine_cpu_seconds_total`` is the cores refinement
-  used (the kernels release the GIL);
+  the rate of
+  ``caveclod_refine_cpu_seconds_total`` is the cores refinement used (the
+  kernels release the GIL);
 * **start-up**: with a 2M-triangle mesh (``--size 1024``), the seconds from
   starting ``caveclod serve`` to health SERVING, and to the first frame of a
   session, once numba's cache is warm (median of 5).
 
-Writes ``benchmarks/results/service.json`` and ``service_latency.png``.
+Writes ``benchmarks/results/service.json`` (sections skipped with ``--skip``
+keep their earlier figures) and ``service_latency.png``.
 """
 
 from __future__ import annotations
@@ -256,7 +258,9 @@ def main() -> int:
     args = ap.parse_args()
     skip = set(filter(None, args.skip.split(",")))
     mesh = mesh_path(args.size)
-    out = {"mesh": f"default --size {args.size}", "machine_cores": os.cpu_count()}
+    path = RESULTS / "service.json"
+    out = json.loads(path.read_text()) if skip and path.exists() else {}     # keep the sections not re-run
+    out.update({"mesh": f"default --size {args.size}", "machine_cores": os.cpu_count()})
     if "capacity" not in skip:
         levels = []
         for n in (int(x) for x in args.sessions.split(",")):
@@ -279,7 +283,7 @@ def main() -> int:
         out["startup"] = startup(mesh_path(args.startup_size))
         print(f"start-up: {out['startup']}", file=sys.stderr)
     RESULTS.mkdir(parents=True, exist_ok=True)
-    (RESULTS / "service.json").write_text(json.dumps(out, indent=1) + "\n")
+    path.write_text(json.dumps(out, indent=1) + "\n")
     return 0
 
 

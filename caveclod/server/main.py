@@ -21,14 +21,14 @@ def config_from_args(args) -> ServerConfig:
     if (args.tls_cert is None) != (args.tls_key is None):
         raise InputError("--tls-cert and --tls-key go together; give both (PEM files) or neither")
     for name in ("max_sessions", "max_cameras", "ack_window", "max_faces"):
-        if getattr(args, name) is not None and getattr(args, name) < 1:
+        if getattr(args, name) < 1:
             raise InputError(f"--{name.replace('_', '-')} must be at least 1, got {getattr(args, name)}")
     if args.resume_ttl < 0 or args.drain_seconds < 0:
         raise InputError("--resume-ttl and --drain-seconds must be >= 0")
     tls = [_read(p, flag) for p, flag in ((args.tls_cert, "--tls-cert"), (args.tls_key, "--tls-key"))]
-    sessions = {} if args.max_sessions is None else {"max_sessions": args.max_sessions}
     return ServerConfig(
-        meshes=list(args.meshes), host=args.host, port=args.port, **sessions, max_cameras=args.max_cameras, ack_window=args.ack_window, resume_ttl=args.resume_ttl,
+        meshes=list(args.meshes), host=args.host, port=args.port, max_sessions=args.max_sessions,
+        max_cameras=args.max_cameras, ack_window=args.ack_window, resume_ttl=args.resume_ttl,
         drain_seconds=args.drain_seconds, max_faces=args.max_faces, max_ops=args.max_ops,
         metrics_port=args.metrics_port, metrics_host=args.metrics_host,
         tokens=read_tokens(args.token_file) if args.token_file else (), tls_cert=tls[0], tls_key=tls[1])
