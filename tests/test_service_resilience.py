@@ -140,7 +140,8 @@ def test_a_slow_reader_costs_bounded_memory_while_another_session_keeps_its_late
     frames = [r for r in slow["result"][2] if r.WhichOneof("kind") == "frame"]
     assert len(frames) == 4
     assert len(latencies) == 60
-    assert np.percentile(latencies, 99) < 0.1, f"p99 {np.percentile(latencies, 99) * 1e3:.1f} ms"
+    # A session stuck behind the slow one would wait seconds; this machine is shared, so allow noise.
+    assert np.percentile(latencies, 99) < 0.25, f"p99 {np.percentile(latencies, 99) * 1e3:.1f} ms"
 
 
 CLIENT = """
