@@ -18,7 +18,11 @@ The package's parts:
 * ``caveclod.refine``: per-camera refinement (View, CameraState, the slow
   reference, invariant checks);
 * ``caveclod.kernels``: the numba kernels both use;
-* ``caveclod.staticmesh``: the ``.cvc`` file both phases share.
+* ``caveclod.staticmesh``: the ``.cvc`` file both phases share;
+* ``caveclod.server``: the gRPC LOD service (``caveclod serve``);
+* ``caveclod.client``: the thin client and the load tester;
+* ``caveclod.wire`` and ``caveclod.v1``: the caveclod.v1 codec and its
+  generated stubs, shared by both.
 
 Names below are imported on first use, so that ``import caveclod.client``
 (the thin client, which needs only numpy, grpcio and protobuf) does not pull

@@ -1,6 +1,47 @@
-"""Shared pytest configuration."""
+"""Shared pytest configuration and the service tests' fixtures."""
+
+from __future__ import annotations
+
+import pytest
 
 
 def pytest_configure(config):
     # Tests that build full-size meshes; deselect them with -m "not slow".
     config.addinivalue_line("markers", "slow: builds full-size (1024) meshes; deselect with -m 'not slow'")
+
+
+@pytest.fixture(scope="session")
+def terrain_path(tmp_path_factory):
+    """A small built-in terrain (48 x 48 cells, 4,608 triangles) saved as terrain.cvc."""
+    import caveclod
+    path = tmp_path_factory.mktemp("meshes") / "terrain.cvc"
+    caveclod.build("default", size=48).save(path)
+    return path
+
+
+@pytest.fixture
+def make_server(terrain_path):
+    """``make_server(**config)`` starts an in-process LodServer on 127.0.0.1:0 serving
+    the small terrain (ready: kernels loaded); every one is stopped after the test."""
+    from caveclod.server import LodServer, ServerConfig
+    servers = []
+
+    def make(meshes=None, **overrides):
+        config = ServerConfig(meshes=[str(p) for p in (meshes or [terrain_path])], host="127.0.0.1", port=0,
+                              **overrides)
+        server = LodServer(config).start()
+        servers.append(server)
+        assert server.sessions.ready.wait(60), "the refinement kernels did not load"
+        return server
+
+    try:
+        yield make
+    finally:
+        for s in servers:
+            s.stop(grace=0)
+
+
+@pytest.fixture
+def server(make_server):
+    """A LodServer with the default options."""
+    return make_server()

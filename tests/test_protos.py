@@ -269,6 +269,26 @@ def test_enums_start_unspecified(compiled):
         assert all(v.name.startswith(prefix + "_") for v in e.value), e.name
 
 
+def test_the_comments_settle_what_other_languages_must_know(compiled):
+    """Each rule a client in another language needs is written in the proto itself."""
+    _, fd, _ = compiled
+    where = {tuple(loc.path): loc.leading_comments + loc.trailing_comments for loc in fd.source_code_info.location}
+    text = (PROTO_ROOT / PROTO).read_text()
+    session = " ".join(where[(6, 0, 2, 0)].split())
+    for rule in ("Frame 1 is sent right after SessionInfo and the vertex chunks, without waiting for a pose",
+                 "at most one refinement update per camera per frame",
+                 "exactly one update's operations",
+                 "counts toward the server's session limit",
+                 "caveclod_sessions_active counts sessions with a connected stream"):
+        assert rule in session, f"Lod.Session's comment must say: {rule}"
+    flat = " ".join(w for w in text.split() if w != "//")
+    for rule in ("protos/grpc/health/v1/health.proto", "UNAUTHENTICATED", "authorization: Bearer <token>",
+                 "v1 servers always set it, so it needs no presence",
+                 "empties every index buffer of the camera (count 0)",
+                 "resumable ones included"):
+        assert rule in flat, f"{PROTO} must say: {rule}"
+
+
 # -- deploy/Dockerfile (pure text) -------------------------------------------------
 
 def _instructions(text: str) -> list[tuple[str, str]]:

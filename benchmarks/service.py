@@ -1,0 +1,291 @@
+"""The LOD service under load: sessions x 30 Hz, parallel refinement, start-up.
+
+    python benchmarks/service.py [--size 708] [--sessions 8,16,32,48] [--duration 20]
+
+On the 1M-triangle default terrain (``caveclod build default --size 708``),
+a ``caveclod serve`` process and a ``caveclod loadtest`` process share this
+machine: N sessions of one camera each, 30 poses a second along the flyover,
+1280x720, 60 degrees, 1 px. For each N: pose -> frame latency p50/p99 (timed
+by pose_seq at the client), frames/s, bytes per frame and per changed
+triangle, divergences and errors, and the CPU each process used (from
+/proc: they share the machine's cores), with the part of the server's that
+refinement took (``caveclod_refine_cpu_seconds_total``, per-thread CPU
+time of the updates).
+
+Then:
+
+* **parallel refinement**: 2 sessions whose cameras jump between far
+  poses, each answered at once by a large update, for ``--parallel-seconds``;
+  the rate of
+  ``caveclod_refine_cpu_seconds_total`` is the cores refinement used (the
+  kernels release the GIL);
+* **start-up**: with a 2M-triangle mesh (``--size 1024``), the seconds from
+  starting ``caveclod serve`` to health SERVING, and to the first frame of a
+  session, once numba's cache is warm (median of 5).
+
+Writes ``benchmarks/results/service.json`` (sections skipped with ``--skip``
+keep their earlier figures) and ``service_latency.png``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import signal
+import statistics
+import subprocess
+import sys
+import threading
+import time
+import urllib.request
+from pathlib import Path
+
+import numpy as np
+
+RESULTS = Path(__file__).parent / "results"
+TICK = os.sysconf("SC_CLK_TCK")
+
+
+def mesh_path(size: int) -> Path:
+    """benchmarks/results/default_SIZE.cvc, built when absent."""
+    path = RESULTS / f"default_{size}.cvc"
+    if not path.exists():
+        import caveclod
+        RESULTS.mkdir(parents=True, exist_ok=True)
+        print(f"building the default terrain --size {size} ...", file=sys.stderr)
+        caveclod.build("default", size=size).save(path)
+    return path
+
+
+def cpu_seconds(pid: int) -> float:
+    """User + system CPU seconds of a process so far (all its threads)."""
+    fields = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()
+    return (int(fields[11]) + int(fields[12])) / TICK
+
+
+def machine_busy() -> float:
+    """CPU seconds the whole machine has been busy (every process, ours or not, and steal)."""
+    user, nice, system, idle, iowait, irq, softirq, steal = (int(x) for x in open("/proc/stat").readline().split()[1:9])
+    return (user + nice + system + irq + softirq + steal) / TICK
+
+
+def metrics(port: int) -> dict:
+    text = urllib.request.urlopen(f"http://127.0.0.1:{port}/metrics", timeout=10).read().decode()
+    return {line.split(" ")[0]: float(line.split(" ")[1]) for line in text.splitlines()
+            if line and not line.startswith("#")}
+
+
+class Server:
+    """A ``caveclod serve`` (or another server command) on 127.0.0.1:0 with metrics, stopped by pid."""
+
+    def __init__(self, mesh: Path, *extra: str, command: list | None = None):
+        cmd = command or [sys.executable, "-m", "caveclod.cli", "serve"]
+        self.proc = subprocess.Popen([*cmd, str(mesh), "--host", "127.0.0.1", "--port", "0", "--metrics-port", "0",
+                                      "--metrics-host", "127.0.0.1", "--log-format", "json", *extra],
+                                     stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+        line = self.proc.stdout.readline()
+        if not line.startswith("listening on "):
+            self.stop()
+            raise RuntimeError(f"server did not start: {line!r} {self.proc.stderr.read()[-2000:]}")
+        self.port = int(line.rsplit(":", 1)[1])
+        while True:
+            event = json.loads(self.proc.stderr.readline())
+            if event["event"] == "server.metrics":
+                self.metrics_port = event["port"]
+            if event["event"] == "server.ready":
+                break
+        threading.Thread(target=self.proc.stderr.read, daemon=True).start()    # keep the pipe drained
+
+    def stop(self) -> None:
+        if self.proc.poll() is None:
+            os.kill(self.proc.pid, signal.SIGKILL)
+        self.proc.wait(30)
+
+
+def loadtest(port: int, sessions: int, duration: float, plot: Path | None = None, rate: float = 30.0) -> dict:
+    """Run ``caveclod loadtest`` in a process of its own; its JSON report plus its CPU."""
+    cmd = [sys.executable, "-m", "caveclod.cli", "loadtest", "--target", f"127.0.0.1:{port}", "--sessions",
+           str(sessions), "--cameras", "1", "--duration", str(duration), "--rate", str(rate), "--trajectory",
+           "flyover", "--tolerance", "1", "--width", "1280", "--height", "720", "--fov", "60", "--json", "--samples",
+           "--cache-dir", str(RESULTS / "vertex-cache")]
+    if plot is not None:
+        cmd += ["--plot", str(plot)]
+    proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.DEVNULL, text=True)
+    out, _ = proc.communicate(timeout=duration + 120)
+    return json.loads(out)
+
+
+def capacity(mesh: Path, sessions: int, duration: float, command: list | None = None) -> dict:
+    """One load level: server (``caveclod serve``, or ``command``) and load generator, with both processes' CPU."""
+    server = Server(mesh, "--max-sessions", str(max(64, sessions)), command=command)
+    try:
+        m0, cpu0, busy0, t0 = metrics(server.metrics_port), cpu_seconds(server.proc.pid), machine_busy(), \
+            time.perf_counter()
+        report = loadtest(server.port, sessions, duration)
+        m1, cpu1, busy1, t1 = metrics(server.metrics_port), cpu_seconds(server.proc.pid), machine_busy(), \
+            time.perf_counter()
+    finally:
+        server.stop()
+    wall = t1 - t0
+    report["server_cpu_cores"] = round((cpu1 - cpu0) / wall, 2)
+    report["server_cpu_ms_per_frame"] = round(1e3 * (cpu1 - cpu0) / max(report["frames"], 1), 2)
+    # Whatever else ran on the machine meanwhile (the loadtest's own start-up included): the noise.
+    report["other_cpu_cores"] = round((busy1 - busy0) / wall - report["server_cpu_cores"]
+                                      - report["client_cpu_cores"], 2)
+    report["server_refine_cpu_cores"] = round(
+        (m1["caveclod_refine_cpu_seconds_total"] - m0["caveclod_refine_cpu_seconds_total"]) / wall, 2)
+    report["wall_s"] = round(wall, 1)
+    return report
+
+
+def parallel_refinement(mesh: Path, seconds: float) -> dict:
+    """2 sessions jumping between far poses: the cores their refinement used."""
+    from caveclod.client import Client
+    from caveclod.paths import flyover
+    server = Server(mesh)
+    stop = threading.Event()
+    counts = [0, 0]
+
+    def jump(k: int) -> None:
+        with Client(f"127.0.0.1:{server.port}", cache_dir=RESULTS / "vertex-cache") as client:
+            with client.session(mesh.stem, width=1280, height=720, tolerance_px=0.5) as s:
+                lo, hi = s.vertex_buffer.positions.min(0), s.vertex_buffer.positions.max(0)
+                t = 0.0
+                while not stop.is_set():
+                    t = 30.0 - t                      # the far side of the camera's circle
+                    seq = s.send_pose(0, *flyover(lo, hi, k, t + 0.01 * counts[k]))
+                    while (f := s.next_frame(timeout=10)) is not None and f.pose_seq < seq:
+                        pass
+                    counts[k] += 1
+
+    threads = [threading.Thread(target=jump, args=(k,)) for k in range(2)]
+    try:
+        for th in threads:
+            th.start()
+        time.sleep(2.0)                                # both sessions open and refining
+        m0, cpu0, t0 = metrics(server.metrics_port), cpu_seconds(server.proc.pid), time.perf_counter()
+        n0 = sum(counts)
+        time.sleep(seconds)
+        m1, cpu1, t1 = metrics(server.metrics_port), cpu_seconds(server.proc.pid), time.perf_counter()
+        n1 = sum(counts)
+    finally:
+        stop.set()
+        for th in threads:
+            th.join(60)
+        server.stop()
+    wall = t1 - t0
+    refine = m1["caveclod_refine_cpu_seconds_total"] - m0["caveclod_refine_cpu_seconds_total"]
+    updates = m1["caveclod_refine_seconds_count"] - m0["caveclod_refine_seconds_count"]
+    busy = m1["caveclod_refine_seconds_sum"] - m0["caveclod_refine_seconds_sum"]
+    return {"seconds": round(wall, 1), "sessions": 2, "poses_answered": n1 - n0, "updates": int(updates),
+            "update_ms_mean": round(1e3 * busy / max(updates, 1), 1),
+            "refine_cpu_cores": round(refine / wall, 2), "server_cpu_cores": round((cpu1 - cpu0) / wall, 2)}
+
+
+def startup(mesh: Path, repeats: int = 5) -> dict:
+    """Seconds from starting the server process to health SERVING, and to a session's first frame."""
+    import grpc
+    from grpc_health.v1 import health_pb2, health_pb2_grpc
+
+    from caveclod.client import Client
+    serving, first = [], []
+    for _ in range(repeats):
+        t0 = time.perf_counter()
+        proc = subprocess.Popen([sys.executable, "-m", "caveclod.cli", "serve", str(mesh), "--host", "127.0.0.1",
+                                 "--port", "0"], stdout=subprocess.PIPE, stderr=subprocess.DEVNULL, text=True)
+        try:
+            port = int(proc.stdout.readline().rsplit(":", 1)[1])
+            with grpc.insecure_channel(f"127.0.0.1:{port}") as channel:
+                stub = health_pb2_grpc.HealthStub(channel)
+                while True:
+                    try:
+                        if stub.Check(health_pb2.HealthCheckRequest(), timeout=1).status == 1:
+                            break
+                    except grpc.RpcError:
+                        time.sleep(0.005)
+            serving.append(time.perf_counter() - t0)
+            with Client(f"127.0.0.1:{port}", cache_dir=RESULTS / "vertex-cache") as client:
+                with client.session(mesh.stem, width=1280, height=720) as s:
+                    s.next_frame(timeout=60)
+            first.append(time.perf_counter() - t0)
+        finally:
+            os.kill(proc.pid, signal.SIGKILL)
+            proc.wait(30)
+    return {"mesh": mesh.name, "repeats": repeats, "health_serving_s": round(statistics.median(serving), 3),
+            "health_serving_s_all": [round(x, 3) for x in serving],
+            "first_frame_s": round(statistics.median(first), 3), "first_frame_s_all": [round(x, 3) for x in first]}
+
+
+def plot(levels: list, path: Path) -> None:
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    fig, (ax, bx) = plt.subplots(1, 2, figsize=(11, 4))
+    for r in levels:
+        lat = np.sort(np.asarray(r["latencies_ms"]))
+        if len(lat):
+            ax.plot(lat, np.arange(1, len(lat) + 1) / len(lat), label=f"{r['sessions']} sessions")
+    ax.axvline(50, ls="--", color="grey", lw=0.8)
+    ax.set_xscale("log")
+    ax.set_xlabel("pose -> frame latency (ms, log)")
+    ax.set_ylabel("fraction of poses")
+    ax.legend(fontsize=8)
+    ax.grid(alpha=0.3)
+    n = [r["sessions"] for r in levels]
+    bx.plot(n, [r["latency_ms"]["p50"] for r in levels], "o-", label="p50")
+    bx.plot(n, [r["latency_ms"]["p99"] for r in levels], "o-", label="p99")
+    bx.axhline(50, ls="--", color="grey", lw=0.8)
+    bx.set_xlabel("sessions at 30 Hz (one camera each)")
+    bx.set_ylabel("pose -> frame latency (ms)")
+    bx.legend(fontsize=8)
+    bx.grid(alpha=0.3)
+    fig.suptitle("caveclod serve, 1M-triangle terrain, 1280x720, 1 px, flyover; server and load generator "
+                 "on one 2-core machine", fontsize=9)
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+
+
+def main() -> int:
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--size", type=int, default=708, help="default terrain size (708: 1,002,528 triangles)")
+    ap.add_argument("--sessions", default="8,16,32,48", help="load levels, comma-separated")
+    ap.add_argument("--duration", type=float, default=20.0, help="seconds of poses per load level")
+    ap.add_argument("--parallel-seconds", type=float, default=10.0)
+    ap.add_argument("--startup-size", type=int, default=1024, help="mesh of the start-up test (1024: 2M triangles)")
+    ap.add_argument("--skip", default="", help="comma-separated sections to skip: capacity,parallel,startup")
+    args = ap.parse_args()
+    skip = set(filter(None, args.skip.split(",")))
+    mesh = mesh_path(args.size)
+    path = RESULTS / "service.json"
+    out = json.loads(path.read_text()) if skip and path.exists() else {}     # keep the sections not re-run
+    out.update({"mesh": f"default --size {args.size}", "machine_cores": os.cpu_count()})
+    if "capacity" not in skip:
+        levels = []
+        for n in (int(x) for x in args.sessions.split(",")):
+            r = capacity(mesh, n, args.duration)
+            levels.append(r)
+            print(f"{n:3d} sessions: p50 {r['latency_ms']['p50']} ms  p99 {r['latency_ms']['p99']} ms  "
+                  f"{r['frames_per_second']} frames/s  {r['bytes_per_frame']} B/frame  "
+                  f"{r['bytes_per_changed_triangle']} B/changed tri  divergences {r['divergences']}  "
+                  f"errors {r['errors']}  cpu: server {r['server_cpu_cores']} (refine "
+                  f"{r['server_refine_cpu_cores']}), loadtest {r['client_cpu_cores']}, others "
+                  f"{r['other_cpu_cores']}", file=sys.stderr)
+        plot(levels, RESULTS / "service_latency.png")
+        for r in levels:
+            r.pop("latencies_ms")
+        out["capacity"] = levels
+    if "parallel" not in skip:
+        out["parallel_refinement"] = parallel_refinement(mesh, args.parallel_seconds)
+        print(f"parallel refinement: {out['parallel_refinement']}", file=sys.stderr)
+    if "startup" not in skip:
+        out["startup"] = startup(mesh_path(args.startup_size))
+        print(f"start-up: {out['startup']}", file=sys.stderr)
+    RESULTS.mkdir(parents=True, exist_ok=True)
+    path.write_text(json.dumps(out, indent=1) + "\n")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,244 @@
+"""The asyncio client: :class:`AsyncClient` and :class:`AsyncSession` (grpc.aio).
+
+    async with AsyncClient("localhost:50051") as client:
+        session = await client.session("terrain", cameras=1, width=1280, height=720)
+        session.send_pose(0, eye=(5000, -2000, 1500), target=(5000, 5000, 300), up=(0, 0, 1))
+        frame = await session.next_frame(timeout=1.0)
+        session.buffer(0, material)          # (count, 3) uint32
+        await session.close()
+
+Same protocol object and rules as the blocking client (:mod:`.session`):
+frames are applied, CRC-checked and acked in ``next_frame``; a broken
+stream is resumed with backoff. Sending is a queue put, so ``send_pose``
+never blocks the event loop. Many sessions share one event loop (the load
+tester runs hundreds).
+"""
+
+from __future__ import annotations
+
+import asyncio
+import os
+import time
+
+import grpc
+import grpc.aio
+
+from ..v1 import caveclod_pb2 as pb
+from ..v1 import caveclod_pb2_grpc as pb_grpc
+from .cache import VertexBufferCache
+from .protocol import FrameUpdate, ProtocolError, SessionProtocol, VertexBuffer
+from .session import CHANNEL_OPTIONS, RETRIABLE, SessionEnded, backoff, credentials, metadata, refine_options
+
+
+class AsyncClient:
+    """A grpc.aio channel to a LOD server; arguments as :class:`caveclod.client.Client`."""
+
+    def __init__(self, target: str, *, token: str | None = None, tls: bool = False,
+                 tls_ca: bytes | str | os.PathLike | None = None, cache_dir=None, server_name: str | None = None):
+        creds = credentials(tls, tls_ca)
+        options = list(CHANNEL_OPTIONS)
+        if server_name:
+            options.append(("grpc.ssl_target_name_override", server_name))
+        self.channel = grpc.aio.insecure_channel(target, options) if creds is None \
+            else grpc.aio.secure_channel(target, creds, options)
+        self.stub = pb_grpc.LodStub(self.channel)
+        self.metadata = metadata(token)
+        self.cache = None if cache_dir is False else VertexBufferCache(cache_dir)
+
+    async def list_meshes(self, timeout: float = 10.0) -> list[pb.MeshInfo]:
+        """The meshes the server serves (MeshInfo messages, sorted by name)."""
+        reply = await self.stub.ListMeshes(pb.ListMeshesRequest(), metadata=self.metadata, timeout=timeout)
+        return list(reply.meshes)
+
+    async def session(self, mesh: str, cameras: int = 1, *, width: int = 1280, height: int = 720,
+                      fov_y: float | None = None, tolerance_px: float | None = None, cull: bool | None = None,
+                      backface: bool | None = None, max_ops: int | None = None, max_faces: int | None = None,
+                      ack_window: int = 0, retries: int = 6, timeout: float = 30.0) -> "AsyncSession":
+        """Open a session and wait for its vertex buffer; see :meth:`caveclod.client.Client.session`."""
+        protocol = SessionProtocol(mesh, cameras, refine_options(width, height, fov_y, tolerance_px, cull,
+                                                                 backface, max_ops, max_faces),
+                                   cache=self.cache, ack_window=ack_window)
+        session = AsyncSession(self, protocol, retries)
+        await session._open(timeout)
+        return session
+
+    async def close(self) -> None:
+        await self.channel.close()
+
+    async def __aenter__(self) -> "AsyncClient":
+        return self
+
+    async def __aexit__(self, *exc) -> None:
+        await self.close()
+
+
+class _Stream:
+    """One grpc.aio stream: requests from a queue, responses read by the session."""
+
+    def __init__(self, stub, first: pb.ClientMessage, md):
+        self.requests: asyncio.Queue = asyncio.Queue()
+        self.requests.put_nowait(first)
+        self.call = stub.Session(self._requests(), metadata=md)
+
+    async def _requests(self):
+        while True:
+            msg = await self.requests.get()
+            if msg is None:
+                return
+            yield msg
+
+    def send(self, msg: pb.ClientMessage) -> None:
+        self.requests.put_nowait(msg)
+
+    def end(self) -> None:
+        self.requests.put_nowait(None)
+        self.call.cancel()
+
+
+class AsyncSession:
+    """An asyncio session. Make one with :meth:`AsyncClient.session`."""
+
+    def __init__(self, client: AsyncClient, protocol: SessionProtocol, retries: int):
+        self.client, self.protocol, self.retries = client, protocol, retries
+        self._stream: _Stream | None = None
+        self._closed = False
+        self._read_task: asyncio.Task | None = None      # a read a timed-out next_frame left running
+
+    async def _open(self, timeout: float) -> None:
+        if not self.protocol.token and self.client.cache is not None:
+            try:
+                meshes = {m.name: m for m in await self.client.list_meshes(timeout=timeout)}
+            except grpc.RpcError as exc:
+                raise SessionEnded(exc.code(), exc.details()) from None
+            if self.protocol.mesh in meshes:
+                self.protocol.offer_vertex_buffer(meshes[self.protocol.mesh].vertex_buffer_hash)
+        self._stream = _Stream(self.client.stub, self.protocol.open_message(), self.client.metadata)
+        async def until_ready():
+            while not self.protocol.ready:
+                await self._receive(resume=False)
+
+        try:
+            await asyncio.wait_for(until_ready(), timeout)
+        except asyncio.TimeoutError:
+            self._stream.end()
+            raise SessionEnded(grpc.StatusCode.DEADLINE_EXCEEDED,
+                               f"no SessionInfo and vertex buffer within {timeout} s") from None
+
+    async def _resume(self, error) -> None:
+        for attempt in range(self.retries):
+            await asyncio.sleep(backoff(attempt))
+            try:
+                self._stream.end()
+                await self._open(timeout=10.0)
+                return
+            except SessionEnded as exc:
+                if exc.code not in RETRIABLE:
+                    raise
+                error = exc
+        raise SessionEnded(grpc.StatusCode.UNAVAILABLE, f"could not resume after {self.retries} tries: {error}")
+
+    async def _receive(self, resume: bool = True) -> FrameUpdate | None:
+        try:
+            msg = await self._stream.call.read()
+        except grpc.RpcError as exc:
+            code, details = exc.code(), exc.details()
+            if resume and code in RETRIABLE and self.protocol.token and not self._closed:
+                await self._resume(exc)
+                return None
+            raise SessionEnded(code, details) from None
+        if msg is grpc.aio.EOF:
+            code = await self._stream.call.code()
+            if code == grpc.StatusCode.OK:
+                self._closed = True
+                raise SessionEnded(None, "the server ended the session")
+            details = await self._stream.call.details()
+            if resume and code in RETRIABLE and self.protocol.token and not self._closed:
+                await self._resume(details)
+                return None
+            raise SessionEnded(code, details)
+        try:
+            out, update = self.protocol.receive(msg)
+        except ProtocolError as exc:
+            self._stream.end()
+            raise SessionEnded(grpc.StatusCode.DATA_LOSS, str(exc)) from None
+        for m in out:
+            self._stream.send(m)
+        return update
+
+    async def next_frame(self, timeout: float | None = None) -> FrameUpdate | None:
+        """The next frame, applied in full and acked; None when ``timeout`` seconds pass first.
+
+        A timeout may leave a frame half-received; the next call goes on
+        with it. Raises SessionEnded when the stream cannot be resumed.
+        """
+        deadline = None if timeout is None else time.monotonic() + timeout
+        while True:
+            remaining = None if deadline is None else deadline - time.monotonic()
+            if remaining is not None and remaining <= 0:
+                return None
+            try:
+                # shield: a timeout must not cancel the read itself (grpc.aio would end the call)
+                update = await asyncio.wait_for(asyncio.shield(self._pending_read()), remaining)
+            except asyncio.TimeoutError:
+                return None
+            self._read_task = None
+            if update is not None:
+                return update
+
+    def _pending_read(self) -> asyncio.Task:
+        if self._read_task is None:
+            self._read_task = asyncio.ensure_future(self._receive())
+        return self._read_task
+
+    def send_pose(self, camera: int, eye, target, up=(0.0, 0.0, 1.0)) -> int:
+        """Queue a camera's new pose (three 3-vectors, world units); returns its pose_seq."""
+        msg = self.protocol.pose_message(camera, eye, target, up)
+        self._stream.send(msg)
+        return msg.pose.pose_seq
+
+    def request_keyframe(self, camera: int | None = None,
+                         reason: int = pb.KEYFRAME_REASON_CLIENT_RESET, detail: str = "") -> None:
+        """Ask for full buffers of ``camera`` (None: every camera)."""
+        self._stream.send(self.protocol.keyframe_message(camera, reason, detail))
+
+    async def close(self, reason: str = "", timeout: float = 5.0) -> None:
+        """Send Close and wait (up to ``timeout``) for the server to end the stream."""
+        if self._closed or self._stream is None:
+            return
+        self._closed = True
+        self._stream.send(self.protocol.close_message(reason))
+        self._stream.requests.put_nowait(None)
+        async def until_end():
+            if self._read_task is not None:
+                await asyncio.gather(self._read_task, return_exceptions=True)
+            while await self._stream.call.read() is not grpc.aio.EOF:
+                pass
+
+        try:
+            await asyncio.wait_for(until_end(), timeout)
+        except (asyncio.TimeoutError, grpc.RpcError):
+            self._stream.call.cancel()
+
+    def drop(self) -> None:
+        """Cancel the stream without Close (as a crash would); the session stays resumable."""
+        self._stream.end()
+
+    @property
+    def info(self) -> pb.SessionInfo:
+        return self.protocol.info
+
+    @property
+    def vertex_buffer(self) -> VertexBuffer:
+        return self.protocol.vertex
+
+    @property
+    def buffers(self):
+        return self.protocol.buffers
+
+    def buffer(self, camera: int, material: int):
+        """(count, 3) uint32 index buffer of one (camera, material)."""
+        return self.protocol.buffers.buffer(camera, material)
+
+    def triangles(self, camera: int) -> dict:
+        """{material: (k, 3) uint32} copies of a camera's non-empty buffers."""
+        return self.protocol.buffers.triangles(camera)

@@ -1,0 +1,223 @@
+"""``caveclod loadtest``: many windowless sessions flying camera paths against a server.
+
+Each session runs on one asyncio event loop (:mod:`.aio`): a task sends
+every camera's pose at ``--rate`` Hz along ``--trajectory``
+(:mod:`caveclod.paths`; camera k of session s flies path camera
+``s * cameras + k``, so sessions spread over the mesh), another applies the
+frames, which verifies every CRC-32 and acks. Pose -> frame latency is timed
+by pose_seq from the send to the arrival of the first frame that answers it,
+so it includes both ends' queueing. A progress line goes to stderr every
+second.
+
+Figures (``--json`` prints them as one object): ``sessions``, ``frames``,
+``frames_per_second``, ``latency_ms`` (p50, p95, p99, max; poses answered
+after the first ``--warmup`` seconds, while cameras refine up from the base
+mesh, are not timed), ``bytes_per_frame``
+(all frames), ``bytes_per_changed_triangle`` (delta frames: their bytes over
+the triangles they write; keyframes left out), ``divergences`` (CRC
+mismatches), ``errors`` (streams that ended with a status, by code), and the
+load generator's own CPU. Exit status 1 when there are divergences or errors.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import json
+import os
+import sys
+import time
+from collections import Counter
+from dataclasses import dataclass, field
+
+import grpc
+import numpy as np
+
+from ..errors import InputError
+from ..paths import pose as path_pose
+from .aio import AsyncClient, AsyncSession
+from .session import SessionEnded
+
+TAIL_SECONDS = 1.0       # after the last pose: time for the last frames to arrive
+
+
+@dataclass
+class Tally:
+    """What the sessions saw, summed."""
+
+    frames: int = 0
+    delta_frames: int = 0
+    keyframes: int = 0
+    bytes: int = 0
+    delta_bytes: int = 0
+    delta_triangles: int = 0
+    poses_sent: int = 0
+    latencies: list = field(default_factory=list)     # seconds
+    errors: Counter = field(default_factory=Counter)
+    divergences: int = 0
+    bad_frames: int = 0
+    resumes: int = 0
+
+
+async def _fly(session: AsyncSession, index: int, args, lo, hi, t0: float, tally: Tally) -> None:
+    """Send poses at args.rate until args.duration seconds after t0."""
+    period = 1.0 / args.rate
+    tick = index / max(args.sessions, 1) * period        # stagger sessions over a period
+    while tick < args.duration:
+        delay = t0 + tick - time.perf_counter()
+        if delay > 0:
+            await asyncio.sleep(delay)
+        elif delay < -period:                            # late (a slow open): skip the missed ticks, no burst
+            tick += (-delay // period) * period
+        for c in range(args.cameras):
+            eye, target, up = path_pose(args.trajectory, lo, hi, index * args.cameras + c, tick)
+            session.send_pose(c, eye, target, up)
+            tally.poses_sent += 1
+        tick += period
+
+
+async def _receive(session: AsyncSession, until: float, timed_from: float, tally: Tally) -> None:
+    """Apply frames until ``until`` (perf_counter), recording what they cost.
+
+    Latencies are recorded from ``timed_from`` on: the first poses refine
+    every camera up from the base mesh, which is not the steady state.
+    """
+    while True:
+        left = until - time.perf_counter()
+        if left <= 0:
+            return
+        frame = await session.next_frame(timeout=left)
+        if frame is None:
+            continue
+        tally.frames += 1
+        tally.bytes += frame.nbytes
+        keyframe = any(cam.keyframe for cam in frame.cameras.values())
+        if keyframe:
+            tally.keyframes += 1
+        else:
+            tally.delta_frames += 1
+            tally.delta_bytes += frame.nbytes
+            tally.delta_triangles += sum(cam.triangles_written for cam in frame.cameras.values())
+        if time.perf_counter() >= timed_from:
+            tally.latencies.extend(cam.latency for cam in frame.cameras.values() if cam.latency is not None)
+
+
+async def _one(client: AsyncClient, index: int, args, mesh, tally: Tally, t0: float) -> None:
+    lo = (mesh.bounds_min.x, mesh.bounds_min.y, mesh.bounds_min.z)
+    hi = (mesh.bounds_max.x, mesh.bounds_max.y, mesh.bounds_max.z)
+    session = None
+    try:
+        session = await client.session(mesh.name, cameras=args.cameras, width=args.width, height=args.height,
+                                       fov_y=args.fov, tolerance_px=args.tolerance)
+        flying = asyncio.ensure_future(_fly(session, index, args, lo, hi, t0, tally))
+        try:
+            await _receive(session, t0 + args.duration + TAIL_SECONDS, t0 + args.warmup, tally)
+        finally:
+            flying.cancel()
+        await session.close("loadtest done")
+    except SessionEnded as exc:
+        tally.errors[exc.code.name if exc.code is not None else "ENDED"] += 1
+    finally:
+        if session is not None:
+            tally.divergences += session.protocol.divergences
+            tally.bad_frames += session.protocol.bad_frames
+            tally.resumes += session.protocol.resumes
+
+
+async def _progress(tally: Tally, args, t0: float) -> None:
+    while True:
+        await asyncio.sleep(1.0)
+        lat = np.asarray(tally.latencies[-2000:]) * 1e3
+        p50, p99 = (np.percentile(lat, [50, 99]) if len(lat) else (float("nan"),) * 2)
+        print(f"loadtest: {time.perf_counter() - t0:5.1f}/{args.duration:.0f} s  frames {tally.frames}  "
+              f"latency p50 {p50:.1f} ms p99 {p99:.1f} ms  divergences {tally.divergences}  "
+              f"errors {sum(tally.errors.values())}", file=sys.stderr, flush=True)
+
+
+async def run(args) -> dict:
+    """Run the load test of ``args`` (the ``caveclod loadtest`` options); returns the figures."""
+    token = args.token or os.environ.get("CAVECLOD_TOKEN")
+    client = AsyncClient(args.target, token=token, tls_ca=args.tls_ca, cache_dir=args.cache_dir)
+    tally = Tally()
+    try:
+        meshes = await client.list_meshes()
+        names = [m.name for m in meshes]
+        if args.mesh is not None and args.mesh not in names:
+            raise InputError(f"the server has no mesh {args.mesh!r}; it serves {', '.join(names)}")
+        mesh = meshes[names.index(args.mesh)] if args.mesh else meshes[0]
+        cpu0, wall0 = time.process_time(), time.perf_counter()
+        t0 = time.perf_counter() + 0.5 + 0.02 * args.sessions         # time to open every session first
+        progress = asyncio.ensure_future(_progress(tally, args, t0))
+        try:
+            await asyncio.gather(*(_one(client, i, args, mesh, tally, t0) for i in range(args.sessions)))
+        finally:
+            progress.cancel()
+        cpu, wall = time.process_time() - cpu0, time.perf_counter() - wall0
+    finally:
+        await client.close()
+    lat = np.asarray(tally.latencies) * 1e3
+    pct = {k: round(float(np.percentile(lat, q)), 2) if len(lat) else None
+           for k, q in (("p50", 50), ("p95", 95), ("p99", 99))}
+    pct["max"] = round(float(lat.max()), 2) if len(lat) else None
+    return {
+        "target": args.target, "mesh": mesh.name, "mesh_faces": mesh.faces, "sessions": args.sessions,
+        "cameras": args.cameras, "duration_s": args.duration, "warmup_s": args.warmup, "rate_hz": args.rate, "trajectory": args.trajectory,
+        "viewport": [args.width, args.height], "fov_y": args.fov, "tolerance_px": args.tolerance,
+        "frames": tally.frames, "frames_per_second": round(tally.frames / args.duration, 1),
+        "keyframes": tally.keyframes, "poses_sent": tally.poses_sent, "poses_timed": len(lat),
+        "latency_ms": pct,
+        "bytes_per_frame": round(tally.bytes / tally.frames, 1) if tally.frames else None,
+        "bytes_per_changed_triangle": round(tally.delta_bytes / tally.delta_triangles, 2)
+        if tally.delta_triangles else None,
+        "divergences": tally.divergences, "bad_frames": tally.bad_frames, "resumes": tally.resumes,
+        "errors": dict(tally.errors),
+        "client_cpu_seconds": round(cpu, 2), "client_cpu_cores": round(cpu / wall, 2),
+        "latencies_ms": lat.round(3).tolist(),
+    }
+
+
+def main(args) -> int:
+    """``caveclod loadtest``: run, report, and exit 1 on divergences or errors."""
+    for name in ("sessions", "cameras"):
+        if getattr(args, name) < 1:
+            print(f"caveclod: error: --{name} must be at least 1", file=sys.stderr)
+            return 2
+    if args.duration <= 0 or args.rate <= 0 or args.warmup < 0:
+        print("caveclod: error: --duration and --rate must be positive, --warmup at least 0", file=sys.stderr)
+        return 2
+    try:
+        report = asyncio.run(run(args))
+    except grpc.RpcError as exc:      # ListMeshes failed: no session could start
+        print(f"caveclod: error: {args.target}: {exc.code().name}: {exc.details()}", file=sys.stderr)
+        return 1
+    latencies = report["latencies_ms"] if args.samples else report.pop("latencies_ms")
+    if args.plot:
+        plot_latency(latencies, report, args.plot)
+    if args.json:
+        print(json.dumps(report))
+    else:
+        for key, value in report.items():
+            print(f"{key:<28} {value}")
+    return 1 if report["divergences"] or report["errors"] else 0
+
+
+def plot_latency(latencies_ms: list, report: dict, path: str) -> None:
+    """A CDF of pose -> frame latency, as a PNG (needs matplotlib: the ``bench`` extra)."""
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    lat = np.sort(np.asarray(latencies_ms))
+    fig, ax = plt.subplots(figsize=(6, 4))
+    if len(lat):
+        ax.plot(lat, np.arange(1, len(lat) + 1) / len(lat))
+        for q in (50, 99):
+            v = np.percentile(lat, q)
+            ax.axvline(v, ls="--", lw=0.8, color="grey")
+            ax.text(v, 0.05 + 0.1 * (q == 99), f" p{q} {v:.1f} ms", fontsize=8)
+    ax.set_xlabel("pose -> frame latency (ms)")
+    ax.set_ylabel("fraction of poses")
+    ax.set_title(f"{report['sessions']} sessions x {report['cameras']} camera(s) at {report['rate_hz']:g} Hz, "
+                 f"{report['mesh_faces']:,} triangles", fontsize=9)
+    ax.grid(alpha=0.3)
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)

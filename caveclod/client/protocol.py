@@ -1,0 +1,330 @@
+"""The client's side of a caveclod.v1 session, without any I/O ("sans-IO").
+
+:class:`SessionProtocol` turns ServerMessages into updated index buffers and
+says what to send back (acks, keyframe requests); it numbers poses and
+times each pose -> frame by pose_seq; it remembers what a resume needs.
+The blocking (:mod:`.session`) and asyncio (:mod:`.aio`) APIs drive it over
+a gRPC stream, so both behave exactly alike.
+"""
+
+from __future__ import annotations
+
+import time
+import zlib
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from .. import wire
+from ..v1 import caveclod_pb2 as pb
+from .buffers import IndexBuffers
+from .cache import VertexBufferCache
+
+CLIENT_NAME = "caveclod-client/0.1"
+
+
+class ProtocolError(Exception):
+    """The server broke caveclod.v1 in a way no keyframe repairs (one line)."""
+
+
+@dataclass
+class VertexBuffer:
+    """The mesh's vertex buffer, resident for the whole session.
+
+    Attributes:
+        hash: its vertex_buffer_hash.
+        payload: the planar payload bytes.
+        positions: (d, 3) float32 view. normals: (d, 3) float32.
+        uvs: (d, 2) float32. colors: (d, 4) uint8, or None.
+    """
+
+    hash: str
+    payload: bytes
+    positions: np.ndarray
+    normals: np.ndarray
+    uvs: np.ndarray
+    colors: np.ndarray | None
+
+    @property
+    def n_vertices(self) -> int:
+        return len(self.positions)
+
+
+@dataclass
+class CameraUpdate:
+    """What one frame did to one camera.
+
+    Attributes:
+        pose_seq: the pose the camera is now refined for (0: none).
+        keyframe: the frame replaced the camera's buffers.
+        latency: seconds from sending pose_seq to this frame, when this
+            frame is the first to answer it; else None.
+        stats: CameraStats of the server's update, or None.
+        triangles_written: slot writes applied.
+    """
+
+    pose_seq: int
+    keyframe: bool = False
+    latency: float | None = None
+    stats: pb.CameraStats | None = None
+    triangles_written: int = 0
+
+
+@dataclass
+class FrameUpdate:
+    """A frame applied in full (all its parts).
+
+    Attributes:
+        frame_seq: its number.
+        pose_seq: the highest pose_seq the server had received when it made
+            the frame: every pose up to it is answered or superseded.
+        cameras: {camera: CameraUpdate} for the cameras it carried.
+        nbytes: serialized bytes of its parts.
+        parts: how many Frame messages it came in.
+        diverged: cameras whose buffers failed a CRC check (a keyframe is asked for).
+        bad: cameras whose deltas could not be applied (a keyframe is asked for).
+    """
+
+    frame_seq: int
+    pose_seq: int = 0
+    cameras: dict = field(default_factory=dict)
+    nbytes: int = 0
+    parts: int = 0
+    diverged: list = field(default_factory=list)
+    bad: list = field(default_factory=list)
+
+
+class SessionProtocol:
+    """One session's client state across its streams.
+
+    Args:
+        mesh: mesh name. cameras: camera count.
+        options: RefineOptions as a dict (see :func:`caveclod.wire.options_to_dict`).
+        cache: vertex buffer cache, or None for none.
+        ack_window: the window asked for (0: the server's default).
+        client: name sent in Open.
+    """
+
+    def __init__(self, mesh: str, cameras: int, options: dict, *, cache: VertexBufferCache | None = None,
+                 ack_window: int = 0, client: str = CLIENT_NAME):
+        self.mesh, self.n_cameras, self.options = mesh, cameras, dict(options)
+        self.cache, self.ack_window, self.client = cache, ack_window, client
+        self.info: pb.SessionInfo | None = None
+        self.ready = False               # this stream's SessionInfo and vertex buffer have arrived
+        self.token = ""
+        self.vertex: VertexBuffer | None = None
+        self.buffers: IndexBuffers | None = None
+        self.last_applied = 0            # frame_seq of the last frame applied in full
+        self.pose_seq = 0                # last pose_seq sent
+        self.divergences = 0             # CRC mismatches found
+        self.bad_frames = 0
+        self.resumes = 0
+        self._known_hash = ""            # vertex_buffer_hash to offer in Open
+        self._chunks: bytearray | None = None
+        self._sent: list[dict] = [{} for _ in range(cameras)]      # camera -> {pose_seq: send time}
+        self._answered = [0] * cameras
+        self._latest: list[tuple | None] = [None] * cameras        # (eye, target, up) last sent
+        self._asked: set[int] = set()    # cameras with a keyframe request outstanding
+        self._frame: FrameUpdate | None = None                      # the frame whose parts are arriving
+        self._crcs: dict = {}
+        self._untrusted: set[int] = set()
+
+    # -- what to send ------------------------------------------------------------------
+    def offer_vertex_buffer(self, vertex_buffer_hash: str) -> bool:
+        """Offer a cached buffer in the next Open when the cache holds ``vertex_buffer_hash``."""
+        if self.vertex is not None and self.vertex.hash == vertex_buffer_hash:
+            self._known_hash = vertex_buffer_hash
+        elif self.cache is not None and vertex_buffer_hash and self.cache.get(vertex_buffer_hash) is not None:
+            self._known_hash = vertex_buffer_hash
+        return bool(self._known_hash)
+
+    def open_message(self) -> pb.ClientMessage:
+        """Open for a new session, or for a resume once a token is known."""
+        if self.vertex is not None:
+            self._known_hash = self.vertex.hash
+        self.ready = False
+        return pb.ClientMessage(open=pb.Open(
+            mesh=self.mesh, options=wire.options_from_dict(self.options), cameras=self.n_cameras,
+            vertex_buffer_hash=self._known_hash, resume_token=self.token, last_frame_seq=self.last_applied,
+            ack_window=self.ack_window, client=self.client))
+
+    def pose_message(self, camera: int, eye, target, up, now: float | None = None) -> pb.ClientMessage:
+        """A CameraPose with the next pose_seq; its send time is kept for the latency."""
+        if not 0 <= camera < self.n_cameras:
+            raise ValueError(f"camera {camera} out of range 0..{self.n_cameras - 1}")
+        self.pose_seq += 1
+        self._sent[camera][self.pose_seq] = time.perf_counter() if now is None else now
+        self._latest[camera] = (eye, target, up)
+        return pb.ClientMessage(pose=pb.CameraPose(camera=camera, pose_seq=self.pose_seq, eye=wire.vec3(eye),
+                                                   target=wire.vec3(target), up=wire.vec3(up)))
+
+    def keyframe_message(self, camera: int | None, reason: int, detail: str = "") -> pb.ClientMessage:
+        """A KeyframeRequest for ``camera`` (None: all); remembered so it is not repeated."""
+        req = pb.KeyframeRequest(reason=reason, frame_seq=self.last_applied, detail=detail[:200])
+        if camera is None:
+            self._asked.update(range(self.n_cameras))
+        else:
+            req.camera = camera
+            self._asked.add(camera)
+        return pb.ClientMessage(keyframe_request=req)
+
+    def close_message(self, reason: str = "") -> pb.ClientMessage:
+        return pb.ClientMessage(close=pb.Close(reason=reason))
+
+    # -- what arrives ------------------------------------------------------------------
+    def receive(self, msg: pb.ServerMessage) -> tuple[list[pb.ClientMessage], FrameUpdate | None]:
+        """Handle one ServerMessage: (messages to send back, the frame it completed or None)."""
+        kind = msg.WhichOneof("kind")
+        if kind == "session_info":
+            return self._session_info(msg.session_info), None
+        if kind == "vertex_chunk":
+            self._vertex_chunk(msg.vertex_chunk)
+            return [], None
+        if kind == "frame":
+            return self._frame_part(msg.frame, msg.ByteSize())
+        raise ProtocolError("a ServerMessage with nothing set; the server speaks another protocol version")
+
+    def _session_info(self, info: pb.SessionInfo) -> list[pb.ClientMessage]:
+        if info.vertex_format.layout not in (pb.VERTEX_LAYOUT_PLANAR, pb.VERTEX_LAYOUT_INTERLEAVED):
+            raise ProtocolError(f"vertex layout {info.vertex_format.layout} is unknown to this client; upgrade it")
+        resumed = info.resumed and self.info is not None
+        if self.info is not None:
+            self.resumes += resumed
+        self.info, self.token = info, info.session_token
+        materials = len(info.mesh.materials)
+        if not resumed:               # a new session (or the old one expired): start from nothing
+            self.buffers = IndexBuffers(self.n_cameras, materials)
+            self.last_applied = 0
+            self._asked.clear()
+            self._answered = [0] * self.n_cameras
+        self._frame = None
+        self.pose_seq = max(self.pose_seq, info.last_pose_seq)
+        out = []
+        if info.vertex_buffer_cached:
+            self._use_cached(info)
+        else:
+            self._chunks = bytearray()
+            if info.vertex_format.payload_bytes == 0:
+                self._finish_vertex_buffer()
+        # Poses in flight when the stream broke are lost: send each camera's latest again.
+        for c, pose in enumerate(self._latest):
+            if pose is not None and self._sent[c] and max(self._sent[c]) > info.last_pose_seq:
+                self._sent[c].clear()
+                out.append(self.pose_message(c, *pose))
+        return out
+
+    def _use_cached(self, info: pb.SessionInfo) -> None:
+        key = info.mesh.vertex_buffer_hash
+        if self.vertex is not None and self.vertex.hash == key:
+            payload = self.vertex.payload
+        else:
+            payload = self.cache.get(key) if self.cache is not None else None
+        if payload is None or zlib.crc32(payload) != info.vertex_payload_crc32:
+            if self.cache is not None:
+                self.cache.discard(key)
+            raise ProtocolError(f"the server took vertex buffer {key} as cached, but this client does not hold it "
+                                "intact; open the session again without a cached buffer")
+        self._set_vertex(key, payload)
+
+    def _vertex_chunk(self, chunk: pb.VertexChunk) -> None:
+        if self._chunks is None or chunk.offset != len(self._chunks) \
+                or chunk.total != self.info.vertex_format.payload_bytes:
+            raise ProtocolError(f"vertex chunk at offset {chunk.offset} out of order (expected "
+                                f"{0 if self._chunks is None else len(self._chunks)})")
+        self._chunks += chunk.data
+        if len(self._chunks) >= chunk.total:
+            self._finish_vertex_buffer()
+
+    def _finish_vertex_buffer(self) -> None:
+        payload = bytes(self._chunks)
+        self._chunks = None
+        if zlib.crc32(payload) != self.info.vertex_payload_crc32:
+            raise ProtocolError("the vertex buffer's CRC-32 differs from SessionInfo.vertex_payload_crc32; "
+                                "it was damaged in transit, open the session again")
+        key = self.info.mesh.vertex_buffer_hash
+        self._set_vertex(key, payload)
+        if self.cache is not None:
+            self.cache.put(key, payload)
+
+    def _set_vertex(self, key: str, payload: bytes) -> None:
+        try:
+            arrays = wire.read_vertex_payload(self.info.vertex_format, payload)
+        except wire.WireError as exc:
+            raise ProtocolError(str(exc)) from None
+        self.vertex = VertexBuffer(key, payload, arrays["position"], arrays["normal"], arrays["texcoord"],
+                                   arrays.get("color"))
+        self.ready = True
+
+    def _frame_part(self, frame: pb.Frame, nbytes: int) -> tuple[list, FrameUpdate | None]:
+        if not self.ready:
+            raise ProtocolError("a Frame before the vertex buffer was complete")
+        now = time.perf_counter()
+        out: list[pb.ClientMessage] = []
+        if self._frame is None:                           # the first part of a frame
+            if frame.frame_seq != self.last_applied + 1:
+                out.append(self.keyframe_message(None, pb.KEYFRAME_REASON_BAD_FRAME,
+                                                 f"frame {frame.frame_seq} after {self.last_applied}"))
+                self.bad_frames += 1
+            self._frame = FrameUpdate(frame.frame_seq, frame.pose_seq)
+            self._crcs, self._untrusted = {}, set()
+        elif frame.frame_seq != self._frame.frame_seq:
+            raise ProtocolError(f"part of frame {frame.frame_seq} inside frame {self._frame.frame_seq}")
+        update = self._frame
+        update.parts += 1
+        update.nbytes += nbytes
+        for cf in frame.cameras:
+            self._camera_part(cf, update, now, out)
+        if frame.continued:
+            return out, None
+        self._frame = None
+        self._check_crcs(update, out)
+        self.last_applied = update.frame_seq
+        out.append(pb.ClientMessage(ack=pb.Ack(frame_seq=update.frame_seq)))
+        return out, update
+
+    def _camera_part(self, cf: pb.CameraFrame, update: FrameUpdate, now: float, out: list) -> None:
+        c = cf.camera
+        if c >= self.n_cameras:
+            raise ProtocolError(f"a frame for camera {c}; the session has {self.n_cameras}")
+        cam = update.cameras.get(c)
+        if cam is None:
+            cam = update.cameras[c] = CameraUpdate(cf.pose_seq, keyframe=cf.keyframe)
+            if cf.keyframe:
+                self.buffers.reset(c)          # the keyframe replaces everything the camera held
+                self._asked.discard(c)
+            if cf.pose_seq > self._answered[c]:
+                self._answered[c] = cf.pose_seq
+                sent = self._sent[c].pop(cf.pose_seq, None)
+                for seq in [s for s in self._sent[c] if s < cf.pose_seq]:
+                    del self._sent[c][seq]     # superseded: never answered
+                cam.latency = None if sent is None else now - sent
+        if cf.HasField("stats"):
+            cam.stats = cf.stats
+        if c in self._untrusted:
+            return
+        for sd in cf.surfaces:
+            try:
+                surface = wire.decode_surface(sd, self.vertex.n_vertices)
+                self.buffers.apply(c, surface)
+            except wire.WireError as exc:
+                self._untrusted.add(c)
+                update.bad.append(c)
+                self.bad_frames += 1
+                if c not in self._asked:
+                    out.append(self.keyframe_message(c, pb.KEYFRAME_REASON_BAD_FRAME, str(exc)))
+                return
+            cam.triangles_written += len(surface.slots)
+            if surface.crc32 is not None:
+                self._crcs[c, surface.material] = surface.crc32
+
+    def _check_crcs(self, update: FrameUpdate, out: list) -> None:
+        """Compare every buffer the frame touched with its CRC; ask a keyframe on a mismatch."""
+        for (c, m), crc in sorted(self._crcs.items()):
+            if c in self._untrusted or c in self._asked or c in update.diverged:
+                continue
+            mine = self.buffers.crc32(c, m)
+            if mine != crc:
+                self.divergences += 1
+                update.diverged.append(c)
+                out.append(self.keyframe_message(c, pb.KEYFRAME_REASON_CHECKSUM_MISMATCH,
+                                                 f"material {m}: crc 0x{mine:08x}, server 0x{crc:08x}"))

@@ -1,0 +1,316 @@
+"""The blocking client: :class:`Client` (a channel) and :class:`Session` (a stream).
+
+    with Client("lod.example.org:50051", token="...", tls=True) as client:
+        with client.session("terrain", cameras=1, width=1280, height=720) as s:
+            s.vertex_buffer.positions            # (d, 3) float32, downloaded once, cached on disk
+            s.send_pose(0, eye=(5000, -2000, 1500), target=(5000, 5000, 300), up=(0, 0, 1))
+            frame = s.next_frame(timeout=1.0)    # applied, CRC-checked and acked
+            s.buffer(0, material)                # (count, 3) uint32 index buffer to draw
+
+A broken stream is resumed with the session token, with exponential
+backoff; a checksum mismatch or a bad frame asks for a keyframe. A reader
+thread per stream receives messages; they are applied in the caller's
+thread, in ``next_frame``.
+"""
+
+from __future__ import annotations
+
+import os
+import queue
+import random
+import threading
+import time
+from dataclasses import dataclass
+
+import grpc
+
+from ..v1 import caveclod_pb2 as pb
+from ..v1 import caveclod_pb2_grpc as pb_grpc
+from .cache import VertexBufferCache
+from .protocol import FrameUpdate, ProtocolError, SessionProtocol, VertexBuffer
+
+# Keepalive: ping an idle connection every 20 s (the server accepts one per
+# 10 s) and give up on it after 10 s without an answer, so a dead server or
+# a cut network is noticed and the session resumed (the same settings as
+# the server's, see caveclod.server.app.grpc_options); frames are at most a
+# few MiB.
+CHANNEL_OPTIONS = [
+    ("grpc.keepalive_time_ms", 20_000),
+    ("grpc.keepalive_timeout_ms", 10_000),
+    ("grpc.http2.ping_timeout_ms", 10_000),
+    ("grpc.http2.max_pings_without_data", 0),
+    ("grpc.http2.min_time_between_pings_ms", 20_000),
+    ("grpc.max_receive_message_length", 8 << 20),
+]
+RETRIABLE = (grpc.StatusCode.UNAVAILABLE,)     # a broken connection, a draining or restarting server
+
+
+class SessionEnded(Exception):
+    """The session's stream ended for good; ``code`` is its gRPC status (None: closed normally)."""
+
+    def __init__(self, code: grpc.StatusCode | None, details: str):
+        super().__init__(f"{code.name}: {details}" if code is not None else details)
+        self.code, self.details = code, details
+
+
+def credentials(tls: bool, tls_ca: bytes | str | os.PathLike | None) -> grpc.ChannelCredentials | None:
+    """Channel credentials: None for plaintext; TLS trusting ``tls_ca`` (PEM bytes or a path) or the system roots."""
+    if not tls and tls_ca is None:
+        return None
+    if isinstance(tls_ca, (str, os.PathLike)):
+        with open(tls_ca, "rb") as fh:
+            tls_ca = fh.read()
+    return grpc.ssl_channel_credentials(root_certificates=tls_ca)
+
+
+def metadata(token: str | None) -> tuple:
+    """Call metadata carrying ``authorization: Bearer <token>`` when a token is given."""
+    return (("authorization", f"Bearer {token}"),) if token else ()
+
+
+def refine_options(width: int, height: int, fov_y: float | None, tolerance_px: float | None, cull: bool | None,
+                   backface: bool | None, max_ops: int | None, max_faces: int | None) -> dict:
+    """RefineOptions as the dict :mod:`caveclod.wire` takes (None: the server's default)."""
+    return {"width": width, "height": height, "fov_y": fov_y, "tolerance_px": tolerance_px, "cull": cull,
+            "backface": backface, "max_ops": max_ops, "max_faces": max_faces}
+
+
+def backoff(attempt: int, base: float = 0.1, cap: float = 2.0) -> float:
+    """Seconds to wait before retry ``attempt`` (0, 1, ...): exponential with jitter."""
+    return min(cap, base * 2 ** attempt) * random.uniform(0.5, 1.0)
+
+
+class Client:
+    """A channel to a LOD server.
+
+    Args:
+        target: "host:port".
+        token: bearer token, sent as ``authorization`` metadata.
+        tls: connect with TLS (system roots unless ``tls_ca``).
+        tls_ca: PEM CA certificate (bytes or path) to trust; implies TLS.
+        cache_dir: vertex buffer cache directory (default
+            ``$XDG_CACHE_HOME/caveclod/vertex-buffers``); ``False``: no cache.
+        server_name: TLS name to check, when it differs from the target's host.
+    """
+
+    def __init__(self, target: str, *, token: str | None = None, tls: bool = False,
+                 tls_ca: bytes | str | os.PathLike | None = None, cache_dir=None, server_name: str | None = None):
+        creds = credentials(tls, tls_ca)
+        options = list(CHANNEL_OPTIONS)
+        if server_name:
+            options.append(("grpc.ssl_target_name_override", server_name))
+        self.channel = grpc.insecure_channel(target, options) if creds is None \
+            else grpc.secure_channel(target, creds, options)
+        self.stub = pb_grpc.LodStub(self.channel)
+        self.metadata = metadata(token)
+        self.cache = None if cache_dir is False else VertexBufferCache(cache_dir)
+
+    def list_meshes(self, timeout: float = 10.0) -> list[pb.MeshInfo]:
+        """The meshes the server serves (MeshInfo messages, sorted by name)."""
+        return list(self.stub.ListMeshes(pb.ListMeshesRequest(), metadata=self.metadata, timeout=timeout).meshes)
+
+    def session(self, mesh: str, cameras: int = 1, *, width: int = 1280, height: int = 720,
+                fov_y: float | None = None, tolerance_px: float | None = None, cull: bool | None = None,
+                backface: bool | None = None, max_ops: int | None = None, max_faces: int | None = None,
+                ack_window: int = 0, retries: int = 6, timeout: float = 30.0) -> "Session":
+        """Open a session and wait for its vertex buffer (from the cache when it holds it).
+
+        Options left None take the server's defaults (60 degrees, 1 px,
+        culling on, no back-face culling, no budgets). Raises SessionEnded
+        when the server refuses (e.g. NOT_FOUND, RESOURCE_EXHAUSTED).
+        """
+        protocol = SessionProtocol(mesh, cameras, refine_options(width, height, fov_y, tolerance_px, cull,
+                                                                 backface, max_ops, max_faces),
+                                   cache=self.cache, ack_window=ack_window)
+        session = Session(self, protocol, retries)
+        session._open(timeout)
+        return session
+
+    def close(self) -> None:
+        self.channel.close()
+
+    def __enter__(self) -> "Client":
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()
+
+
+@dataclass
+class _StreamEnd:
+    error: grpc.RpcError | None
+
+
+class _Stream:
+    """One gRPC stream of a session: a request queue and a reader thread."""
+
+    def __init__(self, stub, first: pb.ClientMessage, md):
+        self.requests: queue.Queue = queue.Queue()
+        self.responses: queue.Queue = queue.Queue()
+        self.requests.put(first)
+        self.call = stub.Session(iter(self.requests.get, None), metadata=md)
+        threading.Thread(target=self._read, daemon=True, name="caveclod-client-reader").start()
+
+    def _read(self) -> None:
+        try:
+            for msg in self.call:
+                self.responses.put(msg)
+            self.responses.put(_StreamEnd(None))
+        except grpc.RpcError as exc:
+            self.responses.put(_StreamEnd(exc))
+
+    def send(self, msg: pb.ClientMessage) -> None:
+        self.requests.put(msg)
+
+    def end(self) -> None:
+        """Half-close our side and cancel the call."""
+        self.requests.put(None)
+        self.call.cancel()
+
+
+class Session:
+    """A blocking session. Make one with :meth:`Client.session`.
+
+    Attributes:
+        protocol: the :class:`SessionProtocol` (info, counters).
+        vertex_buffer: the :class:`VertexBuffer`.
+    """
+
+    def __init__(self, client: Client, protocol: SessionProtocol, retries: int):
+        self.client, self.protocol, self.retries = client, protocol, retries
+        self._stream: _Stream | None = None
+        self._closed = False
+
+    # -- opening and resuming ----------------------------------------------------------
+    def _open(self, timeout: float) -> None:
+        """Start a stream (new or resumed) and receive until the vertex buffer is complete."""
+        if not self.protocol.token and self.client.cache is not None:
+            try:
+                meshes = {m.name: m for m in self.client.list_meshes(timeout=timeout)}
+            except grpc.RpcError as exc:
+                raise SessionEnded(exc.code(), exc.details()) from None
+            if self.protocol.mesh in meshes:
+                self.protocol.offer_vertex_buffer(meshes[self.protocol.mesh].vertex_buffer_hash)
+        deadline = time.monotonic() + timeout
+        self._stream = _Stream(self.client.stub, self.protocol.open_message(), self.client.metadata)
+        while not self.protocol.ready:
+            remaining = deadline - time.monotonic()
+            if remaining <= 0:
+                self._stream.end()
+                raise SessionEnded(grpc.StatusCode.DEADLINE_EXCEEDED,
+                                   f"no SessionInfo and vertex buffer within {timeout} s")
+            self._receive(remaining, resume=False)
+
+    def _resume(self, error: grpc.RpcError) -> None:
+        """Reopen the stream with the session token, backing off between tries."""
+        for attempt in range(self.retries):
+            time.sleep(backoff(attempt))
+            try:
+                self._stream.end()
+                self._open(timeout=10.0)
+                return
+            except SessionEnded as exc:
+                if exc.code not in RETRIABLE:
+                    raise
+                error = exc
+        raise SessionEnded(grpc.StatusCode.UNAVAILABLE, f"could not resume after {self.retries} tries: {error}")
+
+    # -- receiving ------------------------------------------------------------------------
+    def _receive(self, timeout: float | None, resume: bool = True) -> FrameUpdate | None:
+        """Handle one message from the stream; the frame it completed, if any."""
+        try:
+            item = self._stream.responses.get(timeout=None if timeout is None else max(timeout, 0.0))
+        except queue.Empty:
+            return None
+        if isinstance(item, _StreamEnd):
+            if item.error is None:
+                self._closed = True
+                raise SessionEnded(None, "the server ended the session")
+            code, details = item.error.code(), item.error.details()
+            if resume and code in RETRIABLE and self.protocol.token and not self._closed:
+                self._resume(item.error)
+                return None
+            raise SessionEnded(code, details)
+        try:
+            out, update = self.protocol.receive(item)
+        except ProtocolError as exc:
+            self._stream.end()
+            raise SessionEnded(grpc.StatusCode.DATA_LOSS, str(exc)) from None
+        for msg in out:
+            self._stream.send(msg)
+        return update
+
+    def next_frame(self, timeout: float | None = None) -> FrameUpdate | None:
+        """The next frame, applied in full and acked; None when ``timeout`` seconds pass first.
+
+        Raises SessionEnded when the stream ends and cannot be resumed.
+        """
+        deadline = None if timeout is None else time.monotonic() + timeout
+        while True:
+            remaining = None if deadline is None else deadline - time.monotonic()
+            if remaining is not None and remaining <= 0:
+                return None
+            update = self._receive(remaining)
+            if update is not None:
+                return update
+
+    # -- sending --------------------------------------------------------------------------
+    def send_pose(self, camera: int, eye, target, up=(0.0, 0.0, 1.0)) -> int:
+        """Send a camera's new pose (three 3-vectors, world units); returns its pose_seq."""
+        msg = self.protocol.pose_message(camera, eye, target, up)
+        self._stream.send(msg)
+        return msg.pose.pose_seq
+
+    def request_keyframe(self, camera: int | None = None,
+                         reason: int = pb.KEYFRAME_REASON_CLIENT_RESET, detail: str = "") -> None:
+        """Ask for full buffers of ``camera`` (None: every camera), e.g. after losing a GL context."""
+        self._stream.send(self.protocol.keyframe_message(camera, reason, detail))
+
+    def close(self, reason: str = "", timeout: float = 5.0) -> None:
+        """Send Close and wait (up to ``timeout``) for the server to end the stream."""
+        if self._closed or self._stream is None:
+            return
+        self._closed = True
+        self._stream.send(self.protocol.close_message(reason))
+        self._stream.requests.put(None)
+        deadline = time.monotonic() + timeout
+        while time.monotonic() < deadline:
+            try:
+                item = self._stream.responses.get(timeout=max(deadline - time.monotonic(), 0.0))
+            except queue.Empty:
+                break
+            if isinstance(item, _StreamEnd):
+                return
+        self._stream.call.cancel()
+
+    def drop(self) -> None:
+        """Cancel the stream without Close (as a crash would); the session stays resumable."""
+        self._stream.end()
+
+    # -- what the client holds ---------------------------------------------------------------
+    @property
+    def info(self) -> pb.SessionInfo:
+        return self.protocol.info
+
+    @property
+    def vertex_buffer(self) -> VertexBuffer:
+        return self.protocol.vertex
+
+    @property
+    def buffers(self):
+        """The :class:`~caveclod.client.buffers.IndexBuffers`."""
+        return self.protocol.buffers
+
+    def buffer(self, camera: int, material: int):
+        """(count, 3) uint32 index buffer of one (camera, material), to draw."""
+        return self.protocol.buffers.buffer(camera, material)
+
+    def triangles(self, camera: int) -> dict:
+        """{material: (k, 3) uint32} copies of a camera's non-empty buffers."""
+        return self.protocol.buffers.triangles(camera)
+
+    def __enter__(self) -> "Session":
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()

@@ -1,0 +1,165 @@
+"""A LOD server: gRPC, health, reflection, metrics, the session reaper and drain.
+
+``LodServer(config).start()`` answers health checks within a fraction of a
+second: the meshes are memory-mapped (only headers are read) and the numba
+kernels are loaded on a thread of their own afterwards; health says SERVING
+at once, and an Open that arrives before the kernels are ready waits for
+them. The server model (a sync gRPC server whose pool threads are the
+sessions' workers) was chosen by measurement: see the README's "Serving".
+"""
+
+from __future__ import annotations
+
+import threading
+import time
+from concurrent.futures import ThreadPoolExecutor
+
+import grpc
+from grpc_health.v1 import health, health_pb2, health_pb2_grpc
+from grpc_reflection.v1alpha import reflection
+
+from ..errors import CaveclodError
+from . import logs
+from .auth import BearerTokenInterceptor
+from .config import ServerConfig
+from .meshes import Catalogue
+from .metrics import Metrics
+from .registry import Sessions
+from .service import SERVICE, LodService, add_to_server
+
+MiB = 1 << 20
+SPARE_THREADS = 16        # pool threads beyond one per session: ListMeshes, health, refusals
+
+
+class LodServer:
+    """One server process's gRPC server and everything it serves.
+
+    Attributes:
+        port: the port bound (useful with ``config.port == 0``).
+        sessions: the :class:`.registry.Sessions` (tests reach the mirrors through it).
+        metrics: the :class:`.metrics.Metrics`.
+    """
+
+    def __init__(self, config: ServerConfig):
+        self.config = config
+        self.catalogue = Catalogue(config.meshes)
+        self.metrics = Metrics()
+        self.sessions = Sessions(config, self.catalogue, self.metrics, logs.event)
+        self.health = health.HealthServicer()
+        workers = config.max_sessions + SPARE_THREADS
+        self.grpc = grpc.server(
+            ThreadPoolExecutor(max_workers=workers, thread_name_prefix="caveclod-rpc"),
+            interceptors=[BearerTokenInterceptor(config.tokens)] if config.tokens else [],
+            options=grpc_options(config), maximum_concurrent_rpcs=workers)
+        add_to_server(LodService(self.sessions, self.catalogue, self.metrics), self.grpc)
+        health_pb2_grpc.add_HealthServicer_to_server(self.health, self.grpc)
+        reflection.enable_server_reflection(
+            (SERVICE, health_pb2.DESCRIPTOR.services_by_name["Health"].full_name, reflection.SERVICE_NAME),
+            self.grpc)
+        address = f"{config.host}:{config.port}"
+        if config.tls_cert is not None:
+            creds = grpc.ssl_server_credentials([(config.tls_key, config.tls_cert)])
+            self.port = self._bind(lambda: self.grpc.add_secure_port(address, creds), address)
+        else:
+            self.port = self._bind(lambda: self.grpc.add_insecure_port(address), address)
+        self._stop = threading.Event()
+        self.metrics_port = None
+
+    @staticmethod
+    def _bind(add, address: str) -> int:
+        try:
+            port = add()
+        except RuntimeError:
+            port = 0
+        if not port:
+            raise CaveclodError(f"cannot listen on {address}: the address is in use or not this machine's; "
+                                "choose another --host/--port (--port 0 picks a free port)")
+        return port
+
+    def start(self) -> "LodServer":
+        """Accept connections; health says SERVING; kernels load in the background."""
+        self.grpc.start()
+        for name in ("", SERVICE):
+            self.health.set(name, health_pb2.HealthCheckResponse.SERVING)
+        if self.config.metrics_port is not None:
+            self.metrics_port = self.metrics.serve(self.config.metrics_host, self.config.metrics_port)
+        threading.Thread(target=self._warm_up, daemon=True, name="caveclod-warm-up").start()
+        threading.Thread(target=self._reap, daemon=True, name="caveclod-reaper").start()
+        logs.event("server.started", port=self.port, meshes=",".join(self.catalogue.names()),
+                   max_sessions=self.config.max_sessions, tls=self.config.tls_cert is not None,
+                   auth=bool(self.config.tokens))
+        return self
+
+    def _warm_up(self) -> None:
+        """Load the refinement kernels (numba's cache) and each mesh's hashes, then admit Opens."""
+        t0 = time.perf_counter()
+        try:
+            from ..refine.view import View
+            for served in self.catalogue.meshes.values():
+                lo, hi = served.info.bounds_min, served.info.bounds_max
+                served.mesh.new_camera().update(View(eye=(hi.x, hi.y, hi.z + 1.0), target=(lo.x, lo.y, lo.z)))
+                served.payload_crc32
+        except Exception as exc:              # a broken mesh must not hang every Open
+            logs.event("server.warm_up_failed", error=repr(exc))
+        finally:
+            self.sessions.ready.set()
+        logs.event("server.ready", seconds=round(time.perf_counter() - t0, 3))
+
+    def _reap(self) -> None:
+        period = min(1.0, max(self.config.resume_ttl / 4, 0.05))
+        while not self._stop.wait(period):
+            self.sessions.reap()
+
+    def drain(self, seconds: float | None = None) -> None:
+        """Shut down gracefully: NOT_SERVING, refuse Opens, let sessions run ``seconds``, end them, stop.
+
+        Returns early when every connected session has ended by itself.
+        """
+        seconds = self.config.drain_seconds if seconds is None else seconds
+        self.health.enter_graceful_shutdown()          # every service NOT_SERVING, for good
+        self.sessions.drain()
+        attached, _ = self.sessions.counts()
+        logs.event("server.draining", seconds=seconds, sessions=attached)
+        deadline = time.monotonic() + seconds
+        while time.monotonic() < deadline and self.sessions.counts()[0]:
+            time.sleep(0.05)
+        self.sessions.end_all()
+        self.stop(grace=2.0)
+        logs.event("server.stopped")
+
+    def stop(self, grace: float | None = None) -> None:
+        """Stop at once (``grace`` seconds for RPCs in flight)."""
+        self._stop.set()
+        self.sessions.end_all()
+        self.grpc.stop(grace).wait()
+        self.metrics.stop()
+
+
+def grpc_options(config: ServerConfig) -> list:
+    """Channel arguments: keepalive that reaps dead peers, small receive limit."""
+    return [
+        # Ping a connection idle for keepalive_seconds; drop it when the ping
+        # is not answered in keepalive_timeout (a vanished peer, a network
+        # cut). With this gRPC the unanswered ping is timed by
+        # ping_timeout_ms (default: a minute), not by keepalive_timeout_ms
+        # alone: set both. An idle session sends no data between frames, so
+        # also lift the limits that stop pings without data (two pings, then
+        # silence; five minutes between pings): tests/test_service_resilience.py
+        # checks that a silently cut peer is reaped in seconds.
+        ("grpc.keepalive_time_ms", int(1000 * config.keepalive_seconds)),
+        ("grpc.keepalive_timeout_ms", int(1000 * config.keepalive_timeout)),
+        ("grpc.http2.ping_timeout_ms", int(1000 * config.keepalive_timeout)),
+        ("grpc.keepalive_permit_without_calls", 1),
+        ("grpc.http2.max_pings_without_data", 0),
+        ("grpc.http2.min_time_between_pings_ms", int(1000 * config.keepalive_seconds)),
+        # Let clients keep their own keepalive pings every 10 s without being
+        # told "too many pings".
+        ("grpc.http2.min_recv_ping_interval_without_data_ms", 10_000),
+        ("grpc.http2.max_ping_strikes", 2),
+        # Client messages are tiny (a pose is ~100 bytes); frames are split
+        # at 1 MiB of array data, so 4 MiB bounds a part with its framing.
+        ("grpc.max_receive_message_length", 64 * 1024),
+        ("grpc.max_send_message_length", 4 * MiB),
+        # Fail to bind a port that another process holds, instead of sharing it.
+        ("grpc.so_reuseport", 0),
+    ]

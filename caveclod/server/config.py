@@ -1,0 +1,65 @@
+"""What ``caveclod serve`` can be told, with defaults meant for a public deployment.
+
+Each default is argued in the README's "Serving" section; the capacity
+figures behind ``max_sessions`` come from ``benchmarks/service.py``.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+MAX_ACK_WINDOW = 32          # a client may ask for up to this many frames in flight
+# Measured (README, "Service figures"): one server process held 4 one-camera
+# sessions at 30 Hz on the 1M-triangle terrain with p99 10 ms, and 8 with
+# p99 93 ms. One process tops out near 1.2 cores (the GIL), so the limit does
+# not grow with the machine's cores.
+DEFAULT_MAX_SESSIONS = 4
+
+
+@dataclass
+class ServerConfig:
+    """Options of a LOD server (the ``caveclod serve`` flags, same names).
+
+    Attributes:
+        meshes: paths of the ``.cvc`` files to serve, each under its stem.
+        host, port: where to listen; port 0 picks a free port.
+        max_sessions: sessions held at once, resumable ones included; the
+            next Open gets RESOURCE_EXHAUSTED. Default: the capacity
+            measured at 30 Hz on a 1M-triangle terrain.
+        max_cameras: cameras per session.
+        ack_window: frames in flight before an ack when the client asks for
+            none; a client's own request is clamped to 1..MAX_ACK_WINDOW.
+        resume_ttl: seconds a session whose stream broke stays resumable.
+        drain_seconds: grace period of open sessions after SIGTERM/SIGINT.
+        max_faces: cap on active faces per camera (a client's max_faces is
+            clamped to it); bounds a camera's memory.
+        max_ops: cap on operations per camera update, or None (unlimited).
+        metrics_port: Prometheus exporter port, or None for none.
+        metrics_host: address the exporter listens on.
+        tokens: accepted bearer tokens; empty: no authentication.
+        tls_cert, tls_key: PEM certificate chain and private key (bytes),
+            or None for a plaintext port.
+        keepalive_seconds: the server pings a connection idle this long ...
+        keepalive_timeout: ... and drops it when no answer comes in this long.
+        settle_seconds: pause before a convergence update (see the proto's
+            Lod.Session comment): a camera still moving sends a new pose first.
+    """
+
+    meshes: list = field(default_factory=list)
+    host: str = "0.0.0.0"
+    port: int = 50051
+    max_sessions: int = DEFAULT_MAX_SESSIONS
+    max_cameras: int = 4
+    ack_window: int = 4
+    resume_ttl: int = 30
+    drain_seconds: float = 20.0
+    max_faces: int = 1_000_000
+    max_ops: int | None = None
+    metrics_port: int | None = None
+    metrics_host: str = "0.0.0.0"
+    tokens: tuple = ()
+    tls_cert: bytes | None = None
+    tls_key: bytes | None = None
+    keepalive_seconds: float = 20.0
+    keepalive_timeout: float = 10.0
+    settle_seconds: float = 0.05

@@ -1,0 +1,62 @@
+"""``caveclod serve``: run a LOD server until SIGTERM or SIGINT, then drain and exit 0.
+
+The first line on stdout is ``listening on HOST:PORT`` (flushed), printed
+once the server accepts sessions; logs go to stderr.
+"""
+
+from __future__ import annotations
+
+import signal
+import threading
+from pathlib import Path
+
+from ..errors import InputError
+from . import logs
+from .auth import read_tokens
+from .config import ServerConfig
+
+
+def config_from_args(args) -> ServerConfig:
+    """A ServerConfig from the parsed ``caveclod serve`` arguments; InputError for bad ones."""
+    if (args.tls_cert is None) != (args.tls_key is None):
+        raise InputError("--tls-cert and --tls-key go together; give both (PEM files) or neither")
+    for name in ("max_sessions", "max_cameras", "ack_window", "max_faces"):
+        if getattr(args, name) < 1:
+            raise InputError(f"--{name.replace('_', '-')} must be at least 1, got {getattr(args, name)}")
+    if args.resume_ttl < 0 or args.drain_seconds < 0:
+        raise InputError("--resume-ttl and --drain-seconds must be >= 0")
+    tls = [_read(p, flag) for p, flag in ((args.tls_cert, "--tls-cert"), (args.tls_key, "--tls-key"))]
+    return ServerConfig(
+        meshes=list(args.meshes), host=args.host, port=args.port, max_sessions=args.max_sessions,
+        max_cameras=args.max_cameras, ack_window=args.ack_window, resume_ttl=args.resume_ttl,
+        drain_seconds=args.drain_seconds, max_faces=args.max_faces, max_ops=args.max_ops,
+        metrics_port=args.metrics_port, metrics_host=args.metrics_host,
+        tokens=read_tokens(args.token_file) if args.token_file else (), tls_cert=tls[0], tls_key=tls[1])
+
+
+def _read(path, flag: str) -> bytes | None:
+    if path is None:
+        return None
+    try:
+        return Path(path).read_bytes()
+    except OSError as exc:
+        raise InputError(f"cannot read {flag} {path}: {exc.strerror}") from None
+
+
+def serve(args) -> int:
+    """Run the server of ``args`` (see ``caveclod serve --help``); returns the exit status."""
+    from .app import LodServer
+    logs.configure(args.log_format)
+    config = config_from_args(args)
+    server = LodServer(config).start()
+    print(f"listening on {config.host}:{server.port}", flush=True)
+    if server.metrics_port is not None:
+        logs.event("server.metrics", port=server.metrics_port)
+    stop = threading.Event()
+    for sig in (signal.SIGTERM, signal.SIGINT):
+        signal.signal(sig, lambda signum, frame: stop.set())
+    while not stop.wait(1.0):        # a timed wait lets the signal handler run
+        pass
+    logs.event("server.signal")
+    server.drain()
+    return 0

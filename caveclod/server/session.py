@@ -1,0 +1,295 @@
+"""One session: its cameras' refinement states and the rules of caveclod.v1.
+
+A session outlives its streams (resume). Two threads touch it while a
+stream is attached: the stream's reader (``accept``: poses, acks, keyframe
+requests, close; quick, under ``cond``) and the stream's writer, the
+session's worker (``next_frame``: waits for work inside the ack window, then
+refines every camera that has some and encodes the frame). Refinement runs
+outside ``cond``, so poses keep arriving meanwhile, and under ``writer``, so
+a resume waits for a frame in progress to finish before it decides whether
+the client lost frames.
+
+The per-pose rules (all in the proto's ``Lod.Session`` comment): latest pose
+wins; at most one update per camera per frame; a camera whose last update
+made operations is updated again for the same pose, after ``settle``
+seconds (at once when a budget stopped it), until an update makes none.
+"""
+
+from __future__ import annotations
+
+import threading
+import time
+from dataclasses import dataclass
+
+import grpc
+import numpy as np
+
+from .. import wire
+from ..errors import InputError
+from ..v1 import caveclod_pb2 as pb
+
+
+class Refused(Exception):
+    """Ends a stream with ``code`` and a one-line ``message``."""
+
+    def __init__(self, code: grpc.StatusCode, message: str):
+        super().__init__(message)
+        self.code, self.message = code, message
+
+
+@dataclass
+class End:
+    """Why a stream ends: a status code (OK for a Close) and its message."""
+
+    code: grpc.StatusCode
+    message: str
+    discard: bool            # the session ends too (False: it stays resumable)
+
+
+CLOSED = End(grpc.StatusCode.OK, "", True)
+
+
+@dataclass
+class _Pose:
+    seq: int
+    view: object             # caveclod.View
+    received: float          # time.monotonic() when it arrived
+
+
+class Session:
+    """A set of cameras refining one mesh, and the ack window, poses and keyframes.
+
+    Args:
+        token: the session token.
+        served: the ServedMesh.
+        view_options: View keyword arguments (fov_y, width, height,
+            tolerance_px, cull, backface), already validated.
+        budgets: (max_ops, max_faces), None meaning unlimited.
+        cameras: number of cameras.
+        ack_window: frames in flight before an ack.
+        settle: seconds before a convergence update.
+        hooks: the server's metrics (see :mod:`.metrics`).
+    """
+
+    def __init__(self, token: str, served, view_options: dict, budgets: tuple, cameras: int, ack_window: int,
+                 settle: float, hooks, client: str = ""):
+        self.token, self.served, self.client = token, served, client
+        self.view_options, self.budgets = view_options, budgets
+        self.ack_window, self.settle, self.hooks = ack_window, settle, hooks
+        max_ops, max_faces = budgets
+        self.cams = [served.mesh.new_camera(max_ops=max_ops, max_faces=max_faces) for _ in range(cameras)]
+        self.n_materials = self.cams[0].n_materials
+        self.cond = threading.Condition()
+        self.writer = threading.Lock()
+        self.generation = 0          # bumped by every attach; a writer of an older one stops (ABORTED)
+        self.attached = False
+        self.detached_at = 0.0       # time.monotonic() when the stream broke
+        self.end: End | None = None  # set: the attached stream ends so
+        self.frame_seq = 0           # last frame made (and sent)
+        self.acked = 0
+        self.last_pose_seq = 0
+        self.superseded = 0          # poses replaced since the last frame
+        self.pending: list[_Pose | None] = [None] * cameras
+        self.current: list[_Pose | None] = [None] * cameras     # the pose each camera is refined for
+        self.due: list[float | None] = [None] * cameras         # when a convergence update may run
+        self.keyframes: set[int] = set(range(cameras))          # frame 1 is a keyframe of every camera
+
+    @property
+    def n_cameras(self) -> int:
+        return len(self.cams)
+
+    @property
+    def nbytes(self) -> int:
+        """Bytes of the cameras' states (the static mesh is shared)."""
+        return sum(c.nbytes for c in self.cams)
+
+    # -- streams --------------------------------------------------------------------
+    def attach(self, last_frame_seq: int, view_options: dict | None = None) -> int:
+        """Start a stream on this session; returns its generation.
+
+        A resumed client that missed frames gets a keyframe of every camera;
+        the ack window restarts, since frames in flight on the old stream are
+        gone. The previous stream, if any, ends with ABORTED.
+        """
+        with self.writer, self.cond:        # no frame is half made while we decide
+            self.generation += 1
+            if self.frame_seq and last_frame_seq != self.frame_seq:
+                self.keyframes.update(range(self.n_cameras))
+            self.acked = self.frame_seq
+            if view_options is not None:
+                self.view_options = view_options
+            self.attached, self.end = True, None
+            self.cond.notify_all()
+            return self.generation
+
+    def detach(self, generation: int) -> bool:
+        """The stream of ``generation`` broke; True when the session stays resumable."""
+        with self.cond:
+            if generation != self.generation or not self.attached:
+                return False
+            self.attached = False
+            self.detached_at = time.monotonic()
+            return self.end is None or not self.end.discard
+
+    def finish(self, end: End, generation: int | None = None) -> None:
+        """End the attached stream with ``end`` (only if it is of ``generation``, when given)."""
+        with self.cond:
+            if generation is not None and generation != self.generation:
+                return
+            if self.end is None:
+                self.end = end
+            self.cond.notify_all()
+
+    # -- the reader's side ----------------------------------------------------------
+    def accept(self, msg: pb.ClientMessage, generation: int) -> bool:
+        """Take one client message after Open; raises Refused for a bad one.
+
+        Returns False (and takes nothing) when the stream of ``generation``
+        is no longer the session's: it was resumed elsewhere.
+        """
+        kind = msg.WhichOneof("kind")
+        with self.cond:
+            if generation != self.generation:
+                return False
+            if kind == "pose":
+                self._accept_pose(msg.pose)
+            elif kind == "ack":
+                if msg.ack.frame_seq > self.frame_seq:
+                    raise Refused(grpc.StatusCode.INVALID_ARGUMENT,
+                                  f"Ack of frame {msg.ack.frame_seq}, but the last frame sent is {self.frame_seq}; "
+                                  "ack only frames you applied")
+                self.acked = max(self.acked, msg.ack.frame_seq)
+            elif kind == "keyframe_request":
+                req = msg.keyframe_request
+                if req.HasField("camera"):
+                    self._check_camera(req.camera, "KeyframeRequest")
+                    self.keyframes.add(req.camera)
+                else:
+                    self.keyframes.update(range(self.n_cameras))
+                self.hooks.keyframe_requested(req.reason)
+            elif kind == "close":
+                self.end = CLOSED
+            elif kind == "open":
+                raise Refused(grpc.StatusCode.INVALID_ARGUMENT, "Open sent twice on one stream; send it once, first")
+            else:
+                raise Refused(grpc.StatusCode.INVALID_ARGUMENT,
+                              "a ClientMessage with no message set; set one of open, pose, ack, keyframe_request, close")
+            self.cond.notify_all()
+            return True
+
+    def _check_camera(self, camera: int, what: str) -> None:
+        if camera >= self.n_cameras:
+            raise Refused(grpc.StatusCode.INVALID_ARGUMENT,
+                          f"{what} for camera {camera}, but the session has cameras 0..{self.n_cameras - 1}")
+
+    def _accept_pose(self, p: pb.CameraPose) -> None:
+        from ..refine.view import View
+        self._check_camera(p.camera, "CameraPose")
+        if p.pose_seq <= self.last_pose_seq:
+            raise Refused(grpc.StatusCode.INVALID_ARGUMENT,
+                          f"CameraPose.pose_seq {p.pose_seq} is not above the last one, {self.last_pose_seq}; "
+                          "number poses 1, 2, 3, ... across the session's cameras")
+        try:
+            view = View(eye=wire.from_vec3(p.eye), target=wire.from_vec3(p.target), up=wire.from_vec3(p.up),
+                        **self.view_options)
+        except InputError as exc:
+            raise Refused(grpc.StatusCode.INVALID_ARGUMENT, f"CameraPose {p.pose_seq}: {exc}") from None
+        if self.pending[p.camera] is not None:
+            self.superseded += 1          # latest pose wins
+        self.pending[p.camera] = _Pose(p.pose_seq, view, time.monotonic())
+        self.last_pose_seq = p.pose_seq
+
+    # -- the writer's side ----------------------------------------------------------
+    def next_frame(self, generation: int, stopped, poll: float = 1.0) -> list | End:
+        """Wait for the next frame of the stream ``generation`` and make it.
+
+        Returns its ServerMessages (parts), or the End of the stream.
+        ``stopped()`` says the stream is gone (checked at least every
+        ``poll`` seconds; whoever makes it true should notify ``cond``).
+        """
+        while True:
+            with self.cond:
+                if generation != self.generation:
+                    return End(grpc.StatusCode.ABORTED, "this session was resumed on another stream", False)
+                if self.end is not None:
+                    return self.end
+                if stopped():
+                    return End(grpc.StatusCode.CANCELLED, "the stream broke", False)
+                wait = self._wait_seconds(time.monotonic())
+                if wait > 0:
+                    self.cond.wait(min(wait, poll))
+                    continue
+            parts = self._make_frame(generation)
+            if parts is not None:
+                return parts
+
+    def _wait_seconds(self, now: float) -> float:
+        """0 when a frame should be made now; else how long until one may be due."""
+        if self.frame_seq >= self.acked + self.ack_window:
+            return float("inf")                 # window full: an Ack wakes us
+        if self.keyframes or any(p is not None for p in self.pending):
+            return 0.0
+        due = [d for d in self.due if d is not None]
+        return max(min(due) - now, 0.0) if due else float("inf")
+
+    def _make_frame(self, generation: int) -> list | None:
+        with self.writer:
+            with self.cond:
+                now = time.monotonic()
+                if generation != self.generation or self._wait_seconds(now) > 0:
+                    return None
+                jobs = []
+                for c in range(self.n_cameras):
+                    pose, fresh = self.pending[c], True
+                    if pose is None and self.due[c] is not None and self.due[c] <= now:
+                        pose, fresh = self.current[c], False
+                    if pose is not None or c in self.keyframes:
+                        jobs.append((c, pose, fresh, c in self.keyframes))
+                    self.pending[c] = None
+                self.keyframes.clear()
+                superseded, self.superseded = self.superseded, 0
+                frame_seq, pose_high = self.frame_seq + 1, self.last_pose_seq
+            cameras = [self._refine(c, pose, fresh, keyframe) for c, pose, fresh, keyframe in jobs]
+            now = time.monotonic()
+            for cam, (c, pose, fresh, _) in zip(cameras, jobs):
+                if cam.stats is not None:
+                    age = now - pose.received
+                    cam.stats["pose_age_us"] = int(1e6 * age)
+                    if fresh:
+                        self.hooks.pose_answered(age)
+            parts = wire.frame_parts(frame_seq, pose_high, superseded, cameras)
+            with self.cond:
+                self.frame_seq = frame_seq
+            return parts
+
+    def _refine(self, c: int, pose: _Pose | None, fresh: bool, keyframe: bool) -> wire.CameraFrameData:
+        """One camera's update (when it has a pose to refine for) and its surfaces."""
+        cam = self.cams[c]
+        out = wire.CameraFrameData(camera=c, pose_seq=0, keyframe=keyframe)
+        touched = range(self.n_materials) if keyframe else ()
+        if pose is not None:
+            cpu = time.thread_time()
+            delta = cam.update(pose.view)
+            cpu = time.thread_time() - cpu          # the CPU refinement really used, not wall time
+            self.current[c] = pose
+            converged = delta.operations == 0 and not delta.budget_exhausted
+            self.due[c] = None if converged else time.monotonic() + (0.0 if delta.budget_exhausted else self.settle)
+            out.stats = {"splits": delta.splits, "collapses": delta.collapses,
+                         "update_us": int(1e6 * delta.seconds), "active_faces": cam.n_faces,
+                         "budget_exhausted": delta.budget_exhausted}
+            self.hooks.refined(delta.seconds, delta.operations, cpu)
+            if not keyframe:
+                for m, d in sorted(delta.surfaces.items()):
+                    out.surfaces.append(wire.Surface(m, d.count, d.slots, d.tris,
+                                                     wire.buffer_crc32(cam.index_buffer(m))))
+        for m in touched:                        # a keyframe: every material's whole buffer
+            buf = cam.index_buffer(m)
+            out.surfaces.append(wire.Surface(m, len(buf), np.arange(len(buf), dtype=np.uint32), buf, wire.buffer_crc32(buf)))
+        if self.current[c] is not None:
+            out.pose_seq = self.current[c].seq
+        return out
+
+    def describe(self) -> dict:
+        """Fields for the session's log lines."""
+        return {"session": self.token[:8], "mesh": self.served.name, "cameras": self.n_cameras,
+                "client": self.client, "frame_seq": self.frame_seq, "pose_seq": self.last_pose_seq}

@@ -1,0 +1,151 @@
+"""Every bad input the proto lists ends only the offending stream, with the
+proto's status code and a one-line message; other sessions go on."""
+
+from __future__ import annotations
+
+import math
+import threading
+
+import grpc
+import pytest
+
+from caveclod.v1 import caveclod_pb2 as pb
+
+from service import open_message, pose_message, raw_stream, wait_until
+
+INVALID = grpc.StatusCode.INVALID_ARGUMENT
+EYE, TARGET = (10.0, 10.0, 500.0), (100.0, 100.0, 0.0)
+GARBAGE = b"\xff\xff\xff\xff\x0f garbage \x00\x01"
+
+
+def pose(seq=1, camera=0, eye=EYE, target=TARGET, up=(0, 0, 1)):
+    return pose_message(camera, seq, eye, target, up)
+
+
+BAD_STREAMS = {
+    "garbage first": ([GARBAGE], INVALID),
+    "garbage after Open": ([open_message(), GARBAGE], INVALID),
+    "pose before Open": ([pose()], INVALID),
+    "empty first message": ([b""], INVALID),
+    "empty message after Open": ([open_message(), b""], INVALID),
+    "Open twice": ([open_message(), open_message()], INVALID),
+    "unknown mesh": ([open_message(mesh="nowhere")], grpc.StatusCode.NOT_FOUND),
+    "no cameras": ([open_message(cameras=0)], INVALID),
+    "too many cameras": ([open_message(cameras=5)], INVALID),
+    "zero width": ([open_message(viewport_width=0)], INVALID),
+    "zero height": ([open_message(viewport_height=0)], INVALID),
+    "fov 0": ([open_message(fov_y_deg=0.0)], INVALID),
+    "fov 180": ([open_message(fov_y_deg=180.0)], INVALID),
+    "fov NaN": ([open_message(fov_y_deg=math.nan)], INVALID),
+    "negative tolerance": ([open_message(tolerance_px=-1.0)], INVALID),
+    "infinite tolerance": ([open_message(tolerance_px=math.inf)], INVALID),
+    "max_ops 0": ([open_message(max_ops=0)], INVALID),
+    "max_faces 0": ([open_message(max_faces=0)], INVALID),
+    "camera out of range": ([open_message(cameras=2), pose(camera=2)], INVALID),
+    "pose_seq 0": ([open_message(), pose(seq=0)], INVALID),
+    "pose_seq repeated": ([open_message(), pose(seq=3), pose(seq=3)], INVALID),
+    "pose_seq going back": ([open_message(), pose(seq=3), pose(seq=2)], INVALID),
+    "NaN eye": ([open_message(), pose(eye=(math.nan, 0, 1))], INVALID),
+    "infinite target": ([open_message(), pose(target=(0, math.inf, 0))], INVALID),
+    "eye == target": ([open_message(), pose(eye=TARGET)], INVALID),
+    "up parallel to the view": ([open_message(), pose(eye=(0, 0, 10), target=(0, 0, 0), up=(0, 0, 1))], INVALID),
+    "zero up": ([open_message(), pose(up=(0, 0, 0))], INVALID),
+    "ack of a frame never sent": ([open_message(), pb.ClientMessage(ack=pb.Ack(frame_seq=1000))], INVALID),
+    "keyframe of a camera out of range": (
+        [open_message(cameras=1), pb.ClientMessage(keyframe_request=pb.KeyframeRequest(camera=1))], INVALID),
+    "oversized message": ([b"\x0a" + b"\xff\xff\x07" + b"x" * 200_000], grpc.StatusCode.RESOURCE_EXHAUSTED),
+}
+
+
+@pytest.mark.parametrize("name", list(BAD_STREAMS))
+def test_bad_input_ends_the_stream_with_its_code(server, name):
+    messages, expected = BAD_STREAMS[name]
+    code, details, _ = raw_stream(server.port, messages)
+    assert code == expected, f"{name}: {code} {details}"
+    assert details and "\n" not in details, f"{name}: the message must be one line: {details!r}"
+    # The session is discarded: nothing stays behind.
+    assert wait_until(lambda: not server.sessions.sessions, timeout=5)
+
+
+def test_messages_name_what_was_wrong(server):
+    assert "fov_y" in raw_stream(server.port, [open_message(fov_y_deg=200.0)])[1]
+    assert "nowhere" in raw_stream(server.port, [open_message(mesh="nowhere")])[1]
+    assert "terrain" in raw_stream(server.port, [open_message(mesh="nowhere")])[1]     # what is served
+    assert "pose_seq 3" in raw_stream(server.port, [open_message(), pose(seq=3), pose(seq=3)])[1]
+    assert "1000" in raw_stream(server.port, [open_message(), pb.ClientMessage(ack=pb.Ack(frame_seq=1000))])[1]
+    details = raw_stream(server.port, [GARBAGE])[1]
+    assert "ClientMessage" in details and "INTERNAL" not in details
+
+
+def test_list_meshes_refuses_garbage(server):
+    with grpc.insecure_channel(f"127.0.0.1:{server.port}") as channel:
+        call = channel.unary_unary("/caveclod.v1.Lod/ListMeshes", request_serializer=lambda b: b,
+                                   response_deserializer=pb.ListMeshesResponse.FromString)
+        with pytest.raises(grpc.RpcError) as err:
+            call(GARBAGE, timeout=10)
+        assert err.value.code() == INVALID
+        assert [m.name for m in call(b"", timeout=10).meshes] == ["terrain"]
+
+
+def test_resume_with_another_mesh_or_camera_count_is_refused(server):
+    code, _, responses = raw_stream(server.port, [open_message(cameras=2)], timeout=1.0)
+    token = responses[0].session_info.session_token
+    assert code == grpc.StatusCode.DEADLINE_EXCEEDED and token       # we broke the stream ourselves
+    resume = open_message(cameras=1)
+    resume.open.resume_token = token
+    code, details, _ = raw_stream(server.port, [resume])
+    assert code == INVALID and "cameras" in details
+    assert token not in server.sessions.sessions                       # discarded, as the proto says
+
+
+def test_the_session_limit(make_server):
+    server = make_server(max_sessions=2)
+    from caveclod.client import Client, SessionEnded
+    with Client(f"127.0.0.1:{server.port}", cache_dir=False) as client:
+        a = client.session("terrain", width=64, height=64)
+        b = client.session("terrain", width=64, height=64)
+        with pytest.raises(SessionEnded) as err:
+            client.session("terrain", width=64, height=64)
+        assert err.value.code == grpc.StatusCode.RESOURCE_EXHAUSTED and "2 sessions" in err.value.details
+        a.close()
+        assert wait_until(lambda: len(server.sessions.sessions) == 1)
+        c = client.session("terrain", width=64, height=64)         # room again
+        b.close()
+        c.close()
+
+
+def test_bad_inputs_do_not_disturb_a_healthy_session(server, tmp_path):
+    from caveclod.client import Client
+    from caveclod.paths import flyover
+    stop, seen, errors = threading.Event(), [], []
+
+    def healthy():
+        try:
+            with Client(f"127.0.0.1:{server.port}", cache_dir=tmp_path) as client:
+                with client.session("terrain", width=640, height=360) as s:
+                    lo, hi = s.vertex_buffer.positions.min(0), s.vertex_buffer.positions.max(0)
+                    t = 0.0
+                    while not stop.is_set() and t < 30.0:
+                        s.send_pose(0, *flyover(lo, hi, 0, t))
+                        t += 1 / 30
+                        frame = s.next_frame(timeout=2.0)
+                        seen.append(frame)
+                    seen.append(s.protocol.divergences)
+        except Exception as exc:      # reported below, in the test's thread
+            errors.append(exc)
+
+    thread = threading.Thread(target=healthy)
+    thread.start()
+    try:
+        assert wait_until(lambda: len(seen) > 5)
+        for name, (messages, expected) in BAD_STREAMS.items():
+            assert raw_stream(server.port, messages)[0] == expected, name
+        frames_during = len(seen)
+    finally:
+        stop.set()
+        thread.join(30)
+    assert not errors, errors
+    assert seen[-1] == 0, "divergences in the healthy session"
+    assert all(f is not None for f in seen[:-1]), "the healthy session waited over 2 s for a frame"
+    assert frames_during > 5
+    assert not server.sessions.sessions
