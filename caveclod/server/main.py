@@ -48,13 +48,16 @@ def serve(args) -> int:
     from .app import LodServer
     logs.configure(args.log_format)
     config = config_from_args(args)
+    # Handlers first: a signal that arrives while the server starts (or just
+    # after the listening line, which is when a supervisor may send one)
+    # must drain it, not interrupt Python.
+    stop = threading.Event()
+    for sig in (signal.SIGTERM, signal.SIGINT):
+        signal.signal(sig, lambda signum, frame: stop.set())
     server = LodServer(config).start()
     print(f"listening on {config.host}:{server.port}", flush=True)
     if server.metrics_port is not None:
         logs.event("server.metrics", port=server.metrics_port)
-    stop = threading.Event()
-    for sig in (signal.SIGTERM, signal.SIGINT):
-        signal.signal(sig, lambda signum, frame: stop.set())
     while not stop.wait(1.0):        # a timed wait lets the signal handler run
         pass
     logs.event("server.signal")
