@@ -89,8 +89,9 @@ def _parser() -> argparse.ArgumentParser:
                    help="seconds a session whose stream broke stays resumable (default 30)")
     s.add_argument("--drain-seconds", type=float, default=20.0, metavar="SECONDS",
                    help="grace period of open sessions on SIGTERM/SIGINT (default 20)")
-    s.add_argument("--max-faces", type=int, default=1_000_000,
-                   help="cap on active faces per camera; bounds a camera's memory (default 1,000,000)")
+    s.add_argument("--max-faces", type=int, default=None,
+                   help="cap on active faces per camera (default: none; a camera's memory is bounded by the "
+                        "mesh's size anyway)")
     s.add_argument("--max-ops", type=int, default=None,
                    help="cap on split+collapse operations per camera update (default: none)")
     s.add_argument("--metrics-port", type=int, default=None, metavar="P",

@@ -93,7 +93,9 @@ class CameraState:
     def __init__(self, mesh, max_ops: int | None = None, max_faces: int | None = None, expiries: bool = True):
         self.mesh = mesh
         self.max_ops = UNLIMITED if max_ops is None else int(max_ops)
-        self.max_faces = UNLIMITED if max_faces is None else int(max_faces)
+        # A face budget the mesh cannot reach is no budget (and keeps the
+        # single pass with expiries).
+        self.max_faces = UNLIMITED if max_faces is None or max_faces >= mesh.n_faces else int(max_faces)
         self.expiries = bool(expiries) and self.max_ops == UNLIMITED and self.max_faces == UNLIMITED
         a = {k: np.asarray(v) for k, v in mesh.arrays.items()}   # plain views of the maps
         self._static = (

@@ -49,15 +49,20 @@ class View:
     backface: bool = False
 
     def __post_init__(self):
+        # Plain floats throughout: a server builds a View for every pose it
+        # receives, and numpy's small-vector calls cost more than the rest
+        # of its handling of a pose.
         for name in ("eye", "target", "up"):
             v = getattr(self, name)
             try:
-                arr = np.asarray(v, dtype=np.float64).reshape(3)
+                t = tuple(float(x) for x in v)
             except (TypeError, ValueError):
                 raise InputError(f"View.{name} must be three numbers, got {v!r}") from None
-            if not np.isfinite(arr).all():
+            if len(t) != 3:
+                raise InputError(f"View.{name} must be three numbers, got {v!r}")
+            if not all(math.isfinite(x) for x in t):
                 raise InputError(f"View.{name} is not finite ({v!r}); send a pose without NaN or infinity")
-            object.__setattr__(self, name, tuple(float(x) for x in arr))
+            object.__setattr__(self, name, t)
         for name, kind in (("fov_y", float), ("tolerance_px", float), ("width", int), ("height", int)):
             value = getattr(self, name)
             try:
@@ -67,16 +72,16 @@ class View:
             if kind is float and not math.isfinite(number):
                 raise InputError(f"View.{name} must be finite, got {value!r}")
             object.__setattr__(self, name, number)
-        if not 0.0 < float(self.fov_y) < 180.0:
+        if not 0.0 < self.fov_y < 180.0:
             raise InputError(f"View.fov_y must be between 0 and 180 degrees, got {self.fov_y}")
-        if int(self.width) < 1 or int(self.height) < 1:
+        if self.width < 1 or self.height < 1:
             raise InputError(f"View viewport must be at least 1x1 pixels, got {self.width}x{self.height}")
-        if float(self.tolerance_px) < 0:
+        if self.tolerance_px < 0:
             raise InputError(f"View.tolerance_px must be >= 0, got {self.tolerance_px}")
-        forward = np.subtract(self.target, self.eye)
-        if np.linalg.norm(forward) == 0.0:
+        forward = tuple(a - b for a, b in zip(self.target, self.eye))
+        if _norm(forward) == 0.0:
             raise InputError("View.eye and View.target are the same point; look somewhere")
-        if np.linalg.norm(np.cross(forward, self.up)) <= 1e-12 * np.linalg.norm(forward) * np.linalg.norm(self.up):
+        if _norm(_cross(forward, self.up)) <= 1e-12 * _norm(forward) * _norm(self.up):
             raise InputError("View.up is parallel to the viewing direction (or zero); give an up vector across it")
 
     @classmethod
@@ -117,6 +122,10 @@ def _cross(a, b) -> tuple:
     return (a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0])
 
 
+def _norm(a) -> float:
+    return math.sqrt(a[0] * a[0] + a[1] * a[1] + a[2] * a[2])
+
+
 def _unit(a) -> tuple:
-    n = math.sqrt(a[0] * a[0] + a[1] * a[1] + a[2] * a[2])
+    n = _norm(a)
     return (a[0] / n, a[1] / n, a[2] / n)

@@ -32,7 +32,8 @@ class ServerConfig:
         resume_ttl: seconds a session whose stream broke stays resumable.
         drain_seconds: grace period of open sessions after SIGTERM/SIGINT.
         max_faces: cap on active faces per camera (a client's max_faces is
-            clamped to it); bounds a camera's memory.
+            clamped to it), or None. A camera's memory is bounded by the
+            mesh anyway (at most Equation 1's 4n + 4p + 12 n + 36 p).
         max_ops: cap on operations per camera update, or None (unlimited).
         metrics_port: Prometheus exporter port, or None for none.
         metrics_host: address the exporter listens on.
@@ -53,7 +54,7 @@ class ServerConfig:
     ack_window: int = 4
     resume_ttl: int = 30
     drain_seconds: float = 20.0
-    max_faces: int = 1_000_000
+    max_faces: int | None = None
     max_ops: int | None = None
     metrics_port: int | None = None
     metrics_host: str = "0.0.0.0"

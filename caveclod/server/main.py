@@ -20,8 +20,8 @@ def config_from_args(args) -> ServerConfig:
     """A ServerConfig from the parsed ``caveclod serve`` arguments; InputError for bad ones."""
     if (args.tls_cert is None) != (args.tls_key is None):
         raise InputError("--tls-cert and --tls-key go together; give both (PEM files) or neither")
-    for name in ("max_sessions", "max_cameras", "ack_window", "max_faces"):
-        if getattr(args, name) < 1:
+    for name in ("max_sessions", "max_cameras", "ack_window", "max_faces", "max_ops"):
+        if getattr(args, name) is not None and getattr(args, name) < 1:
             raise InputError(f"--{name.replace('_', '-')} must be at least 1, got {getattr(args, name)}")
     if args.resume_ttl < 0 or args.drain_seconds < 0:
         raise InputError("--resume-ttl and --drain-seconds must be >= 0")

@@ -99,7 +99,8 @@ class Sessions:
         max_ops, max_faces = opts["max_ops"], opts["max_faces"]
         if self.config.max_ops is not None:
             max_ops = min(max_ops or self.config.max_ops, self.config.max_ops)
-        max_faces = min(max_faces or self.config.max_faces, self.config.max_faces)
+        if self.config.max_faces is not None:
+            max_faces = min(max_faces or self.config.max_faces, self.config.max_faces)
         return view, (max_ops, max_faces)
 
     # -- ends ----------------------------------------------------------------------------
