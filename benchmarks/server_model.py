@@ -5,12 +5,13 @@
 Two servers of the same sessions (caveclod.server.session and .registry:
 the same refinement, the same encoding), differing only in their I/O:
 
-* **sync**: what ``caveclod serve`` runs. A grpc.server whose pool thread
-  per stream is the session's worker: it waits for work, refines, encodes
-  and writes; a reader thread per stream takes poses and acks.
-* **aio**: grpc.aio on one event loop, which reads and writes every
-  stream; each session's wait-refine-encode step is handed to a thread of
-  a pool (``run_in_executor``), so refinement still runs outside the loop.
+* **aio**: what ``caveclod serve`` runs. grpc.aio on one event loop, which
+  reads and writes every stream; frames are made on a pool of worker
+  threads (quick ones on the loop itself).
+* **sync**: a grpc.server whose pool thread per stream is the session's
+  worker: it waits for work, refines, encodes and writes; a reader thread
+  per stream takes poses and acks. Kept here, not in the package, as the
+  model measured against.
 
 For each load level, the two run one after the other, ``--repeats`` times
 interleaved (sync, aio, sync, aio, ...), so the drift of this shared machine
@@ -22,7 +23,6 @@ against a fresh server process. Writes ``benchmarks/results/server_model.json``.
 from __future__ import annotations
 
 import argparse
-import asyncio
 import json
 import statistics
 import sys
@@ -34,10 +34,9 @@ sys.path.insert(0, str(Path(__file__).parent))
 from service import RESULTS, capacity, mesh_path  # noqa: E402
 
 
-def serve_aio(argv: list) -> int:
-    """Serve like ``caveclod serve ARGS`` (a subset of its options), on grpc.aio."""
+def serve_sync(argv: list) -> int:
+    """Serve like ``caveclod serve ARGS`` (a subset of its options), a thread per stream."""
     import grpc
-    import grpc.aio
 
     from caveclod import wire
     from caveclod.cli import _parser
@@ -46,7 +45,7 @@ def serve_aio(argv: list) -> int:
     from caveclod.server.meshes import Catalogue
     from caveclod.server.metrics import Metrics
     from caveclod.server.registry import Sessions
-    from caveclod.server.service import SERVICE, LodService
+    from caveclod.server.service import SERVICE
     from caveclod.server.session import CLOSED, End, Refused
     from caveclod.v1 import caveclod_pb2 as pb
 
@@ -55,94 +54,100 @@ def serve_aio(argv: list) -> int:
     config = config_from_args(args)
     catalogue, metrics = Catalogue(config.meshes), Metrics()
     sessions = Sessions(config, catalogue, metrics, logs.event)
-    pool = ThreadPoolExecutor(max_workers=config.max_sessions + 16)
 
-    class AioLodService:
-        def __init__(self):
-            self.sessions, self.catalogue, self.metrics = sessions, catalogue, metrics
+    def start(session, opened, resumed):
+        served = session.served
+        cached = opened.vertex_buffer_hash == served.mesh.vertex_buffer_hash
+        yield wire.session_info(
+            token=session.token, resumed=resumed, mesh=served.info, vertex_format=served.vertex_format,
+            vertex_buffer_cached=cached, vertex_payload_crc32=served.payload_crc32,
+            view_options=session.view_options, budgets=session.budgets, cameras=session.n_cameras,
+            ack_window=session.ack_window, resume_ttl_s=config.resume_ttl, last_frame_seq=0, last_pose_seq=0)
+        if not cached:
+            yield from served.vertex_chunks()
 
-        async def ListMeshes(self, request, context):
-            return catalogue.listing()
+    def session_rpc(requests, context):
+        first = next(requests, None)
+        if first is None or isinstance(first, wire.WireError) or first.WhichOneof("kind") != "open":
+            context.abort(grpc.StatusCode.INVALID_ARGUMENT, "the first message must be Open")
+        try:
+            session, generation, resumed = sessions.open(first.open)
+        except Refused as r:
+            context.abort(r.code, r.message)
+        stopped = threading.Event()
 
-        async def Session(self, requests, context):
-            loop = asyncio.get_running_loop()
-            first = await requests.__anext__()
-            if isinstance(first, wire.WireError) or first.WhichOneof("kind") != "open":
-                await context.abort(grpc.StatusCode.INVALID_ARGUMENT, "the first message must be Open")
+        def wake():
+            with session.cond:
+                session.cond.notify_all()
+
+        def on_done():
+            stopped.set()
+            wake()
+
+        context.add_callback(on_done)
+
+        def read():
             try:
-                session, generation, resumed = await loop.run_in_executor(pool, sessions.open, first.open)
+                for msg in requests:
+                    if isinstance(msg, wire.WireError):
+                        raise Refused(grpc.StatusCode.INVALID_ARGUMENT, str(msg))
+                    if not session.accept(msg, generation):
+                        return
+                session.finish(CLOSED, generation)
             except Refused as r:
-                await context.abort(r.code, r.message)
-            stopped = threading.Event()
+                session.finish(End(r.code, r.message, True), generation)
+            except grpc.RpcError:
+                pass
 
-            def stop():
-                stopped.set()
-                with session.cond:
-                    session.cond.notify_all()
+        threading.Thread(target=read, daemon=True).start()
+        end = End(grpc.StatusCode.CANCELLED, "the stream broke", False)
+        try:
+            yield from start(session, first.open, resumed)
+            while True:
+                due = session.poll(generation, stopped.is_set)
+                if isinstance(due, End):
+                    end = due
+                    break
+                if due > 0.0:
+                    with session.cond:          # a pose, an ack or the end notifies cond
+                        session.cond.wait(min(due, 1.0))
+                    continue
+                parts = session.make_frame(generation)
+                if parts is not None:
+                    metrics.frame_sent(sum(p.ByteSize() for p in parts))
+                    yield from parts
+        finally:
+            sessions.stream_ended(session, generation, end)
+        if end.code not in (grpc.StatusCode.OK, grpc.StatusCode.CANCELLED):
+            context.abort(end.code, end.message)
 
-            async def read():
-                try:
-                    async for msg in requests:
-                        if isinstance(msg, wire.WireError):
-                            raise Refused(grpc.StatusCode.INVALID_ARGUMENT, str(msg))
-                        if not session.accept(msg, generation):
-                            return
-                    session.finish(CLOSED, generation)
-                except Refused as r:
-                    session.finish(End(r.code, r.message, True), generation)
-                except (grpc.RpcError, asyncio.CancelledError):
-                    stop()
-
-            reader = asyncio.ensure_future(read())
-            end = End(grpc.StatusCode.CANCELLED, "the stream broke", False)
-            try:
-                for msg in LodService._start(self, session, first.open, resumed):
-                    await context.write(msg)
-                while True:
-                    out = await loop.run_in_executor(pool, session.next_frame, generation, stopped.is_set)
-                    if isinstance(out, End):
-                        end = out
-                        break
-                    metrics.frame_sent(sum(p.ByteSize() for p in out))
-                    for part in out:
-                        await context.write(part)
-            finally:
-                stop()
-                reader.cancel()
-                sessions.stream_ended(session, generation, end)
-            if end.code not in (grpc.StatusCode.OK, grpc.StatusCode.CANCELLED):
-                await context.abort(end.code, end.message)
-
-    async def main():
-        service = AioLodService()
-        server = grpc.aio.server(options=[("grpc.max_receive_message_length", 64 * 1024)])
-        server.add_generic_rpc_handlers((grpc.method_handlers_generic_handler(SERVICE, {
-            "Session": grpc.stream_stream_rpc_method_handler(
-                service.Session, request_deserializer=wire.parse_client_message,
-                response_serializer=pb.ServerMessage.SerializeToString),
-            "ListMeshes": grpc.unary_unary_rpc_method_handler(
-                service.ListMeshes, request_deserializer=wire.parse_list_request,
-                response_serializer=pb.ListMeshesResponse.SerializeToString)}),))
-        port = server.add_insecure_port(f"{config.host}:{config.port}")
-        await server.start()
-        print(f"listening on {config.host}:{port}", flush=True)
-        logs.event("server.metrics", port=metrics.serve(config.metrics_host, config.metrics_port))
-        from caveclod.refine.view import View
-        for served in catalogue.meshes.values():          # the kernels, as LodServer's warm-up does
-            lo, hi = served.info.bounds_min, served.info.bounds_max
-            served.mesh.new_camera().update(View(eye=(hi.x, hi.y, hi.z + 1.0), target=(lo.x, lo.y, lo.z)))
-            served.payload_crc32
-        sessions.ready.set()
-        logs.event("server.ready")
-        await server.wait_for_termination()
-
-    asyncio.run(main())
+    server = grpc.server(ThreadPoolExecutor(max_workers=config.max_sessions + 16),
+                         options=[("grpc.max_receive_message_length", 64 * 1024)])
+    server.add_generic_rpc_handlers((grpc.method_handlers_generic_handler(SERVICE, {
+        "Session": grpc.stream_stream_rpc_method_handler(
+            session_rpc, request_deserializer=wire.parse_client_message,
+            response_serializer=pb.ServerMessage.SerializeToString),
+        "ListMeshes": grpc.unary_unary_rpc_method_handler(
+            lambda request, context: catalogue.listing(), request_deserializer=wire.parse_list_request,
+            response_serializer=pb.ListMeshesResponse.SerializeToString)}),))
+    port = server.add_insecure_port(f"{config.host}:{config.port}")
+    server.start()
+    print(f"listening on {config.host}:{port}", flush=True)
+    logs.event("server.metrics", port=metrics.serve(config.metrics_host, config.metrics_port))
+    from caveclod.refine.view import View
+    for served in catalogue.meshes.values():          # the kernels, as LodServer's warm-up does
+        lo, hi = served.info.bounds_min, served.info.bounds_max
+        served.mesh.new_camera().update(View(eye=(hi.x, hi.y, hi.z + 1.0), target=(lo.x, lo.y, lo.z)))
+        served.payload_crc32
+    sessions.ready.set()
+    logs.event("server.ready")
+    server.wait_for_termination()
     return 0
 
 
 def main() -> int:
-    if len(sys.argv) > 1 and sys.argv[1] == "--serve-aio":
-        return serve_aio(sys.argv[2:])
+    if len(sys.argv) > 1 and sys.argv[1] == "--serve-sync":
+        return serve_sync(sys.argv[2:])
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--size", type=int, default=708)
     ap.add_argument("--sessions", default="24,40", help="load levels, comma-separated")
@@ -150,11 +155,11 @@ def main() -> int:
     ap.add_argument("--repeats", type=int, default=3)
     args = ap.parse_args()
     mesh = mesh_path(args.size)
-    aio = [sys.executable, str(Path(__file__).resolve()), "--serve-aio"]
+    sync = [sys.executable, str(Path(__file__).resolve()), "--serve-sync"]
     runs = []
     for repeat in range(args.repeats):
         for n in (int(x) for x in args.sessions.split(",")):
-            for model, command in (("sync", None), ("aio", aio)):
+            for model, command in (("aio", None), ("sync", sync)):
                 r = capacity(mesh, n, args.duration, command=command)
                 r.pop("latencies_ms")
                 r.update(model=model, repeat=repeat)
@@ -165,7 +170,7 @@ def main() -> int:
                       f"(refine {r['server_refine_cpu_cores']})  loadtest cpu {r['client_cpu_cores']}  "
                       f"errors {r['errors']}", file=sys.stderr, flush=True)
     summary = {}
-    for model in ("sync", "aio"):
+    for model in ("aio", "sync"):
         for n in sorted({r["sessions"] for r in runs}):
             mine = [r for r in runs if r["model"] == model and r["sessions"] == n]
             med = lambda f: round(statistics.median(f(r) for r in mine), 2)      # noqa: E731

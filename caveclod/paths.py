@@ -26,8 +26,6 @@ from __future__ import annotations
 import math
 from typing import NamedTuple
 
-import numpy as np
-
 
 class Pose(NamedTuple):
     """A camera pose: eye, a point looked at, and an up direction (3 floats each)."""
@@ -39,17 +37,16 @@ class Pose(NamedTuple):
 
 UP = (0.0, 0.0, 1.0)
 
+# Plain floats: a load generator computes a pose per camera 30 times a second
+# for dozens of sessions, and numpy's small-array calls cost ten times more.
+
 
 def _box(lo, hi):
-    lo, hi = np.asarray(lo, float), np.asarray(hi, float)
-    extent = float(max(hi[0] - lo[0], hi[1] - lo[1], 1e-9))
-    centre = 0.5 * (lo + hi)
+    lo, hi = tuple(float(v) for v in lo), tuple(float(v) for v in hi)
+    extent = max(hi[0] - lo[0], hi[1] - lo[1], 1e-9)
+    centre = tuple(0.5 * (a + b) for a, b in zip(lo, hi))
     terrain = (hi[2] - lo[2]) < extent / 3.0
     return lo, hi, extent, centre, terrain
-
-
-def _pose(eye, target, up=UP) -> Pose:
-    return Pose(tuple(float(v) for v in eye), tuple(float(v) for v in target), tuple(float(v) for v in up))
 
 
 def flyover(lo, hi, camera: int, t: float, *, seconds_per_lap: float = 60.0) -> Pose:
@@ -61,15 +58,16 @@ def flyover(lo, hi, camera: int, t: float, *, seconds_per_lap: float = 60.0) -> 
     """
     lo, hi, extent, _, _ = _box(lo, hi)
     quadrant = camera % 4
-    centre = lo[:2] + (hi[:2] - lo[:2]) * np.array([0.25 + 0.5 * (quadrant % 2), 0.25 + 0.5 * (quadrant // 2)])
+    cx = lo[0] + (hi[0] - lo[0]) * (0.25 + 0.5 * (quadrant % 2))
+    cy = lo[1] + (hi[1] - lo[1]) * (0.25 + 0.5 * (quadrant // 2))
     radius = 0.2 * extent
     direction = 1.0 if camera % 2 == 0 else -1.0
     phase = direction * 2.0 * math.pi * t / seconds_per_lap + camera * 1.3
-    eye_xy = centre + radius * np.array([math.cos(phase), math.sin(phase)])
-    heading = np.array([-math.sin(phase), math.cos(phase)]) * direction
-    eye = np.r_[eye_xy, hi[2] + 0.1 * extent]
-    target = np.r_[eye_xy + 0.1 * extent * heading, 0.5 * (lo[2] + hi[2])]
-    return _pose(eye, target)
+    ex, ey = cx + radius * math.cos(phase), cy + radius * math.sin(phase)
+    hx, hy = -math.sin(phase) * direction, math.cos(phase) * direction
+    eye = (ex, ey, hi[2] + 0.1 * extent)
+    target = (ex + 0.1 * extent * hx, ey + 0.1 * extent * hy, 0.5 * (lo[2] + hi[2]))
+    return Pose(eye, target, UP)
 
 
 def circle(lo, hi, camera: int, t: float, *, seconds_per_lap: float = 60.0) -> Pose:
@@ -81,10 +79,9 @@ def circle(lo, hi, camera: int, t: float, *, seconds_per_lap: float = 60.0) -> P
     lo, hi, extent, centre, terrain = _box(lo, hi)
     phase = 2.0 * math.pi * t / seconds_per_lap + camera * 0.5 * math.pi
     radius = (0.45 if terrain else 1.5) * extent
-    eye = centre + radius * np.array([math.cos(phase), math.sin(phase), 0.0])
-    if terrain:
-        eye[2] = hi[2] + 0.15 * extent
-    return _pose(eye, centre)
+    eye = (centre[0] + radius * math.cos(phase), centre[1] + radius * math.sin(phase),
+           hi[2] + 0.15 * extent if terrain else centre[2])
+    return Pose(eye, centre, UP)
 
 
 def rotate(lo, hi, camera: int, t: float, *, period: float = 8.0, degrees: float = 15.0) -> Pose:
@@ -95,14 +92,12 @@ def rotate(lo, hi, camera: int, t: float, *, period: float = 8.0, degrees: float
     lo, hi, extent, centre, terrain = _box(lo, hi)
     around = camera * 0.5 * math.pi - 0.5 * math.pi
     distance = (0.6 if terrain else 1.5) * extent
-    eye = centre + distance * np.array([math.cos(around), math.sin(around), 0.0])
-    if terrain:
-        eye[2] = hi[2] + 0.1 * extent
+    eye = (centre[0] + distance * math.cos(around), centre[1] + distance * math.sin(around),
+           hi[2] + 0.1 * extent if terrain else centre[2])
     swing = math.radians(degrees) * math.sin(2.0 * math.pi * t / period)
-    look = centre - eye
+    lx, ly, lz = centre[0] - eye[0], centre[1] - eye[1], centre[2] - eye[2]
     c, s = math.cos(swing), math.sin(swing)
-    look = np.array([c * look[0] - s * look[1], s * look[0] + c * look[1], look[2]])
-    return _pose(eye, eye + look)
+    return Pose(eye, (eye[0] + c * lx - s * ly, eye[1] + s * lx + c * ly, eye[2] + lz), UP)
 
 
 def line(lo, hi, camera: int, t: float, *, seconds: float = 20.0) -> Pose:
@@ -116,16 +111,15 @@ def line(lo, hi, camera: int, t: float, *, seconds: float = 20.0) -> Pose:
     phase = (t / seconds) % 2.0
     s = phase if phase <= 1.0 else 2.0 - phase        # 0 -> 1 -> 0
     angle = camera * 0.5 * math.pi
-    d = np.array([math.cos(angle), math.sin(angle), 0.0])
+    dx, dy = math.cos(angle), math.sin(angle)
     if terrain:
-        eye = centre + (s - 0.5) * 0.9 * extent * d
-        eye[2] = hi[2] + 0.1 * extent
-        forward = d if phase <= 1.0 else -d
-        target = eye + 0.1 * extent * forward
-        target[2] = 0.5 * (lo[2] + hi[2])
-        return _pose(eye, target)
+        k = (s - 0.5) * 0.9 * extent
+        eye = (centre[0] + k * dx, centre[1] + k * dy, hi[2] + 0.1 * extent)
+        forward = 1.0 if phase <= 1.0 else -1.0
+        target = (eye[0] + 0.1 * extent * forward * dx, eye[1] + 0.1 * extent * forward * dy, 0.5 * (lo[2] + hi[2]))
+        return Pose(eye, target, UP)
     distance = (2.0 - 1.4 * s) * extent
-    return _pose(centre - distance * d, centre)
+    return Pose((centre[0] - distance * dx, centre[1] - distance * dy, centre[2]), centre, UP)
 
 
 PATHS = {"flyover": flyover, "circle": circle, "rotate": rotate, "line": line}

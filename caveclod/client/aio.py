@@ -170,17 +170,24 @@ class AsyncSession:
 
         A timeout may leave a frame half-received; the next call goes on
         with it. Raises SessionEnded when the stream cannot be resumed.
+        Without a timeout no timer is armed (a load generator reads
+        thousands of frames a second).
         """
         deadline = None if timeout is None else time.monotonic() + timeout
         while True:
-            remaining = None if deadline is None else deadline - time.monotonic()
-            if remaining is not None and remaining <= 0:
-                return None
-            try:
-                # shield: a timeout must not cancel the read itself (grpc.aio would end the call)
-                update = await asyncio.wait_for(asyncio.shield(self._pending_read()), remaining)
-            except asyncio.TimeoutError:
-                return None
+            read = self._pending_read()
+            if deadline is None:
+                update = await read
+            else:
+                remaining = deadline - time.monotonic()
+                if remaining <= 0:
+                    return None
+                # asyncio.wait, not wait_for: a timeout must not cancel the
+                # read itself (grpc.aio would end the call).
+                done, _ = await asyncio.wait((read,), timeout=remaining)
+                if not done:
+                    return None
+                update = read.result()
             self._read_task = None
             if update is not None:
                 return update
@@ -201,13 +208,20 @@ class AsyncSession:
         """Ask for full buffers of ``camera`` (None: every camera)."""
         self._stream.send(self.protocol.keyframe_message(camera, reason, detail))
 
-    async def close(self, reason: str = "", timeout: float = 5.0) -> None:
-        """Send Close and wait (up to ``timeout``) for the server to end the stream."""
+    def begin_close(self, reason: str = "") -> None:
+        """Send Close without waiting: the server then ends the stream, and
+        a pending :meth:`next_frame` raises SessionEnded with code None."""
         if self._closed or self._stream is None:
             return
         self._closed = True
         self._stream.send(self.protocol.close_message(reason))
         self._stream.requests.put_nowait(None)
+
+    async def close(self, reason: str = "", timeout: float = 5.0) -> None:
+        """Send Close and wait (up to ``timeout``) for the server to end the stream."""
+        if self._closed or self._stream is None:
+            return
+        self.begin_close(reason)
         async def until_end():
             if self._read_task is not None:
                 await asyncio.gather(self._read_task, return_exceptions=True)

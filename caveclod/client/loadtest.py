@@ -78,27 +78,35 @@ async def _fly(session: AsyncSession, index: int, args, lo, hi, t0: float, tally
 async def _receive(session: AsyncSession, until: float, timed_from: float, tally: Tally) -> None:
     """Apply frames until ``until`` (perf_counter), recording what they cost.
 
-    Latencies are recorded from ``timed_from`` on: the first poses refine
-    every camera up from the base mesh, which is not the steady state.
+    At ``until`` the session sends Close; the server then ends the stream,
+    which ends this loop (no timer per frame: at hundreds of frames a second
+    they cost the generator more than the frames). Latencies are recorded
+    from ``timed_from`` on: the first poses refine every camera up from the
+    base mesh, which is not the steady state.
     """
-    while True:
-        left = until - time.perf_counter()
-        if left <= 0:
-            return
-        frame = await session.next_frame(timeout=left)
-        if frame is None:
-            continue
-        tally.frames += 1
-        tally.bytes += frame.nbytes
-        keyframe = any(cam.keyframe for cam in frame.cameras.values())
-        if keyframe:
-            tally.keyframes += 1
-        else:
-            tally.delta_frames += 1
-            tally.delta_bytes += frame.nbytes
-            tally.delta_triangles += sum(cam.triangles_written for cam in frame.cameras.values())
-        if time.perf_counter() >= timed_from:
-            tally.latencies.extend(cam.latency for cam in frame.cameras.values() if cam.latency is not None)
+    loop = asyncio.get_running_loop()
+    closing = loop.call_later(max(until - time.perf_counter(), 0.0), session.begin_close, "loadtest done")
+    try:
+        while True:
+            try:
+                frame = await session.next_frame()
+            except SessionEnded as end:
+                if end.code is None:          # our Close, answered
+                    return
+                raise
+            tally.frames += 1
+            tally.bytes += frame.nbytes
+            keyframe = any(cam.keyframe for cam in frame.cameras.values())
+            if keyframe:
+                tally.keyframes += 1
+            else:
+                tally.delta_frames += 1
+                tally.delta_bytes += frame.nbytes
+                tally.delta_triangles += sum(cam.triangles_written for cam in frame.cameras.values())
+            if time.perf_counter() >= timed_from:
+                tally.latencies.extend(cam.latency for cam in frame.cameras.values() if cam.latency is not None)
+    finally:
+        closing.cancel()
 
 
 async def _one(client: AsyncClient, index: int, args, mesh, tally: Tally, t0: float) -> None:
@@ -113,7 +121,6 @@ async def _one(client: AsyncClient, index: int, args, mesh, tally: Tally, t0: fl
             await _receive(session, t0 + args.duration + TAIL_SECONDS, t0 + args.warmup, tally)
         finally:
             flying.cancel()
-        await session.close("loadtest done")
     except SessionEnded as exc:
         tally.errors[exc.code.name if exc.code is not None else "ENDED"] += 1
     finally:

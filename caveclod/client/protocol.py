@@ -115,6 +115,7 @@ class SessionProtocol:
         self.vertex: VertexBuffer | None = None
         self.buffers: IndexBuffers | None = None
         self.last_applied = 0            # frame_seq of the last frame applied in full
+        self.last_acked = 0              # frame_seq of the last Ack sent
         self.pose_seq = 0                # last pose_seq sent
         self.divergences = 0             # CRC mismatches found
         self.bad_frames = 0
@@ -197,6 +198,7 @@ class SessionProtocol:
             self.last_applied = 0
             self._asked.clear()
             self._answered = [0] * self.n_cameras
+        self.last_acked = self.last_applied   # the server restarts its window at every SessionInfo
         self._frame = None
         self.pose_seq = max(self.pose_seq, info.last_pose_seq)
         out = []
@@ -279,7 +281,11 @@ class SessionProtocol:
         self._frame = None
         self._check_crcs(update, out)
         self.last_applied = update.frame_seq
-        out.append(pb.ClientMessage(ack=pb.Ack(frame_seq=update.frame_seq)))
+        # Ack every half window (every frame for a window of 1): the server
+        # never waits, and the stream carries half as many acks.
+        if update.frame_seq - self.last_acked >= max(1, self.info.ack_window // 2):
+            out.append(pb.ClientMessage(ack=pb.Ack(frame_seq=update.frame_seq)))
+            self.last_acked = update.frame_seq
         return out, update
 
     def _camera_part(self, cf: pb.CameraFrame, update: FrameUpdate, now: float, out: list) -> None:

@@ -165,8 +165,10 @@ class CameraState:
 
     def _trim(self) -> None:
         """Give back room a pass no longer uses (after a jump to a coarser
-        view): halve what is more than twice the need, so that the camera's
-        bytes follow its active counts (Equation 1) without thrashing."""
+        view): what is more than twice the need goes, so that a camera at
+        rest holds the bytes its active counts call for (Equation 1). Run
+        only after an update that changed nothing: a moving camera's counts
+        swing, and trimming then grows the arrays again a moment later."""
         n = int(self.n_active[0])
         if len(self.active) > max(2 * n, 32):
             size = n + n // 4 + 8
@@ -234,7 +236,8 @@ class CameraState:
             if self.counts[0] + self.counts[1] < self.max_ops:
                 self._pass(vp, K.COLLAPSES_ONLY)
         delta = self._collect_delta()
-        self._trim()
+        if not self.counts[0] + self.counts[1]:
+            self._trim()              # at rest: a moving camera would only grow again
         delta.splits, delta.collapses = int(self.counts[0]), int(self.counts[1])
         delta.budget_exhausted = bool(self.counts[2])
         delta.tested = int(self.counts[3])

@@ -52,17 +52,10 @@ class View:
         # Plain floats throughout: a server builds a View for every pose it
         # receives, and numpy's small-vector calls cost more than the rest
         # of its handling of a pose.
-        for name in ("eye", "target", "up"):
-            v = getattr(self, name)
-            try:
-                t = tuple(float(x) for x in v)
-            except (TypeError, ValueError):
-                raise InputError(f"View.{name} must be three numbers, got {v!r}") from None
-            if len(t) != 3:
-                raise InputError(f"View.{name} must be three numbers, got {v!r}")
-            if not all(math.isfinite(x) for x in t):
-                raise InputError(f"View.{name} is not finite ({v!r}); send a pose without NaN or infinity")
-            object.__setattr__(self, name, t)
+        eye, target, up = check_pose(self.eye, self.target, self.up)
+        object.__setattr__(self, "eye", eye)
+        object.__setattr__(self, "target", target)
+        object.__setattr__(self, "up", up)
         for name, kind in (("fov_y", float), ("tolerance_px", float), ("width", int), ("height", int)):
             value = getattr(self, name)
             try:
@@ -78,11 +71,6 @@ class View:
             raise InputError(f"View viewport must be at least 1x1 pixels, got {self.width}x{self.height}")
         if self.tolerance_px < 0:
             raise InputError(f"View.tolerance_px must be >= 0, got {self.tolerance_px}")
-        forward = tuple(a - b for a, b in zip(self.target, self.eye))
-        if _norm(forward) == 0.0:
-            raise InputError("View.eye and View.target are the same point; look somewhere")
-        if _norm(_cross(forward, self.up)) <= 1e-12 * _norm(forward) * _norm(self.up):
-            raise InputError("View.up is parallel to the viewing direction (or zero); give an up vector across it")
 
     @classmethod
     def from_pose(cls, pose, **options) -> "View":
@@ -116,6 +104,33 @@ class View:
         vp.flags.writeable = False
         object.__setattr__(self, "_params", vp)
         return vp
+
+
+def check_pose(eye, target, up) -> tuple[tuple, tuple, tuple]:
+    """``(eye, target, up)`` as float triples; InputError (one line) for a pose
+    no camera can take: not three numbers each, NaN or infinite, eye ==
+    target, or up parallel to the viewing direction (or zero).
+
+    Plain floats: a server checks every pose it receives, most of which a
+    newer one replaces before any refinement reads it.
+    """
+    out = []
+    for name, v in (("eye", eye), ("target", target), ("up", up)):
+        try:
+            x, y, z = v
+            t = (float(x), float(y), float(z))
+        except (TypeError, ValueError):
+            raise InputError(f"View.{name} must be three numbers, got {v!r}") from None
+        if not (math.isfinite(t[0]) and math.isfinite(t[1]) and math.isfinite(t[2])):
+            raise InputError(f"View.{name} is not finite ({v!r}); send a pose without NaN or infinity")
+        out.append(t)
+    eye, target, up = out
+    forward = (target[0] - eye[0], target[1] - eye[1], target[2] - eye[2])
+    if _norm(forward) == 0.0:
+        raise InputError("View.eye and View.target are the same point; look somewhere")
+    if _norm(_cross(forward, up)) <= 1e-12 * _norm(forward) * _norm(up):
+        raise InputError("View.up is parallel to the viewing direction (or zero); give an up vector across it")
+    return eye, target, up
 
 
 def _cross(a, b) -> tuple:

@@ -4,17 +4,27 @@
 second: the meshes are memory-mapped (only headers are read) and the numba
 kernels are loaded on a thread of their own afterwards; health says SERVING
 at once, and an Open that arrives before the kernels are ready waits for
-them. The server model (a sync gRPC server whose pool threads are the
-sessions' workers) was chosen by measurement: see the README's "Serving".
+them.
+
+The server model, chosen by measurement (README, "How the server works"):
+grpc.aio on one event loop, which reads and writes every stream, and a pool
+of worker threads, one per core, that make the frames (refinement releases
+the GIL, so sessions refine in parallel). A thread per stream, the other
+model measured, queued for the GIL once a few dozen streams were open.
+The event loop runs on a thread of its own, so that this class keeps a
+plain synchronous API (start, drain, stop) for ``caveclod serve`` and tests.
 """
 
 from __future__ import annotations
 
+import asyncio
+import os
 import threading
 import time
 from concurrent.futures import ThreadPoolExecutor
 
 import grpc
+import grpc.aio
 from grpc_health.v1 import health, health_pb2, health_pb2_grpc
 from grpc_reflection.v1alpha import reflection
 
@@ -28,7 +38,6 @@ from .registry import Sessions
 from .service import SERVICE, LodService, add_to_server
 
 MiB = 1 << 20
-SPARE_THREADS = 16        # pool threads beyond one per session: ListMeshes, health, refusals
 
 
 class LodServer:
@@ -45,30 +54,40 @@ class LodServer:
         self.catalogue = Catalogue(config.meshes)
         self.metrics = Metrics()
         self.sessions = Sessions(config, self.catalogue, self.metrics, logs.event)
-        self.health = health.HealthServicer()
-        workers = config.max_sessions + SPARE_THREADS
-        self.grpc = grpc.server(
-            ThreadPoolExecutor(max_workers=workers, thread_name_prefix="caveclod-rpc"),
+        self.workers = ThreadPoolExecutor(max_workers=max(2, os.cpu_count() or 1), thread_name_prefix="caveclod-frame")
+        self._loop = asyncio.new_event_loop()
+        self._loop_thread = threading.Thread(target=self._loop.run_forever, daemon=True, name="caveclod-grpc")
+        self._loop_thread.start()
+        self._stop = threading.Event()
+        self.metrics_port = None
+        try:
+            self.port = self._call(self._bind())
+        except BaseException:
+            self._close_loop()
+            raise
+
+    def _call(self, coroutine, timeout: float | None = None):
+        """Run ``coroutine`` on the server's event loop and wait for its result."""
+        return asyncio.run_coroutine_threadsafe(coroutine, self._loop).result(timeout)
+
+    async def _bind(self) -> int:
+        config = self.config
+        self.grpc = grpc.aio.server(
             interceptors=[BearerTokenInterceptor(config.tokens)] if config.tokens else [],
-            options=grpc_options(config), maximum_concurrent_rpcs=workers)
-        add_to_server(LodService(self.sessions, self.catalogue, self.metrics), self.grpc)
+            options=grpc_options(config))
+        add_to_server(LodService(self.sessions, self.catalogue, self.metrics, self.workers), self.grpc)
+        self.health = health.aio.HealthServicer()
         health_pb2_grpc.add_HealthServicer_to_server(self.health, self.grpc)
         reflection.enable_server_reflection(
             (SERVICE, health_pb2.DESCRIPTOR.services_by_name["Health"].full_name, reflection.SERVICE_NAME),
             self.grpc)
         address = f"{config.host}:{config.port}"
-        if config.tls_cert is not None:
-            creds = grpc.ssl_server_credentials([(config.tls_key, config.tls_cert)])
-            self.port = self._bind(lambda: self.grpc.add_secure_port(address, creds), address)
-        else:
-            self.port = self._bind(lambda: self.grpc.add_insecure_port(address), address)
-        self._stop = threading.Event()
-        self.metrics_port = None
-
-    @staticmethod
-    def _bind(add, address: str) -> int:
         try:
-            port = add()
+            if config.tls_cert is not None:
+                creds = grpc.ssl_server_credentials([(config.tls_key, config.tls_cert)])
+                port = self.grpc.add_secure_port(address, creds)
+            else:
+                port = self.grpc.add_insecure_port(address)
         except RuntimeError:
             port = 0
         if not port:
@@ -78,9 +97,7 @@ class LodServer:
 
     def start(self) -> "LodServer":
         """Accept connections; health says SERVING; kernels load in the background."""
-        self.grpc.start()
-        for name in ("", SERVICE):
-            self.health.set(name, health_pb2.HealthCheckResponse.SERVING)
+        self._call(self._start())
         if self.config.metrics_port is not None:
             self.metrics_port = self.metrics.serve(self.config.metrics_host, self.config.metrics_port)
         threading.Thread(target=self._warm_up, daemon=True, name="caveclod-warm-up").start()
@@ -89,6 +106,11 @@ class LodServer:
                    max_sessions=self.config.max_sessions, tls=self.config.tls_cert is not None,
                    auth=bool(self.config.tokens))
         return self
+
+    async def _start(self) -> None:
+        await self.grpc.start()
+        for name in ("", SERVICE):
+            await self.health.set(name, health_pb2.HealthCheckResponse.SERVING)
 
     def _warm_up(self) -> None:
         """Load the refinement kernels (numba's cache) and each mesh's hashes, then admit Opens."""
@@ -116,7 +138,7 @@ class LodServer:
         Returns early when every connected session has ended by itself.
         """
         seconds = self.config.drain_seconds if seconds is None else seconds
-        self.health.enter_graceful_shutdown()          # every service NOT_SERVING, for good
+        self._call(self.health.enter_graceful_shutdown())     # every service NOT_SERVING, for good
         self.sessions.drain()
         attached, _ = self.sessions.counts()
         logs.event("server.draining", seconds=seconds, sessions=attached)
@@ -129,10 +151,20 @@ class LodServer:
 
     def stop(self, grace: float | None = None) -> None:
         """Stop at once (``grace`` seconds for RPCs in flight)."""
+        if self._stop.is_set():
+            return
         self._stop.set()
         self.sessions.end_all()
-        self.grpc.stop(grace).wait()
-        self.metrics.stop()
+        try:
+            self._call(self.grpc.stop(grace))
+        finally:
+            self.metrics.stop()
+            self.workers.shutdown(wait=False, cancel_futures=True)
+            self._close_loop()
+
+    def _close_loop(self) -> None:
+        self._loop.call_soon_threadsafe(self._loop.stop)
+        self._loop_thread.join(5.0)
 
 
 def grpc_options(config: ServerConfig) -> list:

@@ -12,6 +12,7 @@ import hmac
 from pathlib import Path
 
 import grpc
+import grpc.aio
 
 from ..errors import InputError
 
@@ -33,29 +34,29 @@ def read_tokens(path) -> tuple[str, ...]:
     return tokens
 
 
-class BearerTokenInterceptor(grpc.ServerInterceptor):
+class BearerTokenInterceptor(grpc.aio.ServerInterceptor):
     """Refuses calls to the Lod service without an accepted bearer token."""
 
     def __init__(self, tokens):
         self._tokens = [t.encode() for t in tokens]
 
-    def intercept_service(self, continuation, details):
+    async def intercept_service(self, continuation, details):
         if not details.method.startswith(PROTECTED):
-            return continuation(details)
+            return await continuation(details)
         header = dict(details.invocation_metadata).get("authorization", "")
         scheme, _, token = header.partition(" ")
         # compare_digest against every token: no timing hint of a near miss
         if scheme.lower() == "bearer" and any([hmac.compare_digest(token.encode(), t) for t in self._tokens]):
-            return continuation(details)
-        handler = continuation(details)
+            return await continuation(details)
+        handler = await continuation(details)
         return _refusal(handler, "missing authorization metadata" if not header else "the bearer token is not accepted")
 
 
 def _refusal(handler, why: str):
     message = f"{why}; send metadata 'authorization: Bearer <token>' with a token the server accepts"
 
-    def refuse(request, context):
-        context.abort(grpc.StatusCode.UNAUTHENTICATED, message)
+    async def refuse(request, context):
+        await context.abort(grpc.StatusCode.UNAUTHENTICATED, message)
 
     if handler is None:
         return None

@@ -1,13 +1,14 @@
 """One session: its cameras' refinement states and the rules of caveclod.v1.
 
-A session outlives its streams (resume). Two threads touch it while a
-stream is attached: the stream's reader (``accept``: poses, acks, keyframe
-requests, close; quick, under ``cond``) and the stream's writer, the
-session's worker (``next_frame``: waits for work inside the ack window, then
-refines every camera that has some and encodes the frame). Refinement runs
+A session outlives its streams (resume). While a stream is attached, its
+reader (``accept``: poses, acks, keyframe requests, close; quick, under
+``cond``) runs on the server's event loop, and its writer asks ``poll``
+whether a frame is due; when one is, ``make_frame`` refines every camera
+that has work and encodes the frame on a worker thread. Refinement runs
 outside ``cond``, so poses keep arriving meanwhile, and under ``writer``, so
 a resume waits for a frame in progress to finish before it decides whether
-the client lost frames.
+the client lost frames. Every change a writer may be waiting for calls the
+session's *wakers* (thread-safe callbacks the writers register).
 
 The per-pose rules (all in the proto's ``Lod.Session`` comment): latest pose
 wins; at most one update per camera per frame; a camera whose last update
@@ -26,7 +27,11 @@ import numpy as np
 
 from .. import wire
 from ..errors import InputError
+from ..refine.view import View
 from ..v1 import caveclod_pb2 as pb
+
+
+CHEAP_SECONDS = 0.002     # frames quicker than this (recent average) are made on the event loop
 
 
 class Refused(Exception):
@@ -52,7 +57,9 @@ CLOSED = End(grpc.StatusCode.OK, "", True)
 @dataclass
 class _Pose:
     seq: int
-    view: object             # caveclod.View
+    eye: tuple               # checked (caveclod.refine.view.check_pose); the View is made
+    target: tuple            # only if this pose is refined for, as newer ones often
+    up: tuple                # replace a pose first
     received: float          # time.monotonic() when it arrived
 
 
@@ -93,6 +100,13 @@ class Session:
         self.current: list[_Pose | None] = [None] * cameras     # the pose each camera is refined for
         self.due: list[float | None] = [None] * cameras         # when a convergence update may run
         self.keyframes: set[int] = set(range(cameras))          # frame 1 is a keyframe of every camera
+        self.wakers: list = []       # callbacks that wake a waiting writer (any thread)
+        self.frame_cpu = 1.0         # recent seconds to make a frame (an average); a first frame is not cheap
+
+    @property
+    def cheap(self) -> bool:
+        """Whether this session's frames have lately been quick to make."""
+        return self.frame_cpu < CHEAP_SECONDS
 
     @property
     def n_cameras(self) -> int:
@@ -119,7 +133,7 @@ class Session:
             if view_options is not None:
                 self.view_options = view_options
             self.attached, self.end = True, None
-            self.cond.notify_all()
+            self._notify()
             return self.generation
 
     def detach(self, generation: int) -> bool:
@@ -138,7 +152,7 @@ class Session:
                 return
             if self.end is None:
                 self.end = end
-            self.cond.notify_all()
+            self._notify()
 
     # -- the reader's side ----------------------------------------------------------
     def accept(self, msg: pb.ClientMessage, generation: int) -> bool:
@@ -174,8 +188,14 @@ class Session:
             else:
                 raise Refused(grpc.StatusCode.INVALID_ARGUMENT,
                               "a ClientMessage with no message set; set one of open, pose, ack, keyframe_request, close")
-            self.cond.notify_all()
+            self._notify()
             return True
+
+    def _notify(self) -> None:
+        """Wake whoever waits for this session's state to change (call under ``cond``)."""
+        self.cond.notify_all()
+        for wake in self.wakers:
+            wake()
 
     def _check_camera(self, camera: int, what: str) -> None:
         if camera >= self.n_cameras:
@@ -183,45 +203,35 @@ class Session:
                           f"{what} for camera {camera}, but the session has cameras 0..{self.n_cameras - 1}")
 
     def _accept_pose(self, p: pb.CameraPose) -> None:
-        from ..refine.view import View
+        from ..refine.view import check_pose
         self._check_camera(p.camera, "CameraPose")
         if p.pose_seq <= self.last_pose_seq:
             raise Refused(grpc.StatusCode.INVALID_ARGUMENT,
                           f"CameraPose.pose_seq {p.pose_seq} is not above the last one, {self.last_pose_seq}; "
                           "number poses 1, 2, 3, ... across the session's cameras")
         try:
-            view = View(eye=wire.from_vec3(p.eye), target=wire.from_vec3(p.target), up=wire.from_vec3(p.up),
-                        **self.view_options)
+            eye, target, up = check_pose(wire.from_vec3(p.eye), wire.from_vec3(p.target), wire.from_vec3(p.up))
         except InputError as exc:
             raise Refused(grpc.StatusCode.INVALID_ARGUMENT, f"CameraPose {p.pose_seq}: {exc}") from None
         if self.pending[p.camera] is not None:
             self.superseded += 1          # latest pose wins
-        self.pending[p.camera] = _Pose(p.pose_seq, view, time.monotonic())
+        self.pending[p.camera] = _Pose(p.pose_seq, eye, target, up, time.monotonic())
         self.last_pose_seq = p.pose_seq
 
     # -- the writer's side ----------------------------------------------------------
-    def next_frame(self, generation: int, stopped, poll: float = 1.0) -> list | End:
-        """Wait for the next frame of the stream ``generation`` and make it.
-
-        Returns its ServerMessages (parts), or the End of the stream.
-        ``stopped()`` says the stream is gone (checked at least every
-        ``poll`` seconds; whoever makes it true should notify ``cond``).
-        """
-        while True:
-            with self.cond:
-                if generation != self.generation:
-                    return End(grpc.StatusCode.ABORTED, "this session was resumed on another stream", False)
-                if self.end is not None:
-                    return self.end
-                if stopped():
-                    return End(grpc.StatusCode.CANCELLED, "the stream broke", False)
-                wait = self._wait_seconds(time.monotonic())
-                if wait > 0:
-                    self.cond.wait(min(wait, poll))
-                    continue
-            parts = self._make_frame(generation)
-            if parts is not None:
-                return parts
+    def poll(self, generation: int, stopped) -> End | float:
+        """What the writer of the stream ``generation`` should do now: the
+        End of the stream, 0.0 to make a frame (:meth:`make_frame`), or the
+        seconds it may wait (a waker calls it sooner when anything changes).
+        ``stopped()`` says the stream is gone."""
+        with self.cond:
+            if generation != self.generation:
+                return End(grpc.StatusCode.ABORTED, "this session was resumed on another stream", False)
+            if self.end is not None:
+                return self.end
+            if stopped():
+                return End(grpc.StatusCode.CANCELLED, "the stream broke", False)
+            return self._wait_seconds(time.monotonic())
 
     def _wait_seconds(self, now: float) -> float:
         """0 when a frame should be made now; else how long until one may be due."""
@@ -232,8 +242,12 @@ class Session:
         due = [d for d in self.due if d is not None]
         return max(min(due) - now, 0.0) if due else float("inf")
 
-    def _make_frame(self, generation: int) -> list | None:
+    def make_frame(self, generation: int) -> list | None:
+        """Refine the cameras that have work and encode the frame: its
+        ServerMessage parts, or None when nothing is due after all (the
+        window filled, or another stream took the session)."""
         with self.writer:
+            started = time.perf_counter()
             with self.cond:
                 now = time.monotonic()
                 if generation != self.generation or self._wait_seconds(now) > 0:
@@ -260,6 +274,7 @@ class Session:
             parts = wire.frame_parts(frame_seq, pose_high, superseded, cameras)
             with self.cond:
                 self.frame_seq = frame_seq
+            self.frame_cpu = 0.8 * self.frame_cpu + 0.2 * (time.perf_counter() - started)
             return parts
 
     def _refine(self, c: int, pose: _Pose | None, fresh: bool, keyframe: bool) -> wire.CameraFrameData:
@@ -269,7 +284,7 @@ class Session:
         touched = range(self.n_materials) if keyframe else ()
         if pose is not None:
             cpu = time.thread_time()
-            delta = cam.update(pose.view)
+            delta = cam.update(View(eye=pose.eye, target=pose.target, up=pose.up, **self.view_options))
             cpu = time.thread_time() - cpu          # the CPU refinement really used, not wall time
             self.current[c] = pose
             converged = delta.operations == 0 and not delta.budget_exhausted
