@@ -6,7 +6,7 @@ position ``x``); ``e .. e+m-1`` are the nodes made by the build's collapses,
 and arrays prefixed ``node_`` other than ``node_parent`` are indexed by
 ``node - e``.
 
-File layout (version 1, little-endian)::
+File layout (version 2, little-endian)::
 
     b"CAVECLOD" | uint32 version | uint32 header length | header JSON | pad
     arrays, each aligned to 64 bytes at the offset the header gives
@@ -29,7 +29,7 @@ import numpy as np
 from .errors import FileFormatError
 
 MAGIC = b"CAVECLOD"
-VERSION = 1
+VERSION = 2
 ALIGN = 64
 
 # name: (dtype, trailing shape) for every array; counts come from the data.
@@ -45,6 +45,7 @@ ARRAYS = {
     "face_material": ("<u2", ()),        # (p,) the paper's surface identifier
     "face_sgid": ("<u2", ()),            # (p,) surface group id
     "face_creator": ("<i4", ()),         # (p,) node whose split makes it, -1: base
+    "face_rotation": ("u1", ()),         # (p,) where the split's first corner goes (source order)
     "node_parent": ("<i4", ()),          # (n,) -1 for roots
     "node_links": ("<i4", (8,)),         # (m, 8) t, u, fl, fr, fl_u, fl_t, fr_u, fr_t
     "node_position": ("<i4", ()),        # (m,) = position of t

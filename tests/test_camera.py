@@ -330,6 +330,12 @@ def test_full_refinement_is_the_original(lib, name):
     assert_same_triangles(cam.triangles(), case.original_by_material(), "full refinement")
     assert np.array_equal(np.sort(cam.active_faces()), np.arange(mesh.n_faces))
     assert np.array_equal(cam.active_nodes(), np.arange(case.e)), "the front is exactly the leaves"
+    # Face by face, corner by corner: each face lists its corners in the
+    # source's order (not only the same triangle turned), so a renderer sees
+    # exactly the source mesh.
+    rows = record_rows(cam)
+    faces = cam.rec_face[rows]
+    assert np.array_equal(cam.rec_tri[rows].astype(np.int64), case.orig_tri[faces])
 
     # The attributes of those indices are the original corners' (position, normal, uv).
     tris_by_mat = cam.triangles()

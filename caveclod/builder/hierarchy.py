@@ -70,6 +70,8 @@ class Hierarchy:
         parent: (2e,) int32; child, nfaces: (e, 2); nfn: (e, 4); npos: (e,).
         sphere, cone: (2e, 4) float64; err: (2e,) float64 (leaves first).
         creator: (p,) int32 node whose split makes each face, -1 for base.
+        rotation: (p,) uint8 corner of each such face that its split's first
+            node (t for fl, u for fr) takes, as in the source face.
         base: (k,) int32 base faces; base_nodes, base_nbrs: (k, 3) int32.
     """
 
@@ -84,6 +86,7 @@ class Hierarchy:
     cone: np.ndarray
     err: np.ndarray
     creator: np.ndarray
+    rotation: np.ndarray
     base: np.ndarray
     base_nodes: np.ndarray
     base_nbrs: np.ndarray
@@ -114,6 +117,7 @@ def collapse_all(positions: np.ndarray, face_pos: np.ndarray, topo: Topology, la
     nfaces = np.full((e, 2), -1, np.int32)
     nfn = np.full((e, 4), -1, np.int32)
     creator = np.full(p, -1, np.int32)
+    rotation = np.zeros(p, np.uint8)
     pt_head, pt = new_store(p, e)            # carried points (kernels/carried.py)
     lock = np.full(e, -1, np.int64)
     workers = max(1, min(os.cpu_count() or 1, 4))
@@ -138,7 +142,7 @@ def collapse_all(positions: np.ndarray, face_pos: np.ndarray, topo: Topology, la
                 job.result()
             nc = gather_candidates(vface, best_t, best_c, cost, target, src)
             m = perform_collapses(P, F, N, vface, alive, group, cls, fixed, pg_start, pg_groups, Q, cur_node,
-                                  parent, child, npos, nfaces, nfn, sphere, cone, err, creator,
+                                  parent, child, npos, nfaces, nfn, sphere, cone, err, creator, rotation,
                                   pt_head, pt, m, lock,
                                   marks[0], pass_id, PASS_FRACTION, cost, target, src, nc, counters[0])
             pass_id += 1
@@ -148,7 +152,7 @@ def collapse_all(positions: np.ndarray, face_pos: np.ndarray, topo: Topology, la
     bar.close()
     base = np.flatnonzero(alive).astype(np.int32)
     return Hierarchy(m=m, passes=pass_id, parent=parent, child=child, npos=npos, nfaces=nfaces, nfn=nfn,
-                     sphere=sphere, cone=cone, err=err, creator=creator, base=base,
+                     sphere=sphere, cone=cone, err=err, creator=creator, rotation=rotation, base=base,
                      base_nodes=cur_node[F[base]].astype(np.int32), base_nbrs=N[base].astype(np.int32))
 
 
@@ -176,6 +180,7 @@ def static_arrays(source: SourceMesh, face_pos: np.ndarray, lay, hier: Hierarchy
         "face_material": source.face_material.astype(np.uint16),
         "face_sgid": lay.face_sgid.astype(np.uint16),
         "face_creator": hier.creator,
+        "face_rotation": hier.rotation,
         "node_parent": hier.parent[:n].copy(),
         "node_links": np.c_[hier.child[:m], hier.nfaces[:m], hier.nfn[:m]].astype(np.int32),
         "node_position": hier.npos[:m].copy(),

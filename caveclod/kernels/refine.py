@@ -229,19 +229,22 @@ def _move_wedge(fn0, fn2, old, new, fl, fr, fsgid, pos_vstart, vertex_sgid, vpos
 
 
 @nb.njit(cache=True, nogil=True)
-def _add_face(f, a, b, c, n0, n1, n2, mat, fsgid, pos_vstart, vertex_sgid, face_rec, off, cnt,
+def _add_face(f, a, b, c, n0, n1, n2, rot, mat, fsgid, pos_vstart, vertex_sgid, face_rec, off, cnt,
               rec_tri, rec_nbr, rec_face, dirty):
-    """Append face ``f`` on positions (a, b, c) with neighbours (n0, n1, n2)."""
+    """Append face ``f`` on positions (a, b, c) with neighbours (n0, n1, n2)
+    across edges a->b, b->c, c->a, its corners starting at corner ``rot``
+    (the source face's order)."""
     s = mat[f]
     r = off[s] + cnt[s]
     cnt[s] += 1
     face_rec[f] = r
     rec_face[r] = f
     g = fsgid[f]
-    rec_tri[r, 0] = lookup_vertex(pos_vstart, vertex_sgid, g, a)
-    rec_tri[r, 1] = lookup_vertex(pos_vstart, vertex_sgid, g, b)
-    rec_tri[r, 2] = lookup_vertex(pos_vstart, vertex_sgid, g, c)
-    rec_nbr[r, 0], rec_nbr[r, 1], rec_nbr[r, 2] = n0, n1, n2
+    k0, k1, k2 = rot, (rot + 1) % 3, (rot + 2) % 3
+    rec_tri[r, k0] = lookup_vertex(pos_vstart, vertex_sgid, g, a)
+    rec_tri[r, k1] = lookup_vertex(pos_vstart, vertex_sgid, g, b)
+    rec_tri[r, k2] = lookup_vertex(pos_vstart, vertex_sgid, g, c)
+    rec_nbr[r, k0], rec_nbr[r, k1], rec_nbr[r, k2] = n0, n1, n2
     _mark(r, dirty)
 
 
@@ -266,7 +269,7 @@ def _remove_face(f, mat, face_rec, off, cnt, rec_tri, rec_nbr, rec_face, dirty):
 
 
 @nb.njit(cache=True, nogil=True)
-def split_node(x, e, links, npos, mat, fsgid, pos_vstart, vertex_sgid, vpos, state, face_rec, off, cnt,
+def split_node(x, e, links, npos, rotation, mat, fsgid, pos_vstart, vertex_sgid, vpos, state, face_rec, off, cnt,
                rec_tri, rec_nbr, rec_face, dirty):
     """Split active node ``x`` whose required faces are all active.
 
@@ -289,7 +292,7 @@ def split_node(x, e, links, npos, mat, fsgid, pos_vstart, vertex_sgid, vpos, sta
         else:
             r1 = face_rec[fn1]
             vl = vpos[rec_tri[r1, (corner_at(rec_tri, vpos, r1, px) + 1) % 3]]
-        _add_face(fl, px, pu, vl, fr, fn0, fn1, mat, fsgid, pos_vstart, vertex_sgid, face_rec, off, cnt,
+        _add_face(fl, px, pu, vl, fr, fn0, fn1, rotation[fl], mat, fsgid, pos_vstart, vertex_sgid, face_rec, off, cnt,
                   rec_tri, rec_nbr, rec_face, dirty)
         if fn0 >= 0:
             r0 = face_rec[fn0]
@@ -304,7 +307,7 @@ def split_node(x, e, links, npos, mat, fsgid, pos_vstart, vertex_sgid, vpos, sta
         else:
             r3 = face_rec[fn3]
             vr = vpos[rec_tri[r3, (corner_at(rec_tri, vpos, r3, px) + 2) % 3]]
-        _add_face(fr, pu, px, vr, fl, fn3, fn2, mat, fsgid, pos_vstart, vertex_sgid, face_rec, off, cnt,
+        _add_face(fr, pu, px, vr, fl, fn3, fn2, rotation[fr], mat, fsgid, pos_vstart, vertex_sgid, face_rec, off, cnt,
                   rec_tri, rec_nbr, rec_face, dirty)
         if fn2 >= 0:
             r2 = face_rec[fn2]
@@ -318,19 +321,21 @@ def split_node(x, e, links, npos, mat, fsgid, pos_vstart, vertex_sgid, vpos, sta
 
 
 @nb.njit(cache=True, nogil=True)
-def collapse_legal(x, e, links, state, face_rec, rec_nbr):
-    """Hoppe's ecol precondition for undoing the split of ``x``."""
+def collapse_legal(x, e, links, rotation, state, face_rec, rec_nbr):
+    """Hoppe's ecol precondition for undoing the split of ``x``: both
+    children active, and fl's neighbours across u->vl and vl->t (fr's across
+    t->vr and vr->u) are the faces the split required."""
     j = x - e
     if (state[links[j, 0]] & STATE_MASK) != ACTIVE or (state[links[j, 1]] & STATE_MASK) != ACTIVE:
         return False
     fl, fr = links[j, 2], links[j, 3]
     if fl >= 0:
-        r = face_rec[fl]
-        if rec_nbr[r, 1] != links[j, 4] or rec_nbr[r, 2] != links[j, 5]:
+        r, k = face_rec[fl], rotation[fl]
+        if rec_nbr[r, (k + 1) % 3] != links[j, 4] or rec_nbr[r, (k + 2) % 3] != links[j, 5]:
             return False
     if fr >= 0:
-        r = face_rec[fr]
-        if rec_nbr[r, 1] != links[j, 7] or rec_nbr[r, 2] != links[j, 6]:
+        r, k = face_rec[fr], rotation[fr]
+        if rec_nbr[r, (k + 1) % 3] != links[j, 7] or rec_nbr[r, (k + 2) % 3] != links[j, 6]:
             return False
     return True
 
@@ -474,7 +479,7 @@ def _skip_run(active, texp, aexp, state, odo, i, w, n, expire):
 
 
 @nb.njit(cache=True, nogil=True)
-def adapt(e, parent, links, npos, bound, cone, face_creator, mat, fsgid, pos_vstart, vertex_sgid, vpos,
+def adapt(e, parent, links, npos, bound, cone, face_creator, rotation, mat, fsgid, pos_vstart, vertex_sgid, vpos,
           state, face_rec, off, cnt, cap, rec_tri, rec_nbr, rec_face, dirty,
           active, texp, aexp, n_active, queue, vp, odo, max_ops, max_faces, counts, resume, mode, expire):
     """One pass of incremental selective refinement over the active nodes.
@@ -512,7 +517,7 @@ def adapt(e, parent, links, npos, bound, cone, face_creator, mat, fsgid, pos_vst
         resume[2] = 0
         # Candidates left when room ran out go first, as they would have.
         q, n, n_faces, status = _collapse_candidates(
-            e, parent, links, npos, bound, cone, face_creator, mat, fsgid, pos_vstart, vertex_sgid,
+            e, parent, links, npos, bound, cone, face_creator, rotation, mat, fsgid, pos_vstart, vertex_sgid,
             vpos, state, face_rec, off, cnt, rec_tri, rec_nbr, rec_face, dirty, active, texp, aexp, n, vp,
             max_ops, counts, queue, q, n_faces)
     else:
@@ -577,8 +582,8 @@ def adapt(e, parent, links, npos, bound, cone, face_creator, mat, fsgid, pos_vst
                     if n + 2 > active.shape[0]:
                         status = NEED_LIST
                         break
-                    split_node(y, e, links, npos, mat, fsgid, pos_vstart, vertex_sgid, vpos, state, face_rec,
-                               off, cnt, rec_tri, rec_nbr, rec_face, dirty)
+                    split_node(y, e, links, npos, rotation, mat, fsgid, pos_vstart, vertex_sgid, vpos, state,
+                               face_rec, off, cnt, rec_tri, rec_nbr, rec_face, dirty)
                     counts[0] += 1
                     n_faces += (links[jy, 2] >= 0) + (links[jy, 3] >= 0)
                     n = _append(links[jy, 0], active, texp, aexp, n, state)
@@ -603,7 +608,7 @@ def adapt(e, parent, links, npos, bound, cone, face_creator, mat, fsgid, pos_vst
                 (state[links[p - e, 1]] & STATE_MASK) == ACTIVE:
             need, tm, rm, dist = test_node(p - e, bound, cone, vp)
             if not need:
-                if collapse_legal(p, e, links, state, face_rec, rec_nbr):
+                if collapse_legal(p, e, links, rotation, state, face_rec, rec_nbr):
                     if (state[p] & IN_LIST) == 0 and n + 1 > active.shape[0]:
                         i -= 1
                         status = NEED_LIST
@@ -620,9 +625,9 @@ def adapt(e, parent, links, npos, bound, cone, face_creator, mat, fsgid, pos_vst
                     state[x] = state[x] & ~IN_LIST & 0xFF
                     q = _push_after_collapse(p, e, parent, links, face_creator, state, queue, q)
                     q, n, n_faces, status = _collapse_candidates(
-                        e, parent, links, npos, bound, cone, face_creator, mat, fsgid, pos_vstart, vertex_sgid,
-                        vpos, state, face_rec, off, cnt, rec_tri, rec_nbr, rec_face, dirty, active, texp, aexp, n, vp,
-            max_ops, counts, queue, q, n_faces)
+                        e, parent, links, npos, bound, cone, face_creator, rotation, mat, fsgid, pos_vstart,
+                        vertex_sgid, vpos, state, face_rec, off, cnt, rec_tri, rec_nbr, rec_face, dirty, active,
+                        texp, aexp, n, vp, max_ops, counts, queue, q, n_faces)
                     if status != OK:
                         break                    # the queue keeps what is left for the resumed pass
                     continue
@@ -643,9 +648,9 @@ def adapt(e, parent, links, npos, bound, cone, face_creator, mat, fsgid, pos_vst
 
 
 @nb.njit(cache=True, nogil=True)
-def _collapse_candidates(e, parent, links, npos, bound, cone, face_creator, mat, fsgid, pos_vstart, vertex_sgid,
-                         vpos, state, face_rec, off, cnt, rec_tri, rec_nbr, rec_face, dirty, active, texp, aexp, n, vp,
-            max_ops, counts, queue, q, n_faces):
+def _collapse_candidates(e, parent, links, npos, bound, cone, face_creator, rotation, mat, fsgid, pos_vstart,
+                         vertex_sgid, vpos, state, face_rec, off, cnt, rec_tri, rec_nbr, rec_face, dirty, active,
+                         texp, aexp, n, vp, max_ops, counts, queue, q, n_faces):
     """Try the pushed candidates, last pushed first, until none is left.
 
     Returns (q, n, n_faces, status): NEED_LIST / NEED_QUEUE when a collapse
@@ -671,7 +676,7 @@ def _collapse_candidates(e, parent, links, npos, bound, cone, face_creator, mat,
             q -= 1
             state[c] = state[c] & ~QUEUED & 0xFF
             continue
-        if not collapse_legal(c, e, links, state, face_rec, rec_nbr):
+        if not collapse_legal(c, e, links, rotation, state, face_rec, rec_nbr):
             q -= 1
             state[c] = state[c] & ~QUEUED & 0xFF
             continue

@@ -233,12 +233,15 @@ def check_collapse(u, t, P, F, N, vface, fgroup, pclass, fixed, pg_start, pg_gro
 
 @nb.njit(cache=True, nogil=True)
 def do_collapse(u, t, fl, fr, P, F, N, vface, alive, Q, cur_node, parent, child, npos,
-                nfaces, nfn, sphere, cone, err, creator, m, e, fan_u, nu, fan_t):
+                nfaces, nfn, sphere, cone, err, creator, rotation, m, e, fan_u, nu, fan_t):
     """Perform a legal collapse and record node ``e + m``.
 
     ``fan_u[:nu]`` are u's faces, as :func:`check_collapse` left them.
-    Fills ``fan_t`` with t's new fan. Returns ``(node, fan size, error the
-    node has anyway)``: its children's and its new neighbours' (saturation,
+    Fills ``fan_t`` with t's new fan and ``rotation`` (p,) uint8 with the
+    corner at which fl's (fr's) source face holds t (u): a split makes the
+    face from its nodes, and the rotation lets it list its corners in the
+    source's order, so that full refinement gives the source faces back
+    exactly. Returns ``(node, fan size, error the node has anyway)``: its children's and its new neighbours' (saturation,
     module doc); the caller adds the measured distances.
     """
     s = e + m
@@ -267,6 +270,7 @@ def do_collapse(u, t, fl, fr, P, F, N, vface, alive, Q, cur_node, parent, child,
             replace_in_row(N, fn1, fl, fn0)
         alive[fl] = False
         creator[fl] = s
+        rotation[fl] = corner_of(F, fl, t)     # fl's corners start at t in the source face
     if fr != -1:
         if fn2 != -1:
             replace_in_row(N, fn2, fr, fn3)
@@ -274,6 +278,7 @@ def do_collapse(u, t, fl, fr, P, F, N, vface, alive, Q, cur_node, parent, child,
             replace_in_row(N, fn3, fr, fn2)
         alive[fr] = False
         creator[fr] = s
+        rotation[fr] = corner_of(F, fr, u)     # fr's corners start at u
     for i in range(nu):
         f = fan_u[i]
         if f != fl and f != fr:
@@ -420,7 +425,7 @@ def gather_candidates(vface, best_t, best_c, cost, target, src):
 
 @nb.njit(cache=True, nogil=True)
 def perform_collapses(P, F, N, vface, alive, fgroup, pclass, fixed, pg_start, pg_groups, Q,
-                      cur_node, parent, child, npos, nfaces, nfn, sphere, cone, err, creator,
+                      cur_node, parent, child, npos, nfaces, nfn, sphere, cone, err, creator, rotation,
                       pt_head, pt, m, lock, mark, pass_id, fraction, cost, target, src, nc, counter):
     """Perform the cheapest ranked collapses; returns the new node count m.
 
@@ -471,7 +476,8 @@ def perform_collapses(P, F, N, vface, alive, fgroup, pclass, fixed, pg_start, pg
             if pclass[u] == SHARP:
                 u_group = fgroup[fl] if fl != -1 else fgroup[fr]
             s, nt, inherited = do_collapse(u, t, fl, fr, P, F, N, vface, alive, Q, cur_node, parent, child,
-                                           npos, nfaces, nfn, sphere, cone, err, creator, m, e, fan_u, nu, fan_t)
+                                           npos, nfaces, nfn, sphere, cone, err, creator, rotation, m, e,
+                                           fan_u, nu, fan_t)
             dev = remeasure(u, u_group, fl, fr, fan_u, nu, fan_t, nt, P, F, N, fgroup, alive, pt_head, pt,
                             heads, inherited)
             err[s] = dev

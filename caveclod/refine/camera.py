@@ -100,7 +100,7 @@ class CameraState:
         a = {k: np.asarray(v) for k, v in mesh.arrays.items()}   # plain views of the maps
         self._static = (
             mesh.n_positions, a["node_parent"], a["node_links"], a["node_position"],
-            a["node_bound"], a["node_cone"], a["face_creator"],
+            a["node_bound"], a["node_cone"], a["face_creator"], a["face_rotation"],
             a["face_material"], a["face_sgid"], a["pos_vstart"], a["vertex_sgid"], mesh.vertex_position_ids,
         )
         n, p = mesh.n_nodes, mesh.n_faces

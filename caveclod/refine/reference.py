@@ -98,6 +98,7 @@ class ReferenceCamera:
         self.error = [float(v) for v in mesh.node_error]
         self.cone = rows("node_cone", float)
         self.creator = ints("face_creator")
+        self.rotation = ints("face_rotation")            # where a split's first corner goes
         self.material = ints("face_material")
         self.sgid = ints("face_sgid")
         self.base = list(zip(ints("base_faces"), rows("base_face_nodes", int), rows("base_face_nbrs", int)))
@@ -129,9 +130,13 @@ class ReferenceCamera:
         return self.splits + self.collapses
 
     # -- face records ---------------------------------------------------------
-    def _add_face(self, f, pos, nbr):
+    def _add_face(self, f, pos, nbr, rot=0):
+        """Face ``f`` on positions ``pos``, neighbour ``nbr[i]`` across
+        ``pos[i] -> pos[i+1]``, listed from corner ``rot`` on (the source
+        face's order)."""
         assert f not in self.faces and len(set(pos)) == 3
-        self.faces[f] = {"pos": list(pos), "nbr": list(nbr)}
+        order = [(i - rot) % 3 for i in range(3)]        # record corner k holds pos[order[k]]
+        self.faces[f] = {"pos": [pos[i] for i in order], "nbr": [nbr[i] for i in order]}
         for p in pos:
             self.faces_at.setdefault(p, set()).add(f)
 
@@ -279,14 +284,14 @@ class ReferenceCamera:
         #    the four required faces now border them instead of each other.
         if fl >= 0:
             vl = self._before(fn0, pu) if fn0 >= 0 else self._after(fn1, pt)
-            self._add_face(fl, [pt, pu, vl], [fr, fn0, fn1])
+            self._add_face(fl, [pt, pu, vl], [fr, fn0, fn1], self.rotation[fl])
             if fn0 >= 0:
                 self._set_neighbour(fn0, vl, pu, fl)
             if fn1 >= 0:
                 self._set_neighbour(fn1, pt, vl, fl)
         if fr >= 0:
             vr = self._after(fn2, pu) if fn2 >= 0 else self._before(fn3, pt)
-            self._add_face(fr, [pu, pt, vr], [fl, fn3, fn2])
+            self._add_face(fr, [pu, pt, vr], [fl, fn3, fn2], self.rotation[fr])
             if fn2 >= 0:
                 self._set_neighbour(fn2, pu, vr, fr)
             if fn3 >= 0:
@@ -302,19 +307,24 @@ class ReferenceCamera:
     def collapse_legal(self, s):
         """Hoppe's ecol precondition for undoing the split of ``s``.
 
-        Both children are active, fl's neighbours across its edges 1 and 2
-        are fl_u, fl_t, and fr's across its edges 1 and 2 are fr_t, fr_u.
+        Both children are active, fl's neighbours across u -> vl and vl -> t
+        are fl_u, fl_t, and fr's across t -> vr and vr -> u are fr_t, fr_u.
         """
         t, u = self.children[s - self.e]
         if self.node_state(t) != ACTIVE or self.node_state(u) != ACTIVE:
             return False
         fl, fr = self.new_faces[s - self.e]
         fn0, fn1, fn2, fn3 = self.required[s - self.e]
-        if fl >= 0 and self.faces[fl]["nbr"][1:] != [fn0, fn1]:
+        pt, pu = self.position(s), self.position(u)
+        if fl >= 0 and [self._across(fl, pu), self._across(fl, self._after(fl, pu))] != [fn0, fn1]:
             return False
-        if fr >= 0 and self.faces[fr]["nbr"][1:] != [fn3, fn2]:
+        if fr >= 0 and [self._across(fr, pt), self._across(fr, self._after(fr, pt))] != [fn3, fn2]:
             return False
         return True
+
+    def _across(self, f, p):
+        """The neighbour of face ``f`` across its edge from position ``p``."""
+        return self.faces[f]["nbr"][self._corner(f, p)]
 
     def collapse(self, s):
         """Undo the split of ``s`` (legal): u's faces return to s, fl and fr go."""
