@@ -141,7 +141,7 @@ class IndexBuffer:
         if count > self.capacity:
             self._grow(count)
         self.count = count
-        data = memoryview(tris).cast("B")
+        data = tris.reshape(-1).view(np.uint8)          # byte view: slices are not copies
         runs = slot_runs(slots, first_slot, len(tris))
         for slot, a, b in runs:
             self.buffer.write(data[a * TRIANGLE_BYTES: b * TRIANGLE_BYTES], offset=slot * TRIANGLE_BYTES)
