@@ -3,6 +3,9 @@ lighting, wireframe, quadrants, clip planes, images out; and the built-ins
 are not blank. Everything runs offscreen (EGL, llvmpipe) from one context per
 module (the ``gl`` fixture)."""
 
+import subprocess
+import sys
+
 import numpy as np
 import pytest
 from PIL import Image
@@ -59,6 +62,14 @@ def is_sky(image: np.ndarray) -> np.ndarray:
 
 def test_context_is_offscreen_opengl_33(gl):
     assert gl.version_code >= 330
+
+
+def test_the_renderer_imports_only_numpy_moderngl_and_pillow():
+    code = ("import sys, caveclod.render; "
+            "print(sorted(m for m in sys.modules if m.split('.')[0] in ('numba', 'trimesh', 'grpc', 'server') "
+            "or m.startswith(('caveclod.refine', 'caveclod.builder', 'caveclod.kernels', 'caveclod.staticmesh'))))")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True).stdout
+    assert out.strip() == "[]"
 
 
 def test_missing_opengl_names_what_to_install(monkeypatch):
