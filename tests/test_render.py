@@ -296,6 +296,26 @@ def test_quadrant_layout_tiles_the_image():
         assert cover.max() == 1 and cover.sum() == (101 * 51 if n == 4 else 101 * 51 - 51 * 26)
 
 
+def test_draw_into_a_window_framebuffer_and_resize(gl):
+    verts, tris = sphere()
+    view = [Camera(eye=(0, -4, 1), target=(0, 0, 0))]
+    with Renderer(64, 48, verts, ["rock"], ctx=gl) as r:
+        r.apply(0, 0, len(tris), tris)
+        image = r.render(view)
+        window = gl.simple_framebuffer((64, 48))          # what a window's ctx.screen would be
+        r.draw(view, target=window)
+        drawn = np.frombuffer(window.read(components=3, alignment=1), np.uint8).reshape(48, 64, 3)[::-1]
+        window.release()
+        np.testing.assert_array_equal(drawn, image)
+        vertex_bytes = r.stats.vertex_bytes
+        r.resize(96, 40)
+        resized = r.render(view)
+        assert r.stats.vertex_bytes == vertex_bytes and r.counts(0) == [len(tris)]
+    with Renderer(96, 40, verts, ["rock"], ctx=gl) as fresh:
+        fresh.apply(0, 0, len(tris), tris)
+        np.testing.assert_array_equal(resized, fresh.render(view))
+
+
 @pytest.fixture(scope="module")
 def terrain():
     return caveclod.build("default", size=64)
@@ -333,10 +353,13 @@ def test_four_cameras_draw_four_different_quadrants_each_its_own_view(gl, terrai
     for a in range(4):
         for b in range(a + 1, 4):
             assert np.abs(quads[a].astype(int) - quads[b]).mean() > 10, (a, b)
-    # Each quadrant is exactly that camera drawn alone at the quadrant's size.
+    # Each quadrant is that camera drawn alone at the quadrant's size, but for
+    # rounding: window coordinates offset by the quadrant's corner keep fewer
+    # fraction bits, so an interpolated colour may move by a level.
     for k in range(4):
         alone = draw(gl, terrain, [poses[k]], 96, 72, {0: buffers[k]})
-        np.testing.assert_array_equal(quads[k], alone)
+        diff = np.abs(quads[k].astype(int) - alone).max(axis=-1)
+        assert diff.max() <= 2 and (diff > 0).mean() < 0.002, k
 
 
 def test_one_camera_fills_the_image_and_a_missing_fourth_is_background(gl, terrain):

@@ -23,7 +23,7 @@ from .textures import check_texture, material_texture
 MAX_CAMERAS = 4
 BACKGROUND = (0.56, 0.66, 0.78)      # a pale sky, far from every generated texture
 EDGE_COLOR = (0.05, 0.05, 0.08)
-LIGHT = (0.35, 0.25, 0.90)           # towards the light: high, from the south-east
+LIGHT = (0.60, 0.35, 0.72)           # towards the light: 46 degrees up, so relief shows
 AMBIENT = 0.35
 
 
@@ -63,15 +63,15 @@ class Renderer:
     def __init__(self, width: int, height: int, vertices, materials, *, cameras: int = 1, bounds=None,
                  ctx: moderngl.Context | None = None, textures: dict | None = None,
                  light=LIGHT, ambient: float = AMBIENT):
-        if not (isinstance(width, (int, np.integer)) and isinstance(height, (int, np.integer))
-                and width >= 2 and height >= 2):
-            raise ValueError(f"the image must be at least 2 x 2 pixels, got {width!r} x {height!r}")
+        # Everything is checked before the first GL object is made.
+        _check_size(width, height)
         if not (isinstance(cameras, (int, np.integer)) and 1 <= cameras <= MAX_CAMERAS):
             raise ValueError(f"cameras must be 1 to {MAX_CAMERAS}, got {cameras!r}")
         vertices = _check_vertices(vertices)
         self.materials = [str(name) for name in materials]
         if not self.materials:
             raise ValueError("a renderer needs at least one material name")
+        images = _texture_images(self.materials, textures or {})
         self.width, self.height, self.cameras = int(width), int(height), int(cameras)
         self.n_vertices = len(vertices.positions)
         if bounds is None:
@@ -87,15 +87,14 @@ class Renderer:
                                    fragment_shader=shaders.FRAGMENT_WIREFRAME),
         }
         self._vertex_content = self._upload_vertices(vertices)
-        self._textures = self._upload_textures(textures or {})
+        self._textures = self._upload_textures(images)
         light = np.asarray(light, dtype=np.float64)
         for program in self._programs.values():
             _set(program, u_texture=0, u_light=tuple(light / np.linalg.norm(light)), u_ambient=float(ambient),
                  u_colors=vertices.colors is not None, u_origin=tuple(self.origin), u_edge_color=EDGE_COLOR)
         self._buffers = [[IndexBuffer(self.ctx, self.n_vertices, self.stats) for _ in self.materials]
                          for _ in range(self.cameras)]
-        self._fbo = self.ctx.framebuffer(color_attachments=[self.ctx.renderbuffer((self.width, self.height))],
-                                         depth_attachment=self.ctx.depth_renderbuffer((self.width, self.height)))
+        self._fbo = self._framebuffer()
 
     # -- frames in ------------------------------------------------------------
     def apply(self, camera: int, material: int, count, tris, slots=None, first_slot=0) -> None:
@@ -129,7 +128,7 @@ class Renderer:
         return quadrants(self.width, self.height, self.cameras)
 
     def render(self, views, wireframe: bool = False) -> np.ndarray:
-        """Draw every camera's view into its quadrant.
+        """Draw every camera's view into its quadrant, offscreen, and read the image back.
 
         Args:
             views: one per camera: a :class:`Camera`, a ``caveclod.paths.Pose``
@@ -140,16 +139,24 @@ class Renderer:
         Returns:
             (height, width, 3) uint8 RGB image, row 0 at the top.
         """
+        self.draw(views, wireframe)
+        raw = self._fbo.read(components=3, alignment=1)
+        return np.frombuffer(raw, np.uint8).reshape(self.height, self.width, 3)[::-1].copy()
+
+    def draw(self, views, wireframe: bool = False, target: moderngl.Framebuffer | None = None) -> None:
+        """Draw as :meth:`render` does into ``target`` (a window's ``ctx.screen``,
+        width x height pixels), or into the offscreen image when None; nothing is read back."""
         views = list(views)
         if len(views) != self.cameras:
-            raise ValueError(f"render() needs one view per camera ({self.cameras}), got {len(views)}")
+            raise ValueError(f"draw() needs one view per camera ({self.cameras}), got {len(views)}")
         views = [Camera.of(view) for view in views]
         program = self._programs[bool(wireframe)]
-        self._fbo.use()
-        self._fbo.clear(*BACKGROUND, 1.0, depth=1.0)
+        target = self._fbo if target is None else target
+        target.use()
+        target.clear(*BACKGROUND, 1.0, depth=1.0)
         self.ctx.enable_only(moderngl.DEPTH_TEST)
         for camera, (view, (x, y, w, h)) in enumerate(zip(views, self.viewports())):
-            self._fbo.viewport = (x, self.height - y - h, w, h)      # GL's origin is bottom left
+            target.viewport = (x, self.height - y - h, w, h)       # GL's origin is bottom left
             aspect = w / h
             near, far = view.clip_planes(self.lo, self.hi, aspect)
             mvp = view.projection(aspect, near, far) @ view.view_matrix(self.origin)
@@ -159,8 +166,13 @@ class Renderer:
                     self._textures[material].use(0)
                     vao = buffer.vertex_array(program, self._vertex_content)
                     vao.render(moderngl.TRIANGLES, vertices=buffer.count * 3)
-        raw = self._fbo.read(components=3, alignment=1)
-        return np.frombuffer(raw, np.uint8).reshape(self.height, self.width, 3)[::-1].copy()
+
+    def resize(self, width: int, height: int) -> None:
+        """Change the image size (a window was resized); buffers and textures stay."""
+        _check_size(width, height)
+        self._release_framebuffer()
+        self.width, self.height = int(width), int(height)
+        self._fbo = self._framebuffer()
 
     # -- lifetime -------------------------------------------------------------
     def release(self) -> None:
@@ -168,8 +180,8 @@ class Renderer:
         for buffers in self._buffers:
             for buffer in buffers:
                 buffer.release()
-        for resource in [*self._textures, self._fbo, *self._fbo.color_attachments, self._fbo.depth_attachment,
-                         *(buffer for buffer, *_ in self._vertex_content), *self._programs.values()]:
+        self._release_framebuffer()
+        for resource in [*self._textures, *(buffer for buffer, *_ in self._vertex_content), *self._programs.values()]:
             resource.release()
         if self._owns_ctx:
             self.ctx.release()
@@ -202,14 +214,10 @@ class Renderer:
                 self.stats.vertex_bytes += array.nbytes
         return content
 
-    def _upload_textures(self, given: dict) -> list:
+    def _upload_textures(self, images: list) -> list:
         """One repeating, mipmapped texture per material."""
-        unknown = set(given) - set(range(len(self.materials)))
-        if unknown:
-            raise ValueError(f"textures given for unknown material ids {sorted(unknown)}")
         textures = []
-        for material, name in enumerate(self.materials):
-            image = check_texture(given[material]) if material in given else material_texture(name)
+        for image in images:
             texture = self.ctx.texture((image.shape[1], image.shape[0]), image.shape[2], image.tobytes())
             texture.repeat_x = texture.repeat_y = True
             texture.build_mipmaps()
@@ -217,6 +225,30 @@ class Renderer:
             textures.append(texture)
             self.stats.texture_bytes += image.nbytes
         return textures
+
+
+    def _framebuffer(self) -> moderngl.Framebuffer:
+        size = (self.width, self.height)
+        return self.ctx.framebuffer(color_attachments=[self.ctx.renderbuffer(size)],
+                                    depth_attachment=self.ctx.depth_renderbuffer(size))
+
+    def _release_framebuffer(self) -> None:
+        for resource in (*self._fbo.color_attachments, self._fbo.depth_attachment, self._fbo):
+            resource.release()
+
+
+def _check_size(width, height) -> None:
+    if not (isinstance(width, (int, np.integer)) and isinstance(height, (int, np.integer))
+            and width >= 2 and height >= 2):
+        raise ValueError(f"the image must be at least 2 x 2 pixels, got {width!r} x {height!r}")
+
+
+def _texture_images(materials: list, given: dict) -> list:
+    """(h, w, 3 | 4) uint8 image per material: the one given, else a generated one."""
+    unknown = set(given) - set(range(len(materials)))
+    if unknown:
+        raise ValueError(f"textures given for unknown material ids {sorted(unknown)}")
+    return [check_texture(given[m]) if m in given else material_texture(name) for m, name in enumerate(materials)]
 
 
 def _check_vertices(vertices) -> Vertices:
