@@ -10,7 +10,8 @@ without patching would do). Reported: index bytes and write calls per frame
 for both and their ratio, GPU-side copies when buffers grew, the time to
 apply a frame and to render it (all cameras, plain and wireframe, pixels read
 back) with whatever OpenGL is here (llvmpipe on the project's machines), and
-a 1-camera 1280x720 render time. Writes ``benchmarks/results/render.json``
+1-camera 1280x720 times: rendered, drawn without read-back, and rendered
+with every triangle of the mesh. Writes ``benchmarks/results/render.json``
 and ``render_sheet.png`` (frames of the flyover).
 """
 
@@ -116,6 +117,20 @@ def main() -> None:
         single.render([pose])
         single_s.append(time.perf_counter() - t0)
     single_triangles = one.n_faces
+    draw_s = []                     # the same without reading pixels back (what a window pays)
+    for _ in range(10):
+        t0 = time.perf_counter()
+        single.draw([pose])
+        ctx.finish()
+        draw_s.append(time.perf_counter() - t0)
+    full = mesh.new_camera()        # every original triangle: the renderer's triangle-bound end
+    full.update(caveclod.View.from_pose(pose, width=WIDTH, height=HEIGHT, tolerance_px=0.0, cull=False))
+    upload_whole(single, 0, full)
+    full_s = []
+    for _ in range(6):
+        t0 = time.perf_counter()
+        single.render([pose])
+        full_s.append(time.perf_counter() - t0)
 
     ms = lambda values: {k: round(v * 1e3, 2) for k, v in percentiles(values).items()}   # noqa: E731
     result = {
@@ -131,6 +146,8 @@ def main() -> None:
         "render_ms": ms(render_s[FPS:]),
         "render_wireframe_ms": ms(wire_s[3:]),
         "render_1_camera_ms": ms(single_s[5:]), "render_1_camera_triangles": single_triangles,
+        "draw_1_camera_no_readback_ms": ms(draw_s[2:]),
+        "render_all_faces_ms": ms(full_s[1:]), "render_all_faces_triangles": full.n_faces,
     }
     RESULTS.mkdir(parents=True, exist_ok=True)
     (RESULTS / "render.json").write_text(json.dumps(result, indent=2) + "\n")

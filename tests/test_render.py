@@ -171,6 +171,8 @@ def test_bad_vertex_buffers_and_options_are_refused(gl):
         Renderer(32, 32, Vertices(verts.positions * np.nan, verts.normals, verts.uvs), ["a"], ctx=gl)
     with pytest.raises(ValueError, match="colors"):
         Renderer(32, 32, Vertices(*verts[:3], np.zeros((9, 4), np.float32)), ["a"], ctx=gl)
+    with pytest.raises(ValueError, match="lo <= hi"):
+        Renderer(32, 32, verts, ["a"], bounds=((0, 0, 1), (1, 1, 0)), ctx=gl)
     with pytest.raises(ValueError, match="cameras"):
         Renderer(32, 32, verts, ["a"], cameras=5, ctx=gl)
     with pytest.raises(ValueError, match="unknown material"):

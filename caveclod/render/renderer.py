@@ -17,7 +17,7 @@ import numpy as np
 from . import shaders
 from .buffers import IndexBuffer, UploadStats
 from .camera import Camera, quadrants
-from .context import RenderError, create_context
+from .context import create_context
 from .textures import check_texture, material_texture
 
 MAX_CAMERAS = 4
@@ -55,6 +55,9 @@ class Renderer:
         textures: ``{material id: (h, w, 3 | 4) uint8 image}`` to use instead
             of generated textures (row 0 is v = 0).
         light: direction towards the light (world); ambient: 0..1.
+        anisotropy: texture filtering; 1 is trilinear. Higher values sharpen
+            terrain seen at grazing angles; free on a GPU, but 4 makes a
+            1280x720 frame 2.4 times slower on llvmpipe.
 
     Frames go in with :meth:`apply` and :meth:`reset`, images come out of
     :meth:`render`; :attr:`stats` counts every byte sent to the GPU.
@@ -62,7 +65,7 @@ class Renderer:
 
     def __init__(self, width: int, height: int, vertices, materials, *, cameras: int = 1, bounds=None,
                  ctx: moderngl.Context | None = None, textures: dict | None = None,
-                 light=LIGHT, ambient: float = AMBIENT):
+                 light=LIGHT, ambient: float = AMBIENT, anisotropy: float = 1.0):
         # Everything is checked before the first GL object is made.
         _check_size(width, height)
         if not (isinstance(cameras, (int, np.integer)) and 1 <= cameras <= MAX_CAMERAS):
@@ -74,9 +77,7 @@ class Renderer:
         images = _texture_images(self.materials, textures or {})
         self.width, self.height, self.cameras = int(width), int(height), int(cameras)
         self.n_vertices = len(vertices.positions)
-        if bounds is None:
-            bounds = (vertices.positions.min(axis=0), vertices.positions.max(axis=0))
-        self.lo, self.hi = (np.asarray(b, dtype=np.float64).reshape(3) for b in bounds)
+        self.lo, self.hi = _check_bounds(bounds, vertices.positions)
         self.origin = 0.5 * (self.lo + self.hi)
         self.stats = UploadStats()
         self._owns_ctx = ctx is None
@@ -87,7 +88,7 @@ class Renderer:
                                    fragment_shader=shaders.FRAGMENT_WIREFRAME),
         }
         self._vertex_content = self._upload_vertices(vertices)
-        self._textures = self._upload_textures(images)
+        self._textures = self._upload_textures(images, anisotropy)
         light = np.asarray(light, dtype=np.float64)
         for program in self._programs.values():
             _set(program, u_texture=0, u_light=tuple(light / np.linalg.norm(light)), u_ambient=float(ambient),
@@ -214,18 +215,17 @@ class Renderer:
                 self.stats.vertex_bytes += array.nbytes
         return content
 
-    def _upload_textures(self, images: list) -> list:
+    def _upload_textures(self, images: list, anisotropy: float) -> list:
         """One repeating, mipmapped texture per material."""
         textures = []
         for image in images:
             texture = self.ctx.texture((image.shape[1], image.shape[0]), image.shape[2], image.tobytes())
             texture.repeat_x = texture.repeat_y = True
             texture.build_mipmaps()
-            texture.anisotropy = min(4.0, self.ctx.max_anisotropy)
+            texture.anisotropy = max(1.0, min(float(anisotropy), self.ctx.max_anisotropy))
             textures.append(texture)
             self.stats.texture_bytes += image.nbytes
         return textures
-
 
     def _framebuffer(self) -> moderngl.Framebuffer:
         size = (self.width, self.height)
@@ -241,6 +241,19 @@ def _check_size(width, height) -> None:
     if not (isinstance(width, (int, np.integer)) and isinstance(height, (int, np.integer))
             and width >= 2 and height >= 2):
         raise ValueError(f"the image must be at least 2 x 2 pixels, got {width!r} x {height!r}")
+
+
+def _check_bounds(bounds, positions: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(lo, hi) float64 (3,) of the scene box given, or of the positions."""
+    if bounds is None:
+        return positions.min(axis=0).astype(np.float64), positions.max(axis=0).astype(np.float64)
+    try:
+        lo, hi = (np.asarray(b, dtype=np.float64).reshape(3) for b in bounds)
+    except (TypeError, ValueError):
+        raise ValueError(f"bounds are (lo, hi), three numbers each; got {bounds!r}") from None
+    if not (np.isfinite(lo).all() and np.isfinite(hi).all() and (lo <= hi).all()):
+        raise ValueError(f"bounds must be finite with lo <= hi, got {lo} .. {hi}")
+    return lo, hi
 
 
 def _texture_images(materials: list, given: dict) -> list:
