@@ -53,7 +53,8 @@ class Renderer:
             planes; default: the box of the positions.
         ctx: a moderngl context; default: :func:`create_context` offscreen.
         textures: ``{material id: (h, w, 3 | 4) uint8 image}`` to use instead
-            of generated textures (row 0 is v = 0).
+            of generated textures. Row 0 is v = 0: an image file read top row
+            first, for UVs with v = 0 at the bottom (OBJ), goes in as ``image[::-1]``.
         light: direction towards the light (world); ambient: 0..1.
         anisotropy: texture filtering; 1 is trilinear. Higher values sharpen
             terrain seen at grazing angles; free on a GPU, but 4 makes a
