@@ -1,4 +1,4 @@
-"""Shared pytest configuration and the service tests' fixtures."""
+"""Shared pytest configuration, the service tests' fixtures and the renderer tests' GL context."""
 
 from __future__ import annotations
 
@@ -45,3 +45,12 @@ def make_server(terrain_path):
 def server(make_server):
     """A LodServer with the default options."""
     return make_server()
+
+
+@pytest.fixture(scope="module")
+def gl():
+    """The OpenGL context (offscreen EGL) that a test module's renderers share."""
+    from caveclod.render import create_context
+    ctx = create_context()
+    yield ctx
+    ctx.release()
