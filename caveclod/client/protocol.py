@@ -61,6 +61,9 @@ class CameraUpdate:
             frame is the first to answer it; else None.
         stats: CameraStats of the server's update, or None.
         triangles_written: slot writes applied.
+        surfaces: the :class:`caveclod.wire.Surface` writes applied to the
+            camera's buffers, in order (after emptying them, on a keyframe):
+            a renderer applies the same to its GPU buffers to mirror them.
     """
 
     pose_seq: int
@@ -68,6 +71,7 @@ class CameraUpdate:
     latency: float | None = None
     stats: pb.CameraStats | None = None
     triangles_written: int = 0
+    surfaces: list = field(default_factory=list)
 
 
 @dataclass
@@ -120,6 +124,7 @@ class SessionProtocol:
         self.divergences = 0             # CRC mismatches found
         self.bad_frames = 0
         self.resumes = 0
+        self.epoch = 0                   # +1 whenever the index buffers start over (a new session)
         self._known_hash = ""            # vertex_buffer_hash to offer in Open
         self._chunks: bytearray | None = None
         self._sent: list[dict] = [{} for _ in range(cameras)]      # camera -> {pose_seq: send time}
@@ -195,6 +200,7 @@ class SessionProtocol:
         materials = len(info.mesh.materials)
         if not resumed:               # a new session (or the old one expired): start from nothing
             self.buffers = IndexBuffers(self.n_cameras, materials)
+            self.epoch += 1
             self.last_applied = 0
             self._asked.clear()
             self._answered = [0] * self.n_cameras
@@ -320,6 +326,7 @@ class SessionProtocol:
                     out.append(self.keyframe_message(c, pb.KEYFRAME_REASON_BAD_FRAME, str(exc)))
                 return
             cam.triangles_written += len(surface.slots)
+            cam.surfaces.append(surface)
             if surface.crc32 is not None:
                 self._crcs[c, surface.material] = surface.crc32
 

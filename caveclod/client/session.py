@@ -241,18 +241,20 @@ class Session:
         return update
 
     def next_frame(self, timeout: float | None = None) -> FrameUpdate | None:
-        """The next frame, applied in full and acked; None when ``timeout`` seconds pass first.
+        """The next frame, applied in full and acked; None when ``timeout`` seconds pass first
+        (``timeout=0``: None unless a frame has already arrived).
 
         Raises SessionEnded when the stream ends and cannot be resumed.
         """
         deadline = None if timeout is None else time.monotonic() + timeout
         while True:
-            remaining = None if deadline is None else deadline - time.monotonic()
-            if remaining is not None and remaining <= 0:
-                return None
+            # timeout=0 still takes what has already arrived (a render loop polls so).
+            remaining = None if deadline is None else max(deadline - time.monotonic(), 0.0)
             update = self._receive(remaining)
             if update is not None:
                 return update
+            if deadline is not None and time.monotonic() >= deadline:
+                return None
 
     # -- sending --------------------------------------------------------------------------
     def send_pose(self, camera: int, eye, target, up=(0.0, 0.0, 1.0)) -> int:
