@@ -139,48 +139,141 @@ def capacity(mesh: Path, sessions: int, duration: float, command: list | None = 
     return report
 
 
-def parallel_refinement(mesh: Path, seconds: float) -> dict:
-    """2 sessions jumping between far poses: the cores their refinement used."""
-    from caveclod.client import Client
+def parallel_refinement(mesh: Path, seconds: float, pose_hz: float = 200.0) -> dict:
+    """2 sessions whose camera jumps between far poses: the cores their refinement used.
+
+    Each session's client sends a pose every 1 / pose_hz seconds, alternating
+    between two far points of its camera's circle, without waiting for
+    frames: the latest pose wins, so the server always has a pose to refine
+    for and each update is a large one. The clients parse each frame only to
+    ack it (an applying client would compete for this machine's two cores
+    with the refinement it measures); the server still encodes every frame
+    in full. The rate of ``caveclod_refine_cpu_seconds_total`` (per-thread
+    CPU time of the updates) is the cores refinement used.
+    """
+    import queue
+
+    import grpc
+
     from caveclod.paths import flyover
+    from caveclod.v1 import caveclod_pb2 as pb
     server = Server(mesh)
     stop = threading.Event()
-    counts = [0, 0]
+    frames = [0, 0]
+    lo, hi = mesh_bounds(mesh)
 
-    def jump(k: int) -> None:
-        with Client(f"127.0.0.1:{server.port}", cache_dir=RESULTS / "vertex-cache") as client:
-            with client.session(mesh.stem, width=1280, height=720, tolerance_px=0.5) as s:
-                lo, hi = s.vertex_buffer.positions.min(0), s.vertex_buffer.positions.max(0)
-                t = 0.0
-                while not stop.is_set():
-                    t = 30.0 - t                      # the far side of the camera's circle
-                    seq = s.send_pose(0, *flyover(lo, hi, k, t + 0.01 * counts[k]))
-                    while (f := s.next_frame(timeout=10)) is not None and f.pose_seq < seq:
-                        pass
-                    counts[k] += 1
+    def vec(v) -> pb.Vec3:
+        return pb.Vec3(x=v[0], y=v[1], z=v[2])
 
-    threads = [threading.Thread(target=jump, args=(k,)) for k in range(2)]
+    def session(k: int) -> None:
+        requests: queue.Queue = queue.Queue()
+        requests.put(pb.ClientMessage(open=pb.Open(
+            mesh=mesh.stem, cameras=1, vertex_buffer_hash="", client="benchmark",
+            options=pb.RefineOptions(viewport_width=1280, viewport_height=720, tolerance_px=0.5))))
+        with grpc.insecure_channel(f"127.0.0.1:{server.port}", [("grpc.max_receive_message_length", 8 << 20)]) as ch:
+            call = ch.stream_stream("/caveclod.v1.Lod/Session", request_serializer=pb.ClientMessage.SerializeToString,
+                                    response_deserializer=pb.ServerMessage.FromString)(iter(requests.get, None))
+
+            def send_poses() -> None:
+                seq, t = 0, 0.0
+                while not stop.wait(1.0 / pose_hz):
+                    seq, t = seq + 1, 30.0 - t            # the far side of the camera's circle
+                    eye, target, up = flyover(lo, hi, k, t + 0.001 * seq)
+                    requests.put(pb.ClientMessage(pose=pb.CameraPose(camera=0, pose_seq=seq, eye=vec(eye),
+                                                                     target=vec(target), up=vec(up))))
+                requests.put(None)
+
+            sender = threading.Thread(target=send_poses, daemon=True)
+            sender.start()
+            try:
+                for msg in call:
+                    if msg.WhichOneof("kind") == "frame" and not msg.frame.continued:
+                        requests.put(pb.ClientMessage(ack=pb.Ack(frame_seq=msg.frame.frame_seq)))
+                        frames[k] += 1
+                    if stop.is_set():
+                        break
+            except grpc.RpcError:
+                pass
+            finally:
+                call.cancel()
+
+    threads = [threading.Thread(target=session, args=(k,), daemon=True) for k in range(2)]
     try:
         for th in threads:
             th.start()
-        time.sleep(2.0)                                # both sessions open and refining
-        m0, cpu0, t0 = metrics(server.metrics_port), cpu_seconds(server.proc.pid), time.perf_counter()
-        n0 = sum(counts)
+        time.sleep(3.0)                                # both sessions open and refining
+        m0, cpu0, me0, t0 = metrics(server.metrics_port), cpu_seconds(server.proc.pid), time.process_time(), \
+            time.perf_counter()
+        n0 = sum(frames)
         time.sleep(seconds)
-        m1, cpu1, t1 = metrics(server.metrics_port), cpu_seconds(server.proc.pid), time.perf_counter()
-        n1 = sum(counts)
+        m1, cpu1, me1, t1 = metrics(server.metrics_port), cpu_seconds(server.proc.pid), time.process_time(), \
+            time.perf_counter()
+        n1 = sum(frames)
     finally:
         stop.set()
         for th in threads:
-            th.join(60)
+            th.join(30)
         server.stop()
     wall = t1 - t0
     refine = m1["caveclod_refine_cpu_seconds_total"] - m0["caveclod_refine_cpu_seconds_total"]
     updates = m1["caveclod_refine_seconds_count"] - m0["caveclod_refine_seconds_count"]
     busy = m1["caveclod_refine_seconds_sum"] - m0["caveclod_refine_seconds_sum"]
-    return {"seconds": round(wall, 1), "sessions": 2, "poses_answered": n1 - n0, "updates": int(updates),
+    return {"seconds": round(wall, 1), "sessions": 2, "pose_hz": pose_hz, "frames": n1 - n0, "updates": int(updates),
             "update_ms_mean": round(1e3 * busy / max(updates, 1), 1),
-            "refine_cpu_cores": round(refine / wall, 2), "server_cpu_cores": round((cpu1 - cpu0) / wall, 2)}
+            "refine_cpu_cores": round(refine / wall, 2), "server_cpu_cores": round((cpu1 - cpu0) / wall, 2),
+            "client_cpu_cores": round((me1 - me0) / wall, 2)}
+
+
+def kernel_parallelism(mesh: Path, seconds: float) -> dict:
+    """The refinement kernels alone, in this process: 1 then 2 threads, each a
+    camera jumping between far poses, as in :func:`parallel_refinement`.
+    Shows how much of two cores the GIL-free updates use with no encoding,
+    network or client beside them."""
+    import caveclod
+    from caveclod.paths import flyover
+    from caveclod.refine.view import View
+    m = caveclod.load(mesh)
+    lo, hi = mesh_bounds(mesh)
+    out = {}
+    for n in (1, 2):
+        stop = threading.Event()
+        tallies = [[0, 0.0] for _ in range(n)]          # updates, thread CPU seconds
+
+        def run(k: int) -> None:
+            cam = m.new_camera()
+            t, i = 0.0, 0
+            while not stop.is_set():
+                t, i = 30.0 - t, i + 1
+                view = View.from_pose(flyover(lo, hi, k, t + 0.001 * i), width=1280, height=720, tolerance_px=0.5)
+                c0 = time.thread_time()
+                cam.update(view)
+                tallies[k][1] += time.thread_time() - c0
+                tallies[k][0] += 1
+
+        threads = [threading.Thread(target=run, args=(k,), daemon=True) for k in range(n)]
+        for th in threads:
+            th.start()
+        time.sleep(1.0)                                  # past the first, full refinement
+        base = [list(x) for x in tallies]
+        t0 = time.perf_counter()
+        time.sleep(seconds)
+        wall = time.perf_counter() - t0
+        done = [[a - b for a, b in zip(x, y)] for x, y in zip(tallies, base)]
+        stop.set()
+        for th in threads:
+            th.join(30)
+        updates = sum(d[0] for d in done)
+        out[f"threads_{n}"] = {"updates_per_second": round(updates / wall, 1),
+                               "refine_cpu_cores": round(sum(d[1] for d in done) / wall, 2)}
+    out["speedup"] = round(out["threads_2"]["updates_per_second"] / out["threads_1"]["updates_per_second"], 2)
+    return out
+
+
+def mesh_bounds(mesh: Path) -> tuple:
+    """(lo, hi) corners of a .cvc file's positions."""
+    import caveclod
+    m = caveclod.load(mesh)
+    return tuple(float(v) for v in m.bounds()[0]), tuple(float(v) for v in m.bounds()[1])
 
 
 def startup(mesh: Path, repeats: int = 5) -> dict:
@@ -279,6 +372,8 @@ def main() -> int:
     if "parallel" not in skip:
         out["parallel_refinement"] = parallel_refinement(mesh, args.parallel_seconds)
         print(f"parallel refinement: {out['parallel_refinement']}", file=sys.stderr)
+        out["kernel_parallelism"] = kernel_parallelism(mesh, args.parallel_seconds)
+        print(f"kernels alone: {out['kernel_parallelism']}", file=sys.stderr)
     if "startup" not in skip:
         out["startup"] = startup(mesh_path(args.startup_size))
         print(f"start-up: {out['startup']}", file=sys.stderr)

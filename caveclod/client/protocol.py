@@ -140,7 +140,7 @@ class SessionProtocol:
         """Offer a cached buffer in the next Open when the cache holds ``vertex_buffer_hash``."""
         if self.vertex is not None and self.vertex.hash == vertex_buffer_hash:
             self._known_hash = vertex_buffer_hash
-        elif self.cache is not None and vertex_buffer_hash and self.cache.get(vertex_buffer_hash) is not None:
+        elif self.cache is not None and vertex_buffer_hash and self.cache.lookup(vertex_buffer_hash) is not None:
             self._known_hash = vertex_buffer_hash
         return bool(self._known_hash)
 
@@ -224,10 +224,10 @@ class SessionProtocol:
     def _use_cached(self, info: pb.SessionInfo) -> None:
         key = info.mesh.vertex_buffer_hash
         if self.vertex is not None and self.vertex.hash == key:
-            payload = self.vertex.payload
+            payload, crc = self.vertex.payload, zlib.crc32(self.vertex.payload)
         else:
-            payload = self.cache.get(key) if self.cache is not None else None
-        if payload is None or zlib.crc32(payload) != info.vertex_payload_crc32:
+            payload, crc = (self.cache.lookup(key) if self.cache is not None else None) or (None, None)
+        if payload is None or crc != info.vertex_payload_crc32:
             if self.cache is not None:
                 self.cache.discard(key)
             raise ProtocolError(f"the server took vertex buffer {key} as cached, but this client does not hold it "
