@@ -55,6 +55,8 @@ def add_arguments(ap: argparse.ArgumentParser) -> None:
     ap.add_argument("--keep-every", type=int, default=10, metavar="N",
                     help="write every N-th frame as a PNG into frames/ (default 10; the animation has them all)")
     ap.add_argument("--wireframe", action="store_true", help="draw the triangles' edges over the terrain")
+    ap.add_argument("--animation-width", type=int, default=640, metavar="PX",
+                    help="largest width of the animation's frames (default 640)")
 
 
 def run(args) -> int:
@@ -64,6 +66,8 @@ def run(args) -> int:
         raise InputError(f"--frames must be at least 2, got {args.frames}")
     if args.keep_every < 1:
         raise InputError(f"--keep-every must be at least 1, got {args.keep_every}")
+    if args.animation_width < 16:
+        raise InputError(f"--animation-width must be at least 16 pixels, got {args.animation_width}")
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
     started = time.perf_counter()
@@ -153,7 +157,8 @@ def fly(target: str, mesh: str, out: Path, size: tuple, args) -> tuple[dict, lis
                       f"vertex buffer {session.vertex_buffer.n_vertices:,} vertices", flush=True)
                 summary, frames = record(session, out / "frames", size=size, trajectory="flyover",
                                          frames=args.frames, wireframe=args.wireframe, keep_every=args.keep_every,
-                                         animation=out / "animation.gif", wireframe_still=out / "wireframe.png")
+                                         animation=out / "animation.gif", animation_width=args.animation_width,
+                                         wireframe_still=out / "wireframe.png")
     except SessionEnded as exc:
         raise CaveclodError(f"the session ended: {exc}; see the server log {out / 'server.log'}") from None
     except FlightError as exc:

@@ -53,7 +53,8 @@ def shrink(image: np.ndarray, width: int = ANIMATION_WIDTH) -> np.ndarray:
 
 def record(session, out: Path, *, size: tuple[int, int], trajectory: str, frames: int, fps: float = 30.0,
            wireframe: bool = False, verify: bool = True, keep_every: int = 1, progress: bool = True,
-           animation: Path | None = None, wireframe_still: Path | None = None) -> tuple[dict, list]:
+           animation: Path | None = None, animation_width: int = ANIMATION_WIDTH,
+           wireframe_still: Path | None = None) -> tuple[dict, list]:
     """Fly ``session`` along ``trajectory`` for ``frames`` frames; write the images into ``out``.
 
     Args:
@@ -62,6 +63,7 @@ def record(session, out: Path, *, size: tuple[int, int], trajectory: str, frames
         verify: compare the GPU index buffers with the client library's after every frame.
         keep_every: write every n-th frame as a PNG (the animation has them all).
         animation: where the animation goes (default ``out / "animation.gif"``).
+        animation_width: the animation's frames are shrunk to at most this width.
         wireframe_still: also draw the last frame with the wireframe overlay, as a PNG here.
 
     Returns:
@@ -82,7 +84,7 @@ def record(session, out: Path, *, size: tuple[int, int], trajectory: str, frames
             faces.append(rec.active_faces)
             nbytes.append(rec.nbytes)
             verified += verify
-            small.append(shrink(rec.image))
+            small.append(shrink(rec.image, animation_width))
             if rec.index % keep_every == 0 or rec.index == frames - 1:
                 written.append(save_png(out / f"frame_{rec.index:04d}.png", rec.image).name)
             draw_ms.append(rec.draw_ms)
