@@ -127,7 +127,7 @@ class SessionProtocol:
         self.divergences = 0             # CRC mismatches found
         self.bad_frames = 0
         self.resumes = 0
-        self.failovers = 0               # broken streams that came back as a fresh session (replica gone)
+        self.failovers = 0               # broken streams that came back as a fresh session (replica gone, or expired)
         self.affinity_key = secrets.token_hex(16)
         self._known_hash = ""            # vertex_buffer_hash to offer in Open
         self._chunks: bytearray | None = None

@@ -10,9 +10,10 @@
 A broken stream is resumed with the session token, with exponential
 backoff; behind a balancer whose replica is gone, the session goes on as a
 fresh one on another replica (``protocol.failovers``: the vertex buffer is
-kept, the frame after the new SessionInfo is a keyframe); a checksum mismatch or a bad frame asks for a keyframe. A reader
-thread per stream receives messages; they are applied in the caller's
-thread, in ``next_frame``.
+kept, the cameras' latest poses are sent again, frame 1 is a keyframe). A
+checksum mismatch or a bad frame asks for a keyframe. A reader thread per
+stream receives messages; they are applied in the caller's thread, in
+``next_frame``.
 """
 
 from __future__ import annotations

@@ -8,10 +8,10 @@
 Modules, one topic each: ``config`` (the options), ``meshes`` (the served
 catalogue), ``session`` (one session's rules), ``registry`` (all sessions:
 limits, resume, expiry), ``service`` (the thin gRPC servicer), ``auth``,
-``metrics``, ``logs``, ``app`` (assembly, health, drain) and ``main`` (the
-command), and ``probe`` (``caveclod health``). Needs the ``server`` extra: ``pip install 'caveclod[server]'``.
+``metrics``, ``logs``, ``app`` (assembly, health, drain), ``main`` (the
+command), ``probe`` (``caveclod health``) and ``warm`` (numba's cache filled
+at image build). Needs the ``server`` extra: ``pip install 'caveclod[server]'``.
 """
-
 
 __all__ = ["LodServer", "ServerConfig"]
 

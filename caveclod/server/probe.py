@@ -16,11 +16,6 @@ import sys
 import grpc
 from grpc_health.v1 import health_pb2, health_pb2_grpc
 
-# The names a caveclod server registers with its health service: the
-# server as a whole, and the LOD service (caveclod.server.service.SERVICE).
-SERVICE_NAMES = ("", "caveclod.v1.Lod")
-
-
 def check(target: str, service: str = "", timeout: float = 2.0, tls_ca: bytes | None = None) -> str:
     """The serving status name (SERVING, NOT_SERVING, ...) of ``service`` at ``target``; raises grpc.RpcError."""
     channel = grpc.insecure_channel(target) if tls_ca is None \
