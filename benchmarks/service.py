@@ -24,7 +24,12 @@ Then:
   session, once numba's cache is warm (median of 5).
 
 Writes ``benchmarks/results/service.json`` (sections skipped with ``--skip``
-keep their earlier figures) and ``service_latency.png``.
+keep their earlier figures) and ``service_latency.png`` (``--out`` elsewhere).
+Each load level also records the server's memory: private, mapped-mesh and
+all mapped files' resident bytes, idle and at peak, and the camera states'
+bytes; the
+``shared`` section runs two servers on one mesh to show the mapped mesh
+shared between processes (proportional against mapped resident bytes).
 """
 
 from __future__ import annotations
@@ -116,17 +121,74 @@ def loadtest(port: int, sessions: int, duration: float, plot: Path | None = None
     return json.loads(out)
 
 
+def memory(pid: int) -> dict:
+    """Resident bytes of a process: private (RssAnon); of the mapped .cvc files (MeshRss: the mesh pages
+    it touched, shared through the page cache with every process that maps the same file) and its
+    proportional share of them (MeshPss: each page divided among the processes mapping it); and of
+    every mapped file, shared libraries included (RssFile)."""
+    out = {"MeshRss": 0, "MeshPss": 0}
+    for line in Path(f"/proc/{pid}/status").read_text().splitlines():
+        if line.startswith(("RssAnon:", "RssFile:")):
+            out[line.split(":")[0]] = int(line.split()[1]) * 1024
+    mesh = False
+    for line in Path(f"/proc/{pid}/smaps").read_text().splitlines():
+        head = line.split()
+        if head and "-" in head[0] and not head[0].endswith(":"):       # a mapping's first line
+            mesh = head[-1].endswith(".cvc")
+        elif mesh and head[0] in ("Rss:", "Pss:"):
+            out["MeshRss" if head[0] == "Rss:" else "MeshPss"] += int(head[1]) * 1024
+    return out
+
+
+class Sampler:
+    """Polls a server's memory and session gauges every ``period`` s in a thread; keeps the peaks."""
+
+    def __init__(self, server: "Server", period: float = 0.5):
+        self.server, self.period, self.peak = server, period, {}
+        self._stop = threading.Event()
+        self._thread = threading.Thread(target=self._run, daemon=True)
+        self._thread.start()
+
+    def _run(self) -> None:
+        while not self._stop.wait(self.period):
+            try:
+                m = metrics(self.server.metrics_port)
+                sample = {**memory(self.server.proc.pid), "sessions_active": m["caveclod_sessions_active"],
+                          "camera_state_bytes": m["caveclod_camera_state_bytes"]}
+            except (OSError, KeyError, ValueError):
+                continue
+            for k, v in sample.items():
+                self.peak[k] = max(self.peak.get(k, 0), v)
+
+    def stop(self) -> dict:
+        self._stop.set()
+        self._thread.join(5)
+        return self.peak
+
+
 def capacity(mesh: Path, sessions: int, duration: float, command: list | None = None) -> dict:
-    """One load level: server (``caveclod serve``, or ``command``) and load generator, with both processes' CPU."""
+    """One load level: server (``caveclod serve``, or ``command``) and load generator, with both processes'
+    CPU, and the server's memory: idle (mesh mapped, kernels loaded) and the peak under load."""
     server = Server(mesh, "--max-sessions", str(max(64, sessions)), command=command)
     try:
+        idle = memory(server.proc.pid)
         m0, cpu0, busy0, t0 = metrics(server.metrics_port), cpu_seconds(server.proc.pid), machine_busy(), \
             time.perf_counter()
+        sampler = Sampler(server)
         report = loadtest(server.port, sessions, duration)
+        peak = sampler.stop()
         m1, cpu1, busy1, t1 = metrics(server.metrics_port), cpu_seconds(server.proc.pid), machine_busy(), \
             time.perf_counter()
     finally:
         server.stop()
+    MiB = 1 << 20
+    report["server_memory_mib"] = {
+        "idle_private": round(idle.get("RssAnon", 0) / MiB, 1), "idle_mesh": round(idle["MeshRss"] / MiB, 1),
+        "idle_files": round(idle.get("RssFile", 0) / MiB, 1),
+        "peak_private": round(peak.get("RssAnon", 0) / MiB, 1), "peak_mesh": round(peak.get("MeshRss", 0) / MiB, 1),
+        "peak_files": round(peak.get("RssFile", 0) / MiB, 1),
+        "peak_camera_states": round(peak.get("camera_state_bytes", 0) / MiB, 1)}
+    report["peak_sessions_active"] = int(peak.get("sessions_active", 0))
     wall = t1 - t0
     report["server_cpu_cores"] = round((cpu1 - cpu0) / wall, 2)
     report["server_cpu_ms_per_frame"] = round(1e3 * (cpu1 - cpu0) / max(report["frames"], 1), 2)
@@ -310,6 +372,32 @@ def startup(mesh: Path, repeats: int = 5) -> dict:
             "first_frame_s": round(statistics.median(first), 3), "first_frame_s_all": [round(x, 3) for x in first]}
 
 
+def shared_mesh(mesh: Path, sessions: int, duration: float) -> dict:
+    """Two server processes mapping the same .cvc, ``sessions`` sessions each at once: how much of each
+    one's resident mesh pages is its own (proportional: MeshPss) against what it maps (MeshRss)."""
+    servers = [Server(mesh, "--max-sessions", str(max(64, sessions))) for _ in range(2)]
+    try:
+        samplers = [Sampler(s) for s in servers]
+        threads = [threading.Thread(target=loadtest, args=(s.port, sessions, duration)) for s in servers]
+        for t in threads:
+            t.start()
+        time.sleep(duration * 0.8)
+        during = [memory(s.proc.pid) for s in servers]
+        for t in threads:
+            t.join(duration + 150)
+        for sm in samplers:
+            sm.stop()
+    finally:
+        for s in servers:
+            s.stop()
+    MiB = 1 << 20
+    return {"mesh": mesh.name, "mesh_file_mib": round(mesh.stat().st_size / MiB, 1), "sessions_per_server": sessions,
+            "servers": [{"private_mib": round(m.get("RssAnon", 0) / MiB, 1),
+                         "mesh_resident_mib": round(m["MeshRss"] / MiB, 1),
+                         "mesh_proportional_mib": round(m["MeshPss"] / MiB, 1),
+                         "files_resident_mib": round(m.get("RssFile", 0) / MiB, 1)} for m in during]}
+
+
 def plot(levels: list, path: Path) -> None:
     import matplotlib
     matplotlib.use("Agg")
@@ -347,11 +435,14 @@ def main() -> int:
     ap.add_argument("--duration", type=float, default=20.0, help="seconds of poses per load level")
     ap.add_argument("--parallel-seconds", type=float, default=10.0)
     ap.add_argument("--startup-size", type=int, default=1024, help="mesh of the start-up test (1024: 2M triangles)")
-    ap.add_argument("--skip", default="", help="comma-separated sections to skip: capacity,parallel,startup")
+    ap.add_argument("--skip", default="", help="comma-separated sections to skip: capacity,parallel,startup,shared")
+    ap.add_argument("--shared-sessions", type=int, default=8,
+                    help="sessions on each of the two servers of the shared-mesh section (default 8)")
+    ap.add_argument("--out", default=str(RESULTS / "service.json"), help="the JSON report (default results/service.json)")
     args = ap.parse_args()
     skip = set(filter(None, args.skip.split(",")))
     mesh = mesh_path(args.size)
-    path = RESULTS / "service.json"
+    path = Path(args.out)
     out = json.loads(path.read_text()) if skip and path.exists() else {}     # keep the sections not re-run
     out.update({"mesh": f"default --size {args.size}", "machine_cores": os.cpu_count()})
     if "capacity" not in skip:
@@ -365,7 +456,7 @@ def main() -> int:
                   f"errors {r['errors']}  cpu: server {r['server_cpu_cores']} (refine "
                   f"{r['server_refine_cpu_cores']}), loadtest {r['client_cpu_cores']}, others "
                   f"{r['other_cpu_cores']}", file=sys.stderr)
-        plot(levels, RESULTS / "service_latency.png")
+        plot(levels, path.with_name(f"{path.stem}_latency.png"))      # service.json: service_latency.png
         for r in levels:
             r.pop("latencies_ms")
         out["capacity"] = levels
@@ -377,6 +468,9 @@ def main() -> int:
     if "startup" not in skip:
         out["startup"] = startup(mesh_path(args.startup_size))
         print(f"start-up: {out['startup']}", file=sys.stderr)
+    if "shared" not in skip:
+        out["shared_mesh"] = shared_mesh(mesh, args.shared_sessions, args.duration)
+        print(f"shared mesh: {out['shared_mesh']}", file=sys.stderr)
     RESULTS.mkdir(parents=True, exist_ok=True)
     path.write_text(json.dumps(out, indent=1) + "\n")
     return 0

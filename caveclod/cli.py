@@ -7,6 +7,7 @@
     caveclod render --target HOST:PORT --cameras N --trajectory PATH --frames K --out DIR ...
     caveclod view --target HOST:PORT [--cameras N] ...
     caveclod demo [--out DIR]
+    caveclod health [--target HOST:PORT] [--service NAME]
 
 Errors print one line on stderr and exit with status 2; never a traceback.
 """
@@ -108,6 +109,19 @@ def _parser() -> argparse.ArgumentParser:
                    help="one line per session event on stderr, as text or JSON (default text)")
     s.set_defaults(run=_serve)
 
+    h = sub.add_parser("health", help="ask a server's gRPC health service whether it serves (exit 0) or not (1)",
+                       description="Ask the grpc.health.v1 service of a caveclod server (or a balancer in front of "
+                                   "it) for a service's status. Exits 0 when SERVING, 1 otherwise (NOT_SERVING while "
+                                   "draining, no answer, no connection), with the reason on stderr. Containers run "
+                                   "it as their HEALTHCHECK.")
+    h.add_argument("--target", default="127.0.0.1:50051", metavar="HOST:PORT",
+                   help="the server (default 127.0.0.1:50051, the default port of caveclod serve)")
+    h.add_argument("--service", default="caveclod.v1.Lod",
+                   help="service name to ask about: 'caveclod.v1.Lod' (default) or '' for the server as a whole")
+    h.add_argument("--timeout", type=float, default=2.0, metavar="S", help="seconds to wait for the answer (default 2)")
+    h.add_argument("--tls-ca", metavar="F", help="PEM CA certificate: connect with TLS and trust it")
+    h.set_defaults(run=_health)
+
     t = sub.add_parser("loadtest", help="measure a server: many windowless sessions flying camera paths",
                        description="Open --sessions sessions of --cameras cameras each, send poses at --rate Hz "
                                    "along --trajectory for --duration seconds, verify every checksum, and report "
@@ -201,6 +215,11 @@ def _demo(args) -> int:
 def _serve(args) -> int:
     from .server.main import serve
     return serve(args)
+
+
+def _health(args) -> int:
+    from .server.probe import main as health
+    return health(args)
 
 
 def _loadtest(args) -> int:

@@ -27,7 +27,7 @@ from ..v1 import caveclod_pb2 as pb
 from ..v1 import caveclod_pb2_grpc as pb_grpc
 from .cache import VertexBufferCache
 from .protocol import FrameUpdate, ProtocolError, SessionProtocol, VertexBuffer
-from .session import CHANNEL_OPTIONS, RETRIABLE, SessionEnded, backoff, credentials, metadata, refine_options
+from .session import CHANNEL_OPTIONS, SessionEnded, backoff, credentials, metadata, refine_options, retriable
 
 
 class AsyncClient:
@@ -112,7 +112,8 @@ class AsyncSession:
                 raise SessionEnded(exc.code(), exc.details()) from None
             if self.protocol.mesh in meshes:
                 self.protocol.offer_vertex_buffer(meshes[self.protocol.mesh].vertex_buffer_hash)
-        self._stream = _Stream(self.client.stub, self.protocol.open_message(), self.client.metadata)
+        self._stream = _Stream(self.client.stub, self.protocol.open_message(),
+                               self.protocol.metadata(self.client.metadata))
         async def until_ready():
             while not self.protocol.ready:
                 await self._receive(resume=False)
@@ -132,7 +133,7 @@ class AsyncSession:
                 await self._open(timeout=10.0)
                 return
             except SessionEnded as exc:
-                if exc.code not in RETRIABLE:
+                if not retriable(exc.code, exc.details):
                     raise
                 error = exc
         raise SessionEnded(grpc.StatusCode.UNAVAILABLE, f"could not resume after {self.retries} tries: {error}")
@@ -142,7 +143,7 @@ class AsyncSession:
             msg = await self._stream.call.read()
         except grpc.RpcError as exc:
             code, details = exc.code(), exc.details()
-            if resume and code in RETRIABLE and self.protocol.token and not self._closed:
+            if resume and retriable(code, details) and self.protocol.token and not self._closed:
                 await self._resume(exc)
                 return None
             raise SessionEnded(code, details) from None
@@ -152,7 +153,7 @@ class AsyncSession:
                 self._closed = True
                 raise SessionEnded(None, "the server ended the session")
             details = await self._stream.call.details()
-            if resume and code in RETRIABLE and self.protocol.token and not self._closed:
+            if resume and retriable(code, details) and self.protocol.token and not self._closed:
                 await self._resume(details)
                 return None
             raise SessionEnded(code, details)

@@ -9,6 +9,7 @@ a gRPC stream, so both behave exactly alike.
 
 from __future__ import annotations
 
+import secrets
 import time
 import zlib
 from dataclasses import dataclass, field
@@ -21,6 +22,12 @@ from .buffers import IndexBuffers
 from .cache import VertexBufferCache
 
 CLIENT_NAME = "caveclod-client/0.1"
+# Call metadata sent on every Session call of a session, its first Open and
+# every resume: a random key of the session, so that a balancer that hashes
+# on it (deploy/nginx/caveclod.conf.template) sends a resume to the replica
+# that holds the session. The session token cannot serve: the replica that
+# opens a session makes it, after the balancer has chosen that replica.
+AFFINITY_HEADER = "x-caveclod-session"
 
 
 class ProtocolError(Exception):
@@ -125,6 +132,8 @@ class SessionProtocol:
         self.bad_frames = 0
         self.resumes = 0
         self.epoch = 0                   # +1 whenever the index buffers start over (a new session)
+        self.failovers = 0               # broken streams that came back as a fresh session (replica gone, or expired)
+        self.affinity_key = secrets.token_hex(16)
         self._known_hash = ""            # vertex_buffer_hash to offer in Open
         self._chunks: bytearray | None = None
         self._sent: list[dict] = [{} for _ in range(cameras)]      # camera -> {pose_seq: send time}
@@ -136,6 +145,10 @@ class SessionProtocol:
         self._untrusted: set[int] = set()
 
     # -- what to send ------------------------------------------------------------------
+    def metadata(self, base: tuple = ()) -> tuple:
+        """Call metadata of this session's Session calls: ``base`` plus the affinity key."""
+        return (*base, (AFFINITY_HEADER, self.affinity_key))
+
     def offer_vertex_buffer(self, vertex_buffer_hash: str) -> bool:
         """Offer a cached buffer in the next Open when the cache holds ``vertex_buffer_hash``."""
         if self.vertex is not None and self.vertex.hash == vertex_buffer_hash:
@@ -196,14 +209,19 @@ class SessionProtocol:
         resumed = info.resumed and self.info is not None
         if self.info is not None:
             self.resumes += resumed
+            self.failovers += not resumed
         self.info, self.token = info, info.session_token
         materials = len(info.mesh.materials)
-        if not resumed:               # a new session (or the old one expired): start from nothing
+        if not resumed:
+            # A new session (the first, or a failover: the old one expired or its
+            # replica is gone): start from nothing, and number poses from 1 again.
             self.buffers = IndexBuffers(self.n_cameras, materials)
             self.epoch += 1
             self.last_applied = 0
             self._asked.clear()
             self._answered = [0] * self.n_cameras
+            self.pose_seq = info.last_pose_seq
+            self._sent = [{} for _ in range(self.n_cameras)]
         self.last_acked = self.last_applied   # the server restarts its window at every SessionInfo
         self._frame = None
         self.pose_seq = max(self.pose_seq, info.last_pose_seq)
@@ -214,9 +232,10 @@ class SessionProtocol:
             self._chunks = bytearray()
             if info.vertex_format.payload_bytes == 0:
                 self._finish_vertex_buffer()
-        # Poses in flight when the stream broke are lost: send each camera's latest again.
+        # Poses in flight when the stream broke are lost: send each camera's latest
+        # again. A fresh session has none of them: send every camera's latest.
         for c, pose in enumerate(self._latest):
-            if pose is not None and self._sent[c] and max(self._sent[c]) > info.last_pose_seq:
+            if pose is not None and (not resumed or (self._sent[c] and max(self._sent[c]) > info.last_pose_seq)):
                 self._sent[c].clear()
                 out.append(self.pose_message(c, *pose))
         return out
