@@ -66,6 +66,16 @@ def _check_options(crease_angle, cell_size, z_scale) -> None:
         raise InputError(f"--crease-angle must be between 0 and 180 degrees, got {crease_angle}")
 
 
+def _refuse_heightfield_options(what: str, cell_size, z_scale, materials, nodata) -> None:
+    """Options that only heightfields read are refused elsewhere, not silently ignored."""
+    given = [name for name, unused in (("--cell-size", float(cell_size) != 1.0), ("--z-scale", float(z_scale) != 1.0),
+                                       ("--materials", materials is not None), ("--nodata", nodata is not None))
+             if unused]
+    if given:
+        raise InputError(f"{', '.join(given)} only apply to heightfields (.npy, .png, .tif), not to {what}; "
+                         "drop them, or give a heightfield")
+
+
 def load(path: str | os.PathLike) -> StaticMesh:
     """Open a ``.cvc`` file built by :func:`build` (memory-mapped)."""
     return _load_file(path)
@@ -79,6 +89,7 @@ def to_source(source, *, cell_size=1.0, z_scale=1.0, materials=None, size=DEFAUL
         source.validate()
         return source
     if isinstance(source, str) and source in builtin.BUILTINS:
+        _refuse_heightfield_options(f"the built-in {source!r}", cell_size, z_scale, materials, nodata)
         if not isinstance(size, (int, np.integer)) or not 2 <= size <= 8192:
             raise InputError(f"--size must be an integer between 2 and 8192 cells, got {size!r}")
         return builtin.BUILTINS[source](int(size)) if seed is None else builtin.BUILTINS[source](int(size), seed)
@@ -91,6 +102,7 @@ def to_source(source, *, cell_size=1.0, z_scale=1.0, materials=None, size=DEFAUL
                 classes = terrain.load_material_map(materials) if isinstance(materials, (str, os.PathLike)) \
                     else np.asarray(materials)
             return terrain.heightfield_to_source(heights, cell_size=cell_size, z_scale=z_scale, materials=classes)
+        _refuse_heightfield_options(f"the mesh file {path.name}", cell_size, z_scale, materials, nodata)
         return meshfile.load_mesh_file(path)
     if isinstance(source, np.ndarray):
         return terrain.heightfield_to_source(source, cell_size=cell_size, z_scale=z_scale,

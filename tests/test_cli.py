@@ -71,6 +71,9 @@ def test_build_heightfield_with_materials(tmp_path):
     (["build", "default", "--size", "0", "-o", "x.cvc"], ["size"]),
     (["build", "default", "--size", "16", "--crease-angle", "400", "-o", "x.cvc"], ["crease"]),
     (["inspect", "missing.cvc"], ["missing.cvc"]),
+    (["build", "rough", "--size", "16", "--materials", "m.npy", "-o", "x.cvc"], ["--materials", "heightfields"]),
+    (["build", "scan.obj", "--cell-size", "30", "--nodata", "0", "-o", "x.cvc"],
+     ["--cell-size", "--nodata", "heightfields"]),
 ])
 def test_bad_arguments_are_refused(tmp_path, args, words):
     assert_refused(run(*args, cwd=tmp_path), *words)

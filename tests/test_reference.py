@@ -298,18 +298,13 @@ def test_property_random_walk_terrain16(seed, steps, tolerance, cull, backface, 
          max_ops=max_ops)
 
 
-# -- known disagreement -------------------------------------------------------------
+# -- growing buffers mid-update ---------------------------------------------------
 #
-# KERNEL BUG (these two tests are left failing on purpose): when ``adapt``
-# runs out of face records or list room in the middle of a pass it returns
-# NEED_RECORDS / NEED_LIST, ``CameraState.update`` grows the arrays and calls
-# ``adapt`` again, and that call sorts the list and starts from its front:
-# nodes already visited in this update are visited a second time (stationary
-# children kept earlier now find their parent's collapse legal, collapse it,
-# and a later forced split may split it again), and the nodes appended at the
-# back are re-sorted in with the rest. So what an update does depends on how
-# much buffer room the camera happened to have, not only on its state and the
-# view. Fixed when growing resumes the same pass where it stopped.
+# When ``adapt`` runs out of face records or list room in the middle of a
+# pass, ``CameraState.update`` grows the arrays and the pass resumes where it
+# stopped. An earlier kernel restarted from the front of a re-sorted list
+# instead, so what an update did depended on how much buffer room the camera
+# happened to have. These tests keep decisions independent of buffer room.
 
 def test_growing_buffers_changes_no_decision():
     """A fresh camera (buffers grow during updates) == a roomy one, update by update."""
