@@ -266,9 +266,9 @@ def _plot(series, report, folder: Path, name: str) -> None:
     secs = np.arange(int(t[-1]) + 1)
     per_sec = lambda a: np.array([a[(t >= s) & (t < s + 1)].sum(axis=0) for s in secs])  # noqa: E731
     fig, (a, b) = plt.subplots(1, 2, figsize=(11, 4), sharey=True)
-    for c, name in enumerate("ABCD"):
-        a.plot(secs, per_sec(bops)[:, c], label=f"camera {name}")
-        b.plot(secs, per_sec(ops)[:, c], label=f"camera {name}")
+    for c, label in enumerate("ABCD"):
+        a.plot(secs, per_sec(bops)[:, c], label=f"camera {label}")
+        b.plot(secs, per_sec(ops)[:, c], label=f"camera {label}")
     a.set_title("shared state (paper Fig. 10)")
     b.set_title("per-camera states, CAVECLOD (Fig. 11)")
     a.set_xlabel("flyover time (s)")
@@ -280,8 +280,8 @@ def _plot(series, report, folder: Path, name: str) -> None:
     fig.savefig(folder / f"refine_{name}_ops.png", dpi=100)
 
     fig, (a, b) = plt.subplots(1, 2, figsize=(11, 4))
-    for c, name in enumerate("ABCD"):
-        a.plot(t, faces[:, c], label=f"camera {name}")
+    for c, label in enumerate("ABCD"):
+        a.plot(t, faces[:, c], label=f"camera {label}")
     a.set_title("active faces per camera, 4-camera flyover (Fig. 13)")
     a.set_xlabel("flyover time (s)")
     a.legend()
