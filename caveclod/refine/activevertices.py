@@ -8,12 +8,15 @@ between vertices already in use. :class:`ActiveVertices` keeps a reference
 count per vertex (how many active face corners use it) and its own copy of
 the index buffers, so that a delta's overwritten and truncated rows are
 known; a vertex whose count leaves or reaches 0 was added or removed. The
-cost is that of the delta (numpy over the rows it writes), not of the mesh.
+cost is that of the delta (one compiled pass over the rows it touches,
+:mod:`caveclod.kernels.refcount`), not of the mesh.
 """
 
 from __future__ import annotations
 
 import numpy as np
+
+from ..kernels import refcount as R
 
 
 class ActiveVertices:
@@ -31,6 +34,7 @@ class ActiveVertices:
 
     def __init__(self, n_vertices: int, buffers: dict):
         self.refs = np.zeros(n_vertices, np.int32)
+        self._mark = np.zeros(n_vertices, np.uint8)        # scratch of the kernel: vertices touched by a delta
         self._rows: dict[int, np.ndarray] = {}
         self._count: dict[int, int] = {}
         for m, tris in buffers.items():
@@ -55,38 +59,32 @@ class ActiveVertices:
         ``delta.surfaces`` is {material: SurfaceDelta(slots, tris, count)},
         as :meth:`CameraState.update` returns it.
         """
-        gone, came = [], []
-        for m, d in delta.surfaces.items():
-            rows, old, new = self._rows.get(m), self._count.get(m, 0), int(d.count)
-            if rows is None:
-                rows = self._rows[m] = np.zeros((0, 3), np.uint32)
-            slots = np.asarray(d.slots, np.int64)
-            # Rows overwritten (slots below the old count) and rows cut off
-            # by a shorter buffer lose their corners; written rows gain theirs.
-            gone.append(rows[slots[slots < old]].ravel())
-            if new < old:
-                gone.append(rows[new:old].ravel())
-            came.append(np.asarray(d.tris, np.uint32).ravel())
-            if new > len(rows):
-                grown = np.zeros((max(new, len(rows) + len(rows) // 4 + 16), 3), np.uint32)
-                grown[:old] = rows[:old]
-                self._rows[m] = rows = grown
-            rows[slots] = d.tris
-            self._count[m] = new
-        if not came:
+        surfaces = delta.surfaces
+        if not surfaces:
             return np.zeros(0, np.int32), np.zeros(0, np.int32)
-        gone = np.concatenate(gone)
-        came = np.concatenate(came)
-        touched = np.unique(np.concatenate([gone, came]))
-        before = self.refs[touched]
-        np.subtract.at(self.refs, gone, 1)
-        np.add.at(self.refs, came, 1)
-        after = self.refs[touched]
-        added = touched[(before == 0) & (after > 0)].astype(np.int32)
-        removed = touched[(before > 0) & (after == 0)].astype(np.int32)
-        self.count += len(added) - len(removed)
-        return added, removed
+        # Every vertex a delta touches has a corner in a row it overwrites,
+        # cuts off or writes: room for all of them.
+        room = sum(3 * (2 * len(d.slots) + max(self._count.get(m, 0) - int(d.count), 0))
+                   for m, d in surfaces.items())
+        touched = np.empty(room, np.int32)
+        before = np.empty(room, np.int32)
+        n = 0
+        for m, d in surfaces.items():
+            rows, old, new = self._rows.get(m), self._count.get(m, 0), int(d.count)
+            if rows is None or new > len(rows):
+                grown = np.zeros((max(new, 0 if rows is None else len(rows) + len(rows) // 4 + 16), 3), np.uint32)
+                if rows is not None:
+                    grown[:old] = rows[:old]
+                self._rows[m] = rows = grown
+            n = R.apply_writes(self.refs, self._mark, rows, old, new, np.asarray(d.slots, np.int64),
+                               np.asarray(d.tris, np.uint32), touched, before, n)
+            self._count[m] = new
+        added = np.empty(n, np.int32)
+        removed = np.empty(n, np.int32)
+        a, r = R.classify(self.refs, self._mark, touched, before, n, added, removed)
+        self.count += a - r
+        return np.sort(added[:a]), np.sort(removed[:r])
 
     @property
     def nbytes(self) -> int:
-        return int(self.refs.nbytes + sum(r.nbytes for r in self._rows.values()))
+        return int(self.refs.nbytes + self._mark.nbytes + sum(r.nbytes for r in self._rows.values()))

@@ -48,7 +48,8 @@ class CacheDelta:
         slots: (k,) uint32 cache slots written, ascending.
         vertices: (k,) int32 the vertex-buffer entries written into them.
         hits: vertices that became active while still in their slot.
-        added, removed: vertices that became active, inactive.
+        added, removed: (a,), (r,) int32 the vertices that became active,
+            inactive (the net change of the frame's updates), ascending.
         tolerance_px: the tolerance the camera is now refined for (above the
             view's when the cache could not hold its LOD); None in a
             keyframe whose camera is at the view's own.
@@ -62,8 +63,8 @@ class CacheDelta:
     slots: np.ndarray = field(default_factory=lambda: np.zeros(0, np.uint32))
     vertices: np.ndarray = field(default_factory=lambda: np.zeros(0, np.int32))
     hits: int = 0
-    added: int = 0
-    removed: int = 0
+    added: np.ndarray = field(default_factory=lambda: np.zeros(0, np.int32))
+    removed: np.ndarray = field(default_factory=lambda: np.zeros(0, np.int32))
     tolerance_px: float | None = None
     updates: int = 0
     delta: Delta = field(default_factory=Delta)
@@ -137,7 +138,7 @@ class CachedCamera:
         slots, vertices, hits = self.cache.update(added, removed)
         merged = deltas[0] if len(deltas) == 1 else _merge(self.camera, deltas)
         out = CacheDelta(surfaces=self._in_slots(merged), slots=slots.astype(np.uint32), vertices=vertices,
-                         hits=hits, added=len(added), removed=len(removed), tolerance_px=t, updates=len(deltas),
+                         hits=hits, added=added, removed=removed, tolerance_px=t, updates=len(deltas),
                          delta=merged)
         merged.seconds = time.perf_counter() - t0
         return out
