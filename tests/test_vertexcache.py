@@ -346,6 +346,38 @@ def test_a_frame_too_big_for_the_cache_coarsens_that_camera(terrain, strategy):
     assert cd.delta.operations == 0 and cd.inserted == 0 and cd.tolerance_px > 1.0
 
 
+def test_a_camera_held_at_the_limit_does_not_refit_every_frame(terrain):
+    """Close down and creeping along: the view never fits. A lower step is
+    tried at most once in RELAX_WAIT new poses (each failed try costs a
+    refit, several updates), not at every pose; the tolerance stays raised."""
+    from caveclod.refine import cachedcamera
+    lo, hi = terrain.bounds()
+    centre = (lo + hi) / 2
+    size = float(hi[0] - lo[0])
+
+    def view(i):
+        eye = (centre[0] - 0.3 * size + 0.001 * size * i, centre[1], hi[2] + 0.05 * size)
+        return caveclod.View(eye=eye, target=tuple(centre), up=(0, 0, 1), width=640, height=360, tolerance_px=1.0)
+
+    base = len(active_vertices(terrain.new_camera().triangles()))
+    resident = terrain.new_camera()
+    resident.update(view(0))
+    n = base + (len(active_vertices(resident.triangles())) - base) // 3
+    cc = CachedCamera(terrain.new_camera(), n, "lru")
+    client = Client(n)
+    client.apply(cc.keyframe())
+    client.apply(cc.update(view(0)))                 # fitted once: the tolerance is raised
+    frames = 3 * cachedcamera.RELAX_WAIT
+    refits = 0
+    for i in range(1, frames + 1):
+        cd = cc.update(view(i), relax=True)
+        client.apply(cd)
+        refits += cd.updates > 1
+        assert cd.tolerance_px > 1.0 and cc.active.count <= n
+        assert _same(client.triangles(), cc.camera.triangles()), f"frame {i}"
+    assert refits <= frames // cachedcamera.RELAX_WAIT + 1, f"{refits} refits in {frames} frames"
+
+
 def test_a_cache_smaller_than_the_base_mesh_is_refused(terrain):
     base = len(active_vertices(terrain.new_camera().triangles()))
     with pytest.raises(InputError, match=f"base mesh alone uses {base} vertices; ask for at least {base} slots"):

@@ -12,11 +12,15 @@ added and removed vertices (:mod:`.activevertices`) drive the cache
 When the view asks for more vertices than there are slots, the camera is
 coarsened: the tolerance is raised by :data:`RAISE` and the camera updated
 again, until its vertices fit; the frame then carries the net change of
-those updates. The raised tolerance is kept, and each update for a new pose
-first tries one step lower (so a camera that moves out of the crowded view
-comes back to its own tolerance step by step, and a camera at rest, updated
-again for the same pose, converges). A cache smaller than the base mesh's
-vertices is refused when the camera is made.
+those updates. The raised tolerance is kept. An update for a new pose tries
+one step lower while the vertices fill at most :data:`RELAX_FILL` of the
+slots (so a camera that moves out of the crowded view comes back to its own
+tolerance step by step); a try that does not fit is not repeated for
+:data:`RELAX_WAIT` poses, so that a camera held at the limit does not refine
+and coarsen again every frame. (Each change of tolerance makes the next
+update re-evaluate every active node: fitting costs a full pass.) An update
+for the same pose never relaxes, so a camera at rest converges. A cache
+smaller than the base mesh's vertices is refused when the camera is made.
 """
 
 from __future__ import annotations
@@ -33,6 +37,8 @@ from .camera import Delta, SurfaceDelta
 from .vertexcache import DEFAULT_STRATEGY, VertexCache, check_options
 
 RAISE = 1.25               # tolerance factor per fitting step (and per relaxing step)
+RELAX_FILL = 0.8           # a raised tolerance is lowered only while the vertices fill at most this share
+RELAX_WAIT = 8             # new poses before a lowering that did not fit is tried again
 MIN_RAISED_PX = 0.1        # a 0 px tolerance is first raised to this
 WILD_PX = 1e6              # past this, no screen tells the difference: jump to CEILING_PX
 CEILING_PX = 1e30          # refines nothing: the base mesh, which fits
@@ -106,6 +112,7 @@ class CachedCamera:
         self.cache = VertexCache(slots, self.mesh.n_vertices, strategy, pq_fraction, keys)
         self.cache.update(self.active.vertices(), np.zeros(0, np.int32))
         self.tolerance: float | None = None      # raised tolerance in use; None: the view's own
+        self._wait = 0                            # new poses until the next try at a lower tolerance
 
     @property
     def n_slots(self) -> int:
@@ -121,6 +128,7 @@ class CachedCamera:
         t0 = time.perf_counter()
         base = float(view.tolerance_px)
         t = self._start(base, relax)
+        lowered = self.tolerance is not None and t < self.tolerance
         deltas, events = [], []
         cap = self.mesh.n_nodes + 64            # every fitting update but the last makes an operation
         while True:
@@ -133,6 +141,8 @@ class CachedCamera:
                 raise CaveclodError(f"camera could not be coarsened into {self.n_slots} slots "
                                     f"({self.active.count} vertices at {t:g} px); this is a bug")
             t = self._raise(t)
+        if lowered and len(deltas) > 1:
+            self._wait = RELAX_WAIT                # the lower tolerance did not fit: not again for a while
         self.tolerance = t if t > base else None
         added, removed = _net(events, self.active.refs)
         slots, vertices, hits = self.cache.update(added, removed)
@@ -147,6 +157,9 @@ class CachedCamera:
         if self.tolerance is None or self.tolerance <= base:
             return base
         if not relax:
+            return self.tolerance
+        if self._wait > 0 or self.active.count > RELAX_FILL * self.n_slots:
+            self._wait = max(self._wait - 1, 0)
             return self.tolerance
         if self.tolerance >= CEILING_PX:
             return WILD_PX
@@ -221,9 +234,12 @@ def _merge(camera, deltas: list) -> Delta:
     materials = sorted({m for d in deltas for m in d.surfaces})
     for m in materials:
         count = int(camera.cnt[m])
-        slots = np.unique(np.concatenate([np.asarray(d.surfaces[m].slots, np.int64)
-                                          for d in deltas if m in d.surfaces]))
-        slots = slots[slots < count].astype(np.uint32)
+        written = np.zeros(count, bool)             # a mask, not a sort: deltas can write whole buffers
+        for d in deltas:
+            if m in d.surfaces:
+                slots = np.asarray(d.surfaces[m].slots, np.int64)
+                written[slots[slots < count]] = True
+        slots = np.flatnonzero(written).astype(np.uint32)
         out.surfaces[m] = SurfaceDelta(slots, camera.index_buffer(m)[slots].copy(), count)
     out.splits = sum(d.splits for d in deltas)
     out.collapses = sum(d.collapses for d in deltas)
