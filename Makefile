@@ -14,7 +14,7 @@ $(STAMP): pyproject.toml
 	touch $(STAMP)
 
 demo: $(STAMP)
-	$(PY) -m caveclod.demo
+	$(PY) -m caveclod.cli demo
 
 test: $(STAMP)
 	$(PY) -m pytest -q

@@ -24,7 +24,12 @@ Then:
   session, once numba's cache is warm (median of 5).
 
 Writes ``benchmarks/results/service.json`` (sections skipped with ``--skip``
-keep their earlier figures) and ``service_latency.png``.
+keep their earlier figures) and ``service_latency.png`` (``--out`` elsewhere).
+Each load level also records the server's memory: private, mapped-mesh and
+all mapped files' resident bytes, idle and at peak, and the camera states'
+bytes; the
+``shared`` section runs two servers on one mesh to show the mapped mesh
+shared between processes (proportional against mapped resident bytes).
 """
 
 from __future__ import annotations
@@ -116,17 +121,74 @@ def loadtest(port: int, sessions: int, duration: float, plot: Path | None = None
     return json.loads(out)
 
 
+def memory(pid: int) -> dict:
+    """Resident bytes of a process: private (RssAnon); of the mapped .cvc files (MeshRss: the mesh pages
+    it touched, shared through the page cache with every process that maps the same file) and its
+    proportional share of them (MeshPss: each page divided among the processes mapping it); and of
+    every mapped file, shared libraries included (RssFile)."""
+    out = {"MeshRss": 0, "MeshPss": 0}
+    for line in Path(f"/proc/{pid}/status").read_text().splitlines():
+        if line.startswith(("RssAnon:", "RssFile:")):
+            out[line.split(":")[0]] = int(line.split()[1]) * 1024
+    mesh = False
+    for line in Path(f"/proc/{pid}/smaps").read_text().splitlines():
+        head = line.split()
+        if head and "-" in head[0] and not head[0].endswith(":"):       # a mapping's first line
+            mesh = head[-1].endswith(".cvc")
+        elif mesh and head[0] in ("Rss:", "Pss:"):
+            out["MeshRss" if head[0] == "Rss:" else "MeshPss"] += int(head[1]) * 1024
+    return out
+
+
+class Sampler:
+    """Polls a server's memory and session gauges every ``period`` s in a thread; keeps the peaks."""
+
+    def __init__(self, server: "Server", period: float = 0.5):
+        self.server, self.period, self.peak = server, period, {}
+        self._stop = threading.Event()
+        self._thread = threading.Thread(target=self._run, daemon=True)
+        self._thread.start()
+
+    def _run(self) -> None:
+        while not self._stop.wait(self.period):
+            try:
+                m = metrics(self.server.metrics_port)
+                sample = {**memory(self.server.proc.pid), "sessions_active": m["caveclod_sessions_active"],
+                          "camera_state_bytes": m["caveclod_camera_state_bytes"]}
+            except (OSError, KeyError, ValueError):
+                continue
+            for k, v in sample.items():
+                self.peak[k] = max(self.peak.get(k, 0), v)
+
+    def stop(self) -> dict:
+        self._stop.set()
+        self._thread.join(5)
+        return self.peak
+
+
 def capacity(mesh: Path, sessions: int, duration: float, command: list | None = None) -> dict:
-    """One load level: server (``caveclod serve``, or ``command``) and load generator, with both processes' CPU."""
+    """One load level: server (``caveclod serve``, or ``command``) and load generator, with both processes'
+    CPU, and the server's memory: idle (mesh mapped, kernels loaded) and the peak under load."""
     server = Server(mesh, "--max-sessions", str(max(64, sessions)), command=command)
     try:
+        idle = memory(server.proc.pid)
         m0, cpu0, busy0, t0 = metrics(server.metrics_port), cpu_seconds(server.proc.pid), machine_busy(), \
             time.perf_counter()
+        sampler = Sampler(server)
         report = loadtest(server.port, sessions, duration)
+        peak = sampler.stop()
         m1, cpu1, busy1, t1 = metrics(server.metrics_port), cpu_seconds(server.proc.pid), machine_busy(), \
             time.perf_counter()
     finally:
         server.stop()
+    MiB = 1 << 20
+    report["server_memory_mib"] = {
+        "idle_private": round(idle.get("RssAnon", 0) / MiB, 1), "idle_mesh": round(idle["MeshRss"] / MiB, 1),
+        "idle_files": round(idle.get("RssFile", 0) / MiB, 1),
+        "peak_private": round(peak.get("RssAnon", 0) / MiB, 1), "peak_mesh": round(peak.get("MeshRss", 0) / MiB, 1),
+        "peak_files": round(peak.get("RssFile", 0) / MiB, 1),
+        "peak_camera_states": round(peak.get("camera_state_bytes", 0) / MiB, 1)}
+    report["peak_sessions_active"] = int(peak.get("sessions_active", 0))
     wall = t1 - t0
     report["server_cpu_cores"] = round((cpu1 - cpu0) / wall, 2)
     report["server_cpu_ms_per_frame"] = round(1e3 * (cpu1 - cpu0) / max(report["frames"], 1), 2)
@@ -139,48 +201,141 @@ def capacity(mesh: Path, sessions: int, duration: float, command: list | None = 
     return report
 
 
-def parallel_refinement(mesh: Path, seconds: float) -> dict:
-    """2 sessions jumping between far poses: the cores their refinement used."""
-    from caveclod.client import Client
+def parallel_refinement(mesh: Path, seconds: float, pose_hz: float = 200.0) -> dict:
+    """2 sessions whose camera jumps between far poses: the cores their refinement used.
+
+    Each session's client sends a pose every 1 / pose_hz seconds, alternating
+    between two far points of its camera's circle, without waiting for
+    frames: the latest pose wins, so the server always has a pose to refine
+    for and each update is a large one. The clients parse each frame only to
+    ack it (an applying client would compete for this machine's two cores
+    with the refinement it measures); the server still encodes every frame
+    in full. The rate of ``caveclod_refine_cpu_seconds_total`` (per-thread
+    CPU time of the updates) is the cores refinement used.
+    """
+    import queue
+
+    import grpc
+
     from caveclod.paths import flyover
+    from caveclod.v1 import caveclod_pb2 as pb
     server = Server(mesh)
     stop = threading.Event()
-    counts = [0, 0]
+    frames = [0, 0]
+    lo, hi = mesh_bounds(mesh)
 
-    def jump(k: int) -> None:
-        with Client(f"127.0.0.1:{server.port}", cache_dir=RESULTS / "vertex-cache") as client:
-            with client.session(mesh.stem, width=1280, height=720, tolerance_px=0.5) as s:
-                lo, hi = s.vertex_buffer.positions.min(0), s.vertex_buffer.positions.max(0)
-                t = 0.0
-                while not stop.is_set():
-                    t = 30.0 - t                      # the far side of the camera's circle
-                    seq = s.send_pose(0, *flyover(lo, hi, k, t + 0.01 * counts[k]))
-                    while (f := s.next_frame(timeout=10)) is not None and f.pose_seq < seq:
-                        pass
-                    counts[k] += 1
+    def vec(v) -> pb.Vec3:
+        return pb.Vec3(x=v[0], y=v[1], z=v[2])
 
-    threads = [threading.Thread(target=jump, args=(k,)) for k in range(2)]
+    def session(k: int) -> None:
+        requests: queue.Queue = queue.Queue()
+        requests.put(pb.ClientMessage(open=pb.Open(
+            mesh=mesh.stem, cameras=1, vertex_buffer_hash="", client="benchmark",
+            options=pb.RefineOptions(viewport_width=1280, viewport_height=720, tolerance_px=0.5))))
+        with grpc.insecure_channel(f"127.0.0.1:{server.port}", [("grpc.max_receive_message_length", 8 << 20)]) as ch:
+            call = ch.stream_stream("/caveclod.v1.Lod/Session", request_serializer=pb.ClientMessage.SerializeToString,
+                                    response_deserializer=pb.ServerMessage.FromString)(iter(requests.get, None))
+
+            def send_poses() -> None:
+                seq, t = 0, 0.0
+                while not stop.wait(1.0 / pose_hz):
+                    seq, t = seq + 1, 30.0 - t            # the far side of the camera's circle
+                    eye, target, up = flyover(lo, hi, k, t + 0.001 * seq)
+                    requests.put(pb.ClientMessage(pose=pb.CameraPose(camera=0, pose_seq=seq, eye=vec(eye),
+                                                                     target=vec(target), up=vec(up))))
+                requests.put(None)
+
+            sender = threading.Thread(target=send_poses, daemon=True)
+            sender.start()
+            try:
+                for msg in call:
+                    if msg.WhichOneof("kind") == "frame" and not msg.frame.continued:
+                        requests.put(pb.ClientMessage(ack=pb.Ack(frame_seq=msg.frame.frame_seq)))
+                        frames[k] += 1
+                    if stop.is_set():
+                        break
+            except grpc.RpcError:
+                pass
+            finally:
+                call.cancel()
+
+    threads = [threading.Thread(target=session, args=(k,), daemon=True) for k in range(2)]
     try:
         for th in threads:
             th.start()
-        time.sleep(2.0)                                # both sessions open and refining
-        m0, cpu0, t0 = metrics(server.metrics_port), cpu_seconds(server.proc.pid), time.perf_counter()
-        n0 = sum(counts)
+        time.sleep(3.0)                                # both sessions open and refining
+        m0, cpu0, me0, t0 = metrics(server.metrics_port), cpu_seconds(server.proc.pid), time.process_time(), \
+            time.perf_counter()
+        n0 = sum(frames)
         time.sleep(seconds)
-        m1, cpu1, t1 = metrics(server.metrics_port), cpu_seconds(server.proc.pid), time.perf_counter()
-        n1 = sum(counts)
+        m1, cpu1, me1, t1 = metrics(server.metrics_port), cpu_seconds(server.proc.pid), time.process_time(), \
+            time.perf_counter()
+        n1 = sum(frames)
     finally:
         stop.set()
         for th in threads:
-            th.join(60)
+            th.join(30)
         server.stop()
     wall = t1 - t0
     refine = m1["caveclod_refine_cpu_seconds_total"] - m0["caveclod_refine_cpu_seconds_total"]
     updates = m1["caveclod_refine_seconds_count"] - m0["caveclod_refine_seconds_count"]
     busy = m1["caveclod_refine_seconds_sum"] - m0["caveclod_refine_seconds_sum"]
-    return {"seconds": round(wall, 1), "sessions": 2, "poses_answered": n1 - n0, "updates": int(updates),
+    return {"seconds": round(wall, 1), "sessions": 2, "pose_hz": pose_hz, "frames": n1 - n0, "updates": int(updates),
             "update_ms_mean": round(1e3 * busy / max(updates, 1), 1),
-            "refine_cpu_cores": round(refine / wall, 2), "server_cpu_cores": round((cpu1 - cpu0) / wall, 2)}
+            "refine_cpu_cores": round(refine / wall, 2), "server_cpu_cores": round((cpu1 - cpu0) / wall, 2),
+            "client_cpu_cores": round((me1 - me0) / wall, 2)}
+
+
+def kernel_parallelism(mesh: Path, seconds: float) -> dict:
+    """The refinement kernels alone, in this process: 1 then 2 threads, each a
+    camera jumping between far poses, as in :func:`parallel_refinement`.
+    Shows how much of two cores the GIL-free updates use with no encoding,
+    network or client beside them."""
+    import caveclod
+    from caveclod.paths import flyover
+    from caveclod.refine.view import View
+    m = caveclod.load(mesh)
+    lo, hi = mesh_bounds(mesh)
+    out = {}
+    for n in (1, 2):
+        stop = threading.Event()
+        tallies = [[0, 0.0] for _ in range(n)]          # updates, thread CPU seconds
+
+        def run(k: int) -> None:
+            cam = m.new_camera()
+            t, i = 0.0, 0
+            while not stop.is_set():
+                t, i = 30.0 - t, i + 1
+                view = View.from_pose(flyover(lo, hi, k, t + 0.001 * i), width=1280, height=720, tolerance_px=0.5)
+                c0 = time.thread_time()
+                cam.update(view)
+                tallies[k][1] += time.thread_time() - c0
+                tallies[k][0] += 1
+
+        threads = [threading.Thread(target=run, args=(k,), daemon=True) for k in range(n)]
+        for th in threads:
+            th.start()
+        time.sleep(1.0)                                  # past the first, full refinement
+        base = [list(x) for x in tallies]
+        t0 = time.perf_counter()
+        time.sleep(seconds)
+        wall = time.perf_counter() - t0
+        done = [[a - b for a, b in zip(x, y)] for x, y in zip(tallies, base)]
+        stop.set()
+        for th in threads:
+            th.join(30)
+        updates = sum(d[0] for d in done)
+        out[f"threads_{n}"] = {"updates_per_second": round(updates / wall, 1),
+                               "refine_cpu_cores": round(sum(d[1] for d in done) / wall, 2)}
+    out["speedup"] = round(out["threads_2"]["updates_per_second"] / out["threads_1"]["updates_per_second"], 2)
+    return out
+
+
+def mesh_bounds(mesh: Path) -> tuple:
+    """(lo, hi) corners of a .cvc file's positions."""
+    import caveclod
+    m = caveclod.load(mesh)
+    return tuple(float(v) for v in m.bounds()[0]), tuple(float(v) for v in m.bounds()[1])
 
 
 def startup(mesh: Path, repeats: int = 5) -> dict:
@@ -215,6 +370,32 @@ def startup(mesh: Path, repeats: int = 5) -> dict:
     return {"mesh": mesh.name, "repeats": repeats, "health_serving_s": round(statistics.median(serving), 3),
             "health_serving_s_all": [round(x, 3) for x in serving],
             "first_frame_s": round(statistics.median(first), 3), "first_frame_s_all": [round(x, 3) for x in first]}
+
+
+def shared_mesh(mesh: Path, sessions: int, duration: float) -> dict:
+    """Two server processes mapping the same .cvc, ``sessions`` sessions each at once: how much of each
+    one's resident mesh pages is its own (proportional: MeshPss) against what it maps (MeshRss)."""
+    servers = [Server(mesh, "--max-sessions", str(max(64, sessions))) for _ in range(2)]
+    try:
+        samplers = [Sampler(s) for s in servers]
+        threads = [threading.Thread(target=loadtest, args=(s.port, sessions, duration)) for s in servers]
+        for t in threads:
+            t.start()
+        time.sleep(duration * 0.8)
+        during = [memory(s.proc.pid) for s in servers]
+        for t in threads:
+            t.join(duration + 150)
+        for sm in samplers:
+            sm.stop()
+    finally:
+        for s in servers:
+            s.stop()
+    MiB = 1 << 20
+    return {"mesh": mesh.name, "mesh_file_mib": round(mesh.stat().st_size / MiB, 1), "sessions_per_server": sessions,
+            "servers": [{"private_mib": round(m.get("RssAnon", 0) / MiB, 1),
+                         "mesh_resident_mib": round(m["MeshRss"] / MiB, 1),
+                         "mesh_proportional_mib": round(m["MeshPss"] / MiB, 1),
+                         "files_resident_mib": round(m.get("RssFile", 0) / MiB, 1)} for m in during]}
 
 
 def plot(levels: list, path: Path) -> None:
@@ -254,11 +435,14 @@ def main() -> int:
     ap.add_argument("--duration", type=float, default=20.0, help="seconds of poses per load level")
     ap.add_argument("--parallel-seconds", type=float, default=10.0)
     ap.add_argument("--startup-size", type=int, default=1024, help="mesh of the start-up test (1024: 2M triangles)")
-    ap.add_argument("--skip", default="", help="comma-separated sections to skip: capacity,parallel,startup")
+    ap.add_argument("--skip", default="", help="comma-separated sections to skip: capacity,parallel,startup,shared")
+    ap.add_argument("--shared-sessions", type=int, default=8,
+                    help="sessions on each of the two servers of the shared-mesh section (default 8)")
+    ap.add_argument("--out", default=str(RESULTS / "service.json"), help="the JSON report (default results/service.json)")
     args = ap.parse_args()
     skip = set(filter(None, args.skip.split(",")))
     mesh = mesh_path(args.size)
-    path = RESULTS / "service.json"
+    path = Path(args.out)
     out = json.loads(path.read_text()) if skip and path.exists() else {}     # keep the sections not re-run
     out.update({"mesh": f"default --size {args.size}", "machine_cores": os.cpu_count()})
     if "capacity" not in skip:
@@ -272,16 +456,21 @@ def main() -> int:
                   f"errors {r['errors']}  cpu: server {r['server_cpu_cores']} (refine "
                   f"{r['server_refine_cpu_cores']}), loadtest {r['client_cpu_cores']}, others "
                   f"{r['other_cpu_cores']}", file=sys.stderr)
-        plot(levels, RESULTS / "service_latency.png")
+        plot(levels, path.with_name(f"{path.stem}_latency.png"))      # service.json: service_latency.png
         for r in levels:
             r.pop("latencies_ms")
         out["capacity"] = levels
     if "parallel" not in skip:
         out["parallel_refinement"] = parallel_refinement(mesh, args.parallel_seconds)
         print(f"parallel refinement: {out['parallel_refinement']}", file=sys.stderr)
+        out["kernel_parallelism"] = kernel_parallelism(mesh, args.parallel_seconds)
+        print(f"kernels alone: {out['kernel_parallelism']}", file=sys.stderr)
     if "startup" not in skip:
         out["startup"] = startup(mesh_path(args.startup_size))
         print(f"start-up: {out['startup']}", file=sys.stderr)
+    if "shared" not in skip:
+        out["shared_mesh"] = shared_mesh(mesh, args.shared_sessions, args.duration)
+        print(f"shared mesh: {out['shared_mesh']}", file=sys.stderr)
     RESULTS.mkdir(parents=True, exist_ok=True)
     path.write_text(json.dumps(out, indent=1) + "\n")
     return 0

@@ -4,6 +4,10 @@
     caveclod inspect OUT.cvc [--json] [--verify]
     caveclod serve A.cvc [B.cvc ...] [--host H] [--port P] [--max-sessions N] ...
     caveclod loadtest --target HOST:PORT --sessions N --duration S [--json] ...
+    caveclod render --target HOST:PORT --cameras N --trajectory PATH --frames K --out DIR ...
+    caveclod view --target HOST:PORT [--cameras N] ...
+    caveclod demo [--out DIR]
+    caveclod health [--target HOST:PORT] [--service NAME]
 
 Errors print one line on stderr and exit with status 2; never a traceback.
 """
@@ -105,6 +109,19 @@ def _parser() -> argparse.ArgumentParser:
                    help="one line per session event on stderr, as text or JSON (default text)")
     s.set_defaults(run=_serve)
 
+    h = sub.add_parser("health", help="ask a server's gRPC health service whether it serves (exit 0) or not (1)",
+                       description="Ask the grpc.health.v1 service of a caveclod server (or a balancer in front of "
+                                   "it) for a service's status. Exits 0 when SERVING, 1 otherwise (NOT_SERVING while "
+                                   "draining, no answer, no connection), with the reason on stderr. Containers run "
+                                   "it as their HEALTHCHECK.")
+    h.add_argument("--target", default="127.0.0.1:50051", metavar="HOST:PORT",
+                   help="the server (default 127.0.0.1:50051, the default port of caveclod serve)")
+    h.add_argument("--service", default="caveclod.v1.Lod",
+                   help="service name to ask about: 'caveclod.v1.Lod' (default) or '' for the server as a whole")
+    h.add_argument("--timeout", type=float, default=2.0, metavar="S", help="seconds to wait for the answer (default 2)")
+    h.add_argument("--tls-ca", metavar="F", help="PEM CA certificate: connect with TLS and trust it")
+    h.set_defaults(run=_health)
+
     t = sub.add_parser("loadtest", help="measure a server: many windowless sessions flying camera paths",
                        description="Open --sessions sessions of --cameras cameras each, send poses at --rate Hz "
                                    "along --trajectory for --duration seconds, verify every checksum, and report "
@@ -138,12 +155,78 @@ def _parser() -> argparse.ArgumentParser:
     t.add_argument("--samples", action="store_true", help="with --json: add every latency sample (ms) as latencies_ms")
     t.add_argument("--plot", metavar="FILE", help="write a pose->frame latency plot (PNG; needs matplotlib)")
     t.set_defaults(run=_loadtest)
+
+    r = sub.add_parser("render", help="fly cameras through a server and write the frames as PNG and an animation",
+                       description="Open one session of --cameras cameras, fly them along --trajectory for --frames "
+                                   "frames (30 per path second), render each frame on the GPU (offscreen, EGL) as "
+                                   "quadrants of one image, and write DIR/frame_NNNN.png, DIR/animation.gif and "
+                                   "DIR/render.json. Exits 1 on divergences.")
+    _client_arguments(r)
+    r.add_argument("--cameras", type=int, default=4, help="cameras, drawn as quadrants of one image (1-4; default 4)")
+    r.add_argument("--trajectory", choices=("flyover", "circle", "rotate", "line"), default="flyover",
+                   help="camera path (caveclod.paths; default flyover)")
+    r.add_argument("--frames", type=int, default=90, help="frames to render (default 90)")
+    r.add_argument("--fps", type=float, default=30.0, help="frames per path second (default 30)")
+    r.add_argument("--size", default="1280x720", help="image size WxH (default 1280x720)")
+    r.add_argument("--wireframe", action="store_true", help="overlay the triangles' edges")
+    r.add_argument("--out", required=True, metavar="DIR", help="directory for the frames")
+    r.set_defaults(run=_render)
+
+    v = sub.add_parser("view", help="an interactive window flying one camera through a server (needs a display)",
+                       description="Fly camera 1 with the mouse and keys; cameras 2-4 (--cameras) fly the flyover "
+                                   "path beside it, as quadrants. Keys: W/S forward/back, A/D sideways, Q/E down/up, "
+                                   "drag the mouse to look, scroll for speed, F wireframe, Esc quit.")
+    _client_arguments(v)
+    v.add_argument("--cameras", type=int, default=1, help="cameras, drawn as quadrants (1-4; default 1)")
+    v.add_argument("--size", default="1280x720", help="window size WxH (default 1280x720)")
+    v.add_argument("--wireframe", action="store_true", help="start with the wireframe overlay on")
+    v.add_argument("--frames", type=int, default=None, help="quit after this many drawn frames (default: run until closed)")
+    v.add_argument("--screenshot", metavar="FILE", help="write the last drawn frame as PNG on exit")
+    v.set_defaults(run=_view)
+
+    d = sub.add_parser("demo", help="build the default terrain, serve it, fly 4 cameras through the service and "
+                                    "render them (the README's first command)")
+    from .demo import add_arguments
+    add_arguments(d)
+    d.set_defaults(run=_demo)
     return p
+
+
+def _client_arguments(p: argparse.ArgumentParser) -> None:
+    """Options of the commands that open a session as a client."""
+    p.add_argument("--target", required=True, metavar="HOST:PORT", help="the server")
+    p.add_argument("--mesh", help="mesh name (default: the first ListMeshes reports)")
+    p.add_argument("--tolerance", type=float, default=None, metavar="PX",
+                   help="screen-space error in pixels (default: the server's, 1 px)")
+    p.add_argument("--fov", type=float, default=60.0, help="vertical field of view, degrees (default 60)")
+    p.add_argument("--token", help="bearer token (or set CAVECLOD_TOKEN)")
+    p.add_argument("--tls-ca", metavar="F", help="PEM CA certificate: connect with TLS and trust it")
+    p.add_argument("--cache-dir", help="vertex buffer cache (default $XDG_CACHE_HOME/caveclod/vertex-buffers)")
+
+
+def _render(args) -> int:
+    from .render.record import main as render
+    return render(args)
+
+
+def _view(args) -> int:
+    from .render.window import main as view
+    return view(args)
+
+
+def _demo(args) -> int:
+    from .demo import run
+    return run(args)
 
 
 def _serve(args) -> int:
     from .server.main import serve
     return serve(args)
+
+
+def _health(args) -> int:
+    from .server.probe import main as health
+    return health(args)
 
 
 def _loadtest(args) -> int:

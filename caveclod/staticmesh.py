@@ -175,9 +175,26 @@ class StaticMesh:
         return ids
 
     def bounds(self) -> tuple[np.ndarray, np.ndarray]:
-        """(lo, hi) float64 (3,) corners of the axis-aligned bounding box of the positions."""
-        pos = np.asarray(self.arrays["vertex_positions"], dtype=np.float64)
-        return pos.min(axis=0), pos.max(axis=0)
+        """(lo, hi) float64 (3,) corners of the axis-aligned bounding box of the positions.
+
+        Computed once (every new camera asks; a 1M-triangle mesh takes tens
+        of milliseconds), returned as copies."""
+        box = self.__dict__.get("_bounds")
+        if box is None:
+            pos = np.asarray(self.arrays["vertex_positions"])
+            box = (pos.min(axis=0).astype(np.float64), pos.max(axis=0).astype(np.float64))
+            self.__dict__["_bounds"] = box
+        return box[0].copy(), box[1].copy()
+
+    def material_face_counts(self) -> tuple[np.ndarray, np.ndarray]:
+        """((m,) faces of each material in the full mesh, (m,) in the base mesh), int64; computed once."""
+        counts = self.__dict__.get("_material_face_counts")
+        if counts is None:
+            fm = np.asarray(self.arrays["face_material"])
+            m = max(self.n_materials, int(fm.max(initial=0)) + 1)
+            counts = (np.bincount(fm, minlength=m), np.bincount(fm[np.asarray(self.arrays["base_faces"])], minlength=m))
+            self.__dict__["_material_face_counts"] = counts
+        return counts
 
     def node_positions(self, nodes: np.ndarray) -> np.ndarray:
         """(k,) position ids of ``nodes`` (leaves or internal)."""

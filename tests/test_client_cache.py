@@ -20,9 +20,28 @@ def test_put_get_and_corruption(tmp_path):
     assert [p.name for p in (tmp_path / "vb").iterdir()] == [KEY]          # no temporary file left
     path = tmp_path / "vb" / KEY
     path.write_bytes(b"Payload bytes" + path.read_bytes()[-4:])
-    assert cache.get(KEY) is None and not path.exists()                      # corrupt: dropped
+    fresh = VertexBufferCache(tmp_path / "vb")                                # another process: reads the disk
+    assert fresh.get(KEY) is None and not path.exists()                      # corrupt: dropped
     path.write_bytes(b"ab")
-    assert cache.get(KEY) is None
+    assert fresh.get(KEY) is None
+
+
+def test_payloads_read_lately_are_shared_from_memory(tmp_path):
+    import zlib
+
+    from caveclod.client import cache as cache_module
+    VertexBufferCache(tmp_path).put(KEY, b"the payload")
+    cache = VertexBufferCache(tmp_path)
+    first = cache.lookup(KEY)
+    assert first == (b"the payload", zlib.crc32(b"the payload"))
+    (tmp_path / KEY).unlink()                       # a second session does not read the disk again
+    assert cache.lookup(KEY)[0] is first[0]
+    others = [f"{k:032x}" for k in range(cache_module.MEMORY_ENTRIES)]
+    for k in others:
+        cache.put(k, b"other")
+    assert cache.get(KEY) is None                                 # memory holds the last few only
+    cache.discard(others[-1])
+    assert cache.get(others[-1]) is None
 
 
 def test_keys_never_name_other_paths(tmp_path):
@@ -30,6 +49,8 @@ def test_keys_never_name_other_paths(tmp_path):
     for bad in ("../x", "/etc/passwd", "ABCDEF0123", ""):
         with pytest.raises(ValueError):
             cache.get(bad)
+        with pytest.raises(ValueError):
+            cache.lookup(bad)
 
 
 def test_default_directory_follows_xdg(monkeypatch, tmp_path):

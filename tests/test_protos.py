@@ -344,7 +344,8 @@ def test_dockerfile_stages_and_base_images(dockerfile):
 
 def test_dockerfile_installs_the_repo_and_runs_caveclod_unprivileged(dockerfile):
     runs = " ".join(args for word, args in dockerfile if word == "RUN")
-    assert re.search(r"pip install\b[^&;]*\s\.(\s|$)", runs), "installs the package from the repo: pip install ."
+    assert re.search(r"pip install\b[^&;]*\s\"?\.(\[server\])?\"?(\s|$)", runs), \
+        "installs the package from the repo: pip install . (or '.[server]')"
     users = [args for word, args in dockerfile if word == "USER"]
     assert users, "the image must set a USER"
     user = users[-1].split(":")[0]

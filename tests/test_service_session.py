@@ -214,10 +214,12 @@ def test_a_second_session_takes_the_vertex_buffer_from_the_cache(server, tmp_pat
             assert second.next_frame(timeout=5).frame_seq == 1
         # No chunk travelled: far fewer bytes than the payload.
         assert server.metrics.bytes_sent._value.get() - sent_before < len(payload) / 2
-        # A damaged cache file is detected by its CRC and downloaded again.
-        cache_file = next(tmp_path.iterdir())
-        blob = cache_file.read_bytes()
-        cache_file.write_bytes(bytes([blob[0] ^ 0xFF]) + blob[1:])
+    # A damaged cache file is detected by its CRC and downloaded again (by a
+    # new client: one client's sessions share the copy it holds in memory).
+    cache_file = next(tmp_path.iterdir())
+    blob = cache_file.read_bytes()
+    cache_file.write_bytes(bytes([blob[0] ^ 0xFF]) + blob[1:])
+    with Client(f"127.0.0.1:{server.port}", cache_dir=tmp_path) as client:
         with client.session("terrain", width=640, height=360) as third:
             assert not third.info.vertex_buffer_cached
             assert third.vertex_buffer.payload == payload

@@ -27,8 +27,8 @@ from ..v1 import caveclod_pb2 as pb
 from ..v1 import caveclod_pb2_grpc as pb_grpc
 from .cache import VertexBufferCache
 from .protocol import FrameUpdate, ProtocolError, SessionProtocol, VertexBuffer
-from .session import (CHANNEL_OPTIONS, RETRIABLE, SessionEnded, backoff, cache_mode, credentials, metadata,
-                      refine_options)
+from .session import (CHANNEL_OPTIONS, SessionEnded, backoff, cache_mode, credentials, metadata, refine_options,
+                      retriable)
 
 
 class AsyncClient:
@@ -116,7 +116,8 @@ class AsyncSession:
                 raise SessionEnded(exc.code(), exc.details()) from None
             if self.protocol.mesh in meshes:
                 self.protocol.offer_vertex_buffer(meshes[self.protocol.mesh].vertex_buffer_hash)
-        self._stream = _Stream(self.client.stub, self.protocol.open_message(), self.client.metadata)
+        self._stream = _Stream(self.client.stub, self.protocol.open_message(),
+                               self.protocol.metadata(self.client.metadata))
         async def until_ready():
             while not self.protocol.ready:
                 await self._receive(resume=False)
@@ -136,7 +137,7 @@ class AsyncSession:
                 await self._open(timeout=10.0)
                 return
             except SessionEnded as exc:
-                if exc.code not in RETRIABLE:
+                if not retriable(exc.code, exc.details):
                     raise
                 error = exc
         raise SessionEnded(grpc.StatusCode.UNAVAILABLE, f"could not resume after {self.retries} tries: {error}")
@@ -146,7 +147,7 @@ class AsyncSession:
             msg = await self._stream.call.read()
         except grpc.RpcError as exc:
             code, details = exc.code(), exc.details()
-            if resume and code in RETRIABLE and self.protocol.token and not self._closed:
+            if resume and retriable(code, details) and self.protocol.token and not self._closed:
                 await self._resume(exc)
                 return None
             raise SessionEnded(code, details) from None
@@ -156,7 +157,7 @@ class AsyncSession:
                 self._closed = True
                 raise SessionEnded(None, "the server ended the session")
             details = await self._stream.call.details()
-            if resume and code in RETRIABLE and self.protocol.token and not self._closed:
+            if resume and retriable(code, details) and self.protocol.token and not self._closed:
                 await self._resume(details)
                 return None
             raise SessionEnded(code, details)

@@ -15,6 +15,7 @@ vertex (a bad frame: a keyframe is asked for).
 
 from __future__ import annotations
 
+import secrets
 import time
 import zlib
 from dataclasses import dataclass, field
@@ -28,6 +29,12 @@ from .cache import VertexBufferCache
 from .slots import SlotBuffer
 
 CLIENT_NAME = "caveclod-client/0.1"
+# Call metadata sent on every Session call of a session, its first Open and
+# every resume: a random key of the session, so that a balancer that hashes
+# on it (deploy/nginx/caveclod.conf.template) sends a resume to the replica
+# that holds the session. The session token cannot serve: the replica that
+# opens a session makes it, after the balancer has chosen that replica.
+AFFINITY_HEADER = "x-caveclod-session"
 
 
 class ProtocolError(Exception):
@@ -70,10 +77,12 @@ class CameraUpdate:
         triangles_written: slot writes applied.
         vertices_written: cache mode: vertices written into slots.
         vertex_bytes: cache mode: bytes of the VertexWrites (slots and data).
-        surfaces: the decoded :class:`caveclod.wire.Surface` writes, in the
-            order applied (for a renderer patching its own buffers).
+        surfaces: the :class:`caveclod.wire.Surface` writes applied to the
+            camera's buffers, in order (after emptying them, on a keyframe):
+            a renderer applies the same to its GPU buffers to mirror them.
         vertex_writes: cache mode: the decoded :class:`caveclod.wire.SlotWrites`,
-            in the order applied (before the surfaces).
+            in the order applied (before the surfaces; a keyframe empties
+            every slot first).
     """
 
     pose_seq: int
@@ -142,6 +151,9 @@ class SessionProtocol:
         self.divergences = 0             # CRC mismatches found
         self.bad_frames = 0
         self.resumes = 0
+        self.epoch = 0                   # +1 whenever the index buffers start over (a new session)
+        self.failovers = 0               # broken streams that came back as a fresh session (replica gone, or expired)
+        self.affinity_key = secrets.token_hex(16)
         self._known_hash = ""            # vertex_buffer_hash to offer in Open
         self._chunks: bytearray | None = None
         self._sent: list[dict] = [{} for _ in range(cameras)]      # camera -> {pose_seq: send time}
@@ -155,11 +167,15 @@ class SessionProtocol:
         self._untrusted: set[int] = set()
 
     # -- what to send ------------------------------------------------------------------
+    def metadata(self, base: tuple = ()) -> tuple:
+        """Call metadata of this session's Session calls: ``base`` plus the affinity key."""
+        return (*base, (AFFINITY_HEADER, self.affinity_key))
+
     def offer_vertex_buffer(self, vertex_buffer_hash: str) -> bool:
         """Offer a cached buffer in the next Open when the cache holds ``vertex_buffer_hash``."""
         if self.vertex is not None and self.vertex.hash == vertex_buffer_hash:
             self._known_hash = vertex_buffer_hash
-        elif self.cache is not None and vertex_buffer_hash and self.cache.get(vertex_buffer_hash) is not None:
+        elif self.cache is not None and vertex_buffer_hash and self.cache.lookup(vertex_buffer_hash) is not None:
             self._known_hash = vertex_buffer_hash
         return bool(self._known_hash)
 
@@ -220,13 +236,19 @@ class SessionProtocol:
         resumed = info.resumed and self.info is not None
         if self.info is not None:
             self.resumes += resumed
+            self.failovers += not resumed
         self.info, self.token = info, info.session_token
         materials = len(info.mesh.materials)
-        if not resumed:               # a new session (or the old one expired): start from nothing
+        if not resumed:
+            # A new session (the first, or a failover: the old one expired or its
+            # replica is gone): start from nothing, and number poses from 1 again.
             self.buffers = IndexBuffers(self.n_cameras, materials)
+            self.epoch += 1
             self.last_applied = 0
             self._asked.clear()
             self._answered = [0] * self.n_cameras
+            self.pose_seq = info.last_pose_seq
+            self._sent = [{} for _ in range(self.n_cameras)]
             if info.cache_vertices:
                 try:
                     self.slots = [SlotBuffer(info.cache_vertices, info.vertex_format) for _ in range(self.n_cameras)]
@@ -244,9 +266,10 @@ class SessionProtocol:
             self._chunks = bytearray()
             if info.vertex_format.payload_bytes == 0:
                 self._finish_vertex_buffer()
-        # Poses in flight when the stream broke are lost: send each camera's latest again.
+        # Poses in flight when the stream broke are lost: send each camera's latest
+        # again. A fresh session has none of them: send every camera's latest.
         for c, pose in enumerate(self._latest):
-            if pose is not None and self._sent[c] and max(self._sent[c]) > info.last_pose_seq:
+            if pose is not None and (not resumed or (self._sent[c] and max(self._sent[c]) > info.last_pose_seq)):
                 self._sent[c].clear()
                 out.append(self.pose_message(c, *pose))
         return out
@@ -254,10 +277,10 @@ class SessionProtocol:
     def _use_cached(self, info: pb.SessionInfo) -> None:
         key = info.mesh.vertex_buffer_hash
         if self.vertex is not None and self.vertex.hash == key:
-            payload = self.vertex.payload
+            payload, crc = self.vertex.payload, zlib.crc32(self.vertex.payload)
         else:
-            payload = self.cache.get(key) if self.cache is not None else None
-        if payload is None or zlib.crc32(payload) != info.vertex_payload_crc32:
+            payload, crc = (self.cache.lookup(key) if self.cache is not None else None) or (None, None)
+        if payload is None or crc != info.vertex_payload_crc32:
             if self.cache is not None:
                 self.cache.discard(key)
             raise ProtocolError(f"the server took vertex buffer {key} as cached, but this client does not hold it "

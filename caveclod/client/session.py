@@ -8,9 +8,12 @@
             s.buffer(0, material)                # (count, 3) uint32 index buffer to draw
 
 A broken stream is resumed with the session token, with exponential
-backoff; a checksum mismatch or a bad frame asks for a keyframe. A reader
-thread per stream receives messages; they are applied in the caller's
-thread, in ``next_frame``.
+backoff; behind a balancer whose replica is gone, the session goes on as a
+fresh one on another replica (``protocol.failovers``: the vertex buffer is
+kept, the cameras' latest poses are sent again, frame 1 is a keyframe). A
+checksum mismatch or a bad frame asks for a keyframe. A reader thread per
+stream receives messages; they are applied in the caller's thread, in
+``next_frame``.
 """
 
 from __future__ import annotations
@@ -43,6 +46,18 @@ CHANNEL_OPTIONS = [
     ("grpc.max_receive_message_length", 8 << 20),
 ]
 RETRIABLE = (grpc.StatusCode.UNAVAILABLE,)     # a broken connection, a draining or restarting server
+
+
+def retriable(code: grpc.StatusCode | None, details: str | None) -> bool:
+    """Whether a stream that ended with (code, details) is worth opening again.
+
+    UNAVAILABLE: the connection broke, or the server drains or restarts. A
+    balancer whose replica dies under a stream resets the stream (nginx:
+    RST_STREAM INTERNAL_ERROR), which gRPC reports as INTERNAL "Received
+    RST_STREAM": the connection to the balancer is fine, the session's
+    replica is not. An INTERNAL with a server's own message is a bug: not retried.
+    """
+    return code in RETRIABLE or (code == grpc.StatusCode.INTERNAL and "RST_STREAM" in (details or ""))
 
 
 class SessionEnded(Exception):
@@ -212,7 +227,8 @@ class Session:
             if self.protocol.mesh in meshes:
                 self.protocol.offer_vertex_buffer(meshes[self.protocol.mesh].vertex_buffer_hash)
         deadline = time.monotonic() + timeout
-        self._stream = _Stream(self.client.stub, self.protocol.open_message(), self.client.metadata)
+        self._stream = _Stream(self.client.stub, self.protocol.open_message(),
+                               self.protocol.metadata(self.client.metadata))
         while not self.protocol.ready:
             remaining = deadline - time.monotonic()
             if remaining <= 0:
@@ -230,7 +246,7 @@ class Session:
                 self._open(timeout=10.0)
                 return
             except SessionEnded as exc:
-                if exc.code not in RETRIABLE:
+                if not retriable(exc.code, exc.details):
                     raise
                 error = exc
         raise SessionEnded(grpc.StatusCode.UNAVAILABLE, f"could not resume after {self.retries} tries: {error}")
@@ -247,7 +263,7 @@ class Session:
                 self._closed = True
                 raise SessionEnded(None, "the server ended the session")
             code, details = item.error.code(), item.error.details()
-            if resume and code in RETRIABLE and self.protocol.token and not self._closed:
+            if resume and retriable(code, details) and self.protocol.token and not self._closed:
                 self._resume(item.error)
                 return None
             raise SessionEnded(code, details)
@@ -261,18 +277,20 @@ class Session:
         return update
 
     def next_frame(self, timeout: float | None = None) -> FrameUpdate | None:
-        """The next frame, applied in full and acked; None when ``timeout`` seconds pass first.
+        """The next frame, applied in full and acked; None when ``timeout`` seconds pass first
+        (``timeout=0``: None unless a frame has already arrived).
 
         Raises SessionEnded when the stream ends and cannot be resumed.
         """
         deadline = None if timeout is None else time.monotonic() + timeout
         while True:
-            remaining = None if deadline is None else deadline - time.monotonic()
-            if remaining is not None and remaining <= 0:
-                return None
+            # timeout=0 still takes what has already arrived (a render loop polls so).
+            remaining = None if deadline is None else max(deadline - time.monotonic(), 0.0)
             update = self._receive(remaining)
             if update is not None:
                 return update
+            if deadline is not None and time.monotonic() >= deadline:
+                return None
 
     # -- sending --------------------------------------------------------------------------
     def send_pose(self, camera: int, eye, target, up=(0.0, 0.0, 1.0)) -> int:

@@ -104,12 +104,10 @@ class CameraState:
             a["face_material"], a["face_sgid"], a["pos_vstart"], a["vertex_sgid"], mesh.vertex_position_ids,
         )
         n, p = mesh.n_nodes, mesh.n_faces
-        self.n_materials = max(mesh.n_materials, int(a["face_material"].max(initial=0)) + 1)
+        self._faces_of_material, base_count = mesh.material_face_counts()
+        self.n_materials = len(base_count)
         self.state = np.zeros(n, np.uint8)
         self.face_rec = np.full(p, -1, np.int32)
-        base = a["base_faces"]
-        base_count = np.bincount(a["face_material"][base], minlength=self.n_materials)
-        self._faces_of_material = np.bincount(a["face_material"], minlength=self.n_materials)
         self.cnt = np.zeros(self.n_materials, np.int64)
         self._layout(np.maximum(base_count + base_count // 4, 4))
         self._sent = np.zeros(self.n_materials, np.int64)   # buffer lengths the last delta announced

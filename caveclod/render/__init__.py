@@ -20,6 +20,11 @@ Cache mode (a client holding N vertex slots per camera, not the buffer)::
 
 Images go out with :func:`save_png`, :func:`save_animation` (animated PNG or
 GIF) and :func:`contact_sheet`. Only numpy, moderngl and Pillow are imported.
+
+Over the service: :mod:`.session` (``SessionRenderer``, a renderer kept equal
+to a client session's buffers), :mod:`.flight` (fly a session's cameras
+along a path, frame by frame), :mod:`.record` (``caveclod render``) and
+:mod:`.window` (``caveclod view``, a GLFW window).
 """
 
 from .buffers import UploadStats

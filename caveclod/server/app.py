@@ -38,6 +38,12 @@ from .registry import Sessions
 from .service import SERVICE, LodService, add_to_server
 
 MiB = 1 << 20
+# After a drain's grace (--drain-seconds), streams that are still open get
+# this long to finish before the server stops. A supervisor's kill timeout
+# (Kubernetes' terminationGracePeriodSeconds, compose's stop_grace_period)
+# must exceed --drain-seconds plus this: tests/test_deploy_static.py checks
+# that the deploy files do.
+STOP_GRACE_SECONDS = 2.0
 
 
 class LodServer:
@@ -146,7 +152,7 @@ class LodServer:
         while time.monotonic() < deadline and self.sessions.counts()[0]:
             time.sleep(0.05)
         self.sessions.end_all()
-        self.stop(grace=2.0)
+        self.stop(grace=STOP_GRACE_SECONDS)
         logs.event("server.stopped")
 
     def stop(self, grace: float | None = None) -> None:

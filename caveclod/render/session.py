@@ -1,0 +1,102 @@
+"""A renderer fed by a client session: the GPU mirror of the client library's buffers.
+
+:class:`SessionRenderer` makes a :class:`~caveclod.render.Renderer` from a
+session's vertex buffer and mesh description (materials, bounds) and applies
+every frame the client library applied, surface by surface, in the same
+order::
+
+    with Client(target) as client, client.session("terrain", cameras=4, width=640, height=360) as s:
+        view = SessionRenderer(s, 1280, 720)
+        s.send_pose(0, eye, target)
+        view.apply(s.next_frame(timeout=1.0))
+        image = view.render([pose_a, pose_b, pose_c, pose_d])
+
+The client library checks every frame's CRCs; the GPU buffers receive the
+exact slot writes it applied, so after each frame they hold the same
+triangles (:meth:`SessionRenderer.mismatches` reads them back to prove it).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from .camera import Camera
+from .renderer import Renderer, Vertices
+
+
+class SessionRenderer:
+    """A :class:`Renderer` kept equal to a client session's index buffers.
+
+    Args:
+        session: a :class:`caveclod.client.Session` (or an object with the same
+            ``protocol``, ``vertex_buffer`` and ``info`` attributes, such as
+            the asyncio session) whose vertex buffer has arrived.
+        width, height: image size in pixels; the cameras share it as quadrants.
+        fov_y: vertical field of view in degrees (default: the session's).
+        **renderer_options: passed to :class:`Renderer` (``ctx``, ``textures``, ...).
+    """
+
+    def __init__(self, session, width: int, height: int, *, fov_y: float | None = None, **renderer_options):
+        self.session = session
+        info = session.info
+        vb = session.vertex_buffer
+        self.fov_y = float(fov_y if fov_y is not None else (info.options.fov_y_deg or 60.0))
+        lo = (info.mesh.bounds_min.x, info.mesh.bounds_min.y, info.mesh.bounds_min.z)
+        hi = (info.mesh.bounds_max.x, info.mesh.bounds_max.y, info.mesh.bounds_max.z)
+        names = [m.name for m in sorted(info.mesh.materials, key=lambda m: m.id)]
+        self.renderer = Renderer(width, height, Vertices(vb.positions, vb.normals, vb.uvs, vb.colors), names,
+                                 cameras=int(info.cameras), bounds=(lo, hi), **renderer_options)
+        self._epoch = session.protocol.epoch
+        self._replay()
+
+    @property
+    def cameras(self) -> int:
+        return self.renderer.cameras
+
+    def apply(self, update) -> None:
+        """Apply one :class:`caveclod.client.FrameUpdate` (None: nothing) to the GPU buffers."""
+        if self.session.protocol.epoch != self._epoch:
+            # The server started the session over (its token expired during
+            # a reconnect): the client's buffers were emptied, so are ours.
+            self._epoch = self.session.protocol.epoch
+            for c in range(self.cameras):
+                self.renderer.reset(c)
+        if update is None:
+            return
+        for c, cam in sorted(update.cameras.items()):
+            if cam.keyframe:
+                self.renderer.reset(c)
+            for s in cam.surfaces:
+                self.renderer.apply(c, s.material, s.count, s.tris, s.slots)
+
+    def views(self, poses) -> list[Camera]:
+        """One :class:`Camera` per pose ``(eye, target, up)``, with the session's field of view."""
+        return [Camera(p[0], p[1], p[2], self.fov_y) for p in poses]
+
+    def render(self, poses, wireframe: bool = False) -> np.ndarray:
+        """(height, width, 3) uint8 image of every camera at its pose (one per camera)."""
+        return self.renderer.render(self.views(poses), wireframe=wireframe)
+
+    def mismatches(self) -> list[tuple[int, int]]:
+        """(camera, material) pairs whose GPU buffer, read back, differs from the client library's."""
+        buffers = self.session.protocol.buffers
+        return [(c, m) for c in range(self.cameras) for m in range(len(self.renderer.materials))
+                if not np.array_equal(self.renderer.index_buffer(c, m), buffers.buffer(c, m))]
+
+    def release(self) -> None:
+        self.renderer.release()
+
+    def __enter__(self) -> "SessionRenderer":
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.release()
+
+    def _replay(self) -> None:
+        """Upload what the client already holds (a renderer made mid-session), once, whole."""
+        buffers = self.session.protocol.buffers
+        for c in range(self.cameras):
+            for m in range(len(self.renderer.materials)):
+                buf = buffers.buffer(c, m)
+                if len(buf):
+                    self.renderer.apply(c, m, len(buf), buf, None, 0)
