@@ -19,6 +19,7 @@ import json
 import sys
 
 from .errors import CaveclodError
+from .server.config import DEFAULT_MAX_SESSIONS
 
 EXIT_USAGE = 2
 
@@ -82,9 +83,9 @@ def _parser() -> argparse.ArgumentParser:
     s.add_argument("meshes", nargs="+", metavar="MESH.cvc", help=".cvc files built with 'caveclod build'")
     s.add_argument("--host", default="0.0.0.0", help="address to listen on (default 0.0.0.0: every interface)")
     s.add_argument("--port", type=int, default=50051, help="port (default 50051; 0 picks a free port)")
-    s.add_argument("--max-sessions", type=int, default=4,
-                   help="sessions held at once, resumable ones included (default 4: what one server process held "
-                        "at 30 Hz with p99 < 50 ms on a 1M-triangle terrain; see the README)")
+    s.add_argument("--max-sessions", type=int, default=DEFAULT_MAX_SESSIONS,
+                   help=f"sessions held at once, resumable ones included (default {DEFAULT_MAX_SESSIONS}: what one "
+                        "server process held at 30 Hz with p99 < 50 ms on a 1M-triangle terrain; see the README)")
     s.add_argument("--max-cameras", type=int, default=4, help="cameras per session (default 4)")
     s.add_argument("--ack-window", type=int, default=4,
                    help="frames in flight before an ack, for clients that ask for none (default 4; "

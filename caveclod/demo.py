@@ -19,7 +19,7 @@ from __future__ import annotations
 import argparse
 import json
 import os
-import select
+import selectors
 import signal
 import subprocess
 import sys
@@ -119,14 +119,15 @@ def server(mesh: Path, log: Path):
 
 def _listening_port(proc: subprocess.Popen, log: Path) -> int:
     deadline = time.monotonic() + SERVER_START_SECONDS
-    while time.monotonic() < deadline:
-        ready, _, _ = select.select([proc.stdout], [], [], 1.0)
-        if ready:
-            line = proc.stdout.readline()
-            if line.startswith("listening on "):
-                return int(line.rsplit(":", 1)[1])
-            if not line and proc.poll() is not None:
-                break
+    with selectors.DefaultSelector() as sel:       # not select(): no ceiling on descriptor numbers
+        sel.register(proc.stdout, selectors.EVENT_READ)
+        while time.monotonic() < deadline:
+            if sel.select(1.0):
+                line = proc.stdout.readline()
+                if line.startswith("listening on "):
+                    return int(line.rsplit(":", 1)[1])
+                if not line and proc.poll() is not None:
+                    break
     tail = log.read_text()[-800:] if log.exists() else ""
     raise CaveclodError(f"caveclod serve did not start (exit status {proc.poll()}); its log {log} ends: {tail}")
 

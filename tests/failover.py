@@ -12,7 +12,6 @@ from __future__ import annotations
 import json
 import os
 import re
-import select
 import shutil
 import signal
 import socket
@@ -23,7 +22,7 @@ import time
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from service import ROOT, stop_process, wait_until
+from service import ROOT, readline_within, stop_process, wait_until
 
 TEMPLATE = Path(ROOT) / "deploy" / "nginx" / "caveclod.conf.template"
 PLACEHOLDERS = ("CAVECLOD_LISTEN", "CAVECLOD_RESOLVER", "CAVECLOD_UPSTREAM_SERVERS")
@@ -59,8 +58,7 @@ class Replica:
         with open(self.log, "w") as err:
             self.proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=err, text=True, cwd=ROOT)
         try:
-            ready, _, _ = select.select([self.proc.stdout], [], [], 60.0)
-            line = self.proc.stdout.readline() if ready else ""
+            line = readline_within(self.proc.stdout, 60.0)
             if not line.startswith("listening on "):
                 raise AssertionError(f"{name} printed {line!r} first; log: {self.log.read_text()[-2000:]}")
             self.port = int(line.rsplit(":", 1)[1])

@@ -8,7 +8,7 @@ stopped by its pid in a ``finally``; every wait is bounded.
 from __future__ import annotations
 
 import os
-import select
+import selectors
 import signal
 import socket
 import subprocess
@@ -70,14 +70,24 @@ def serve_process(*args, env=None):
     proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, cwd=ROOT,
                             env={**os.environ, **(env or {})})
     try:
-        ready, _, _ = select.select([proc.stdout], [], [], 60.0)
-        line = proc.stdout.readline() if ready else ""
+        line = readline_within(proc.stdout, 60.0)
         if not line.startswith("listening on "):
             raise AssertionError(f"caveclod serve printed {line!r} first; stderr: {_stderr(proc)}")
         return proc, int(line.rsplit(":", 1)[1])
     except BaseException:
         stop_process(proc)
         raise
+
+
+def readline_within(stream, seconds: float) -> str:
+    """One line of ``stream``, or "" when none arrives within ``seconds``.
+
+    A selector rather than select.select: select() refuses descriptors above
+    1023, which a long test session can reach.
+    """
+    with selectors.DefaultSelector() as sel:
+        sel.register(stream, selectors.EVENT_READ)
+        return stream.readline() if sel.select(seconds) else ""
 
 
 def _stderr(proc) -> str:

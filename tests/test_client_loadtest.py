@@ -16,6 +16,7 @@ def test_loadtest_reports_json_and_exits_0(server, tmp_path, capsys):
     report = json.loads(out)
     assert status == 0, report
     assert report["sessions"] == 3 and report["divergences"] == 0 and report["errors"] == {}
+    assert report["resumes"] == 0 and report["failovers"] == 0
     assert report["frames"] >= 3 * 20 and report["frames_per_second"] > 0
     assert set(report["latency_ms"]) == {"p50", "p95", "p99", "max"}
     assert 0 < report["latency_ms"]["p50"] <= report["latency_ms"]["p99"] <= report["latency_ms"]["max"]

@@ -15,7 +15,9 @@ after the first ``--warmup`` seconds, while cameras refine up from the base
 mesh, are not timed), ``bytes_per_frame``
 (all frames), ``bytes_per_changed_triangle`` (delta frames: their bytes over
 the triangles they write; keyframes left out), ``divergences`` (CRC
-mismatches), ``errors`` (streams that ended with a status, by code), and the
+mismatches), ``resumes`` and ``failovers`` (broken streams resumed with
+their token, and answered by a fresh session because the replica was gone),
+``errors`` (streams that ended with a status, by code), and the
 load generator's own CPU. Exit status 1 when there are divergences or errors.
 
 In cache mode (``--cache-vertices N``, ``--cache-strategy S``) the figures
@@ -63,6 +65,7 @@ class Tally:
     divergences: int = 0
     bad_frames: int = 0
     resumes: int = 0
+    failovers: int = 0          # broken streams answered by a fresh session (a replica gone)
     vertices_inserted: int = 0       # cache mode: vertex slot writes received
     vertex_bytes: int = 0
     cache_hits: int = 0
@@ -152,6 +155,7 @@ async def _one(client: AsyncClient, index: int, args, mesh, tally: Tally, t0: fl
             tally.divergences += session.protocol.divergences
             tally.bad_frames += session.protocol.bad_frames
             tally.resumes += session.protocol.resumes
+            tally.failovers += session.protocol.failovers
 
 
 async def _progress(tally: Tally, args, t0: float) -> None:
@@ -208,6 +212,7 @@ async def run(args) -> dict:
         "bytes_per_changed_triangle": round(tally.delta_bytes / tally.delta_triangles, 2)
         if tally.delta_triangles else None,
         "divergences": tally.divergences, "bad_frames": tally.bad_frames, "resumes": tally.resumes,
+        "failovers": tally.failovers,
         "errors": dict(tally.errors), **cache,
         "client_cpu_seconds": round(cpu, 2), "client_cpu_cores": round(cpu / wall, 2),
         "latencies_ms": lat.round(3).tolist(),

@@ -169,8 +169,11 @@ class LodServer:
             self._close_loop()
 
     def _close_loop(self) -> None:
+        """Stop the event loop's thread, then close the loop (its selector and wake-up pipe)."""
         self._loop.call_soon_threadsafe(self._loop.stop)
         self._loop_thread.join(5.0)
+        if not self._loop_thread.is_alive():
+            self._loop.close()
 
 
 def grpc_options(config: ServerConfig) -> list:

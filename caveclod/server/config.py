@@ -9,11 +9,13 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 
 MAX_ACK_WINDOW = 32          # a client may ask for up to this many frames in flight
-# Measured (README, "Service figures"): one server process held 4 one-camera
-# sessions at 30 Hz on the 1M-triangle terrain with p99 10 ms, and 8 with
-# p99 93 ms. One process tops out near 1.2 cores (the GIL), so the limit does
-# not grow with the machine's cores.
-DEFAULT_MAX_SESSIONS = 4
+# Measured (README, "Service figures"; benchmarks/server_model.py and
+# benchmarks/service.py): one server process on 2 cores held 16 one-camera
+# sessions at 30 Hz on the 1M-triangle terrain with p99 pose -> frame under
+# 15 ms, and 32 with p99 near 90 ms. The deploy files use the same limit;
+# past it, a replica refuses with RESOURCE_EXHAUSTED and the balancer's
+# next replica takes the session.
+DEFAULT_MAX_SESSIONS = 16
 
 
 @dataclass
