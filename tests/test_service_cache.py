@@ -403,3 +403,39 @@ def test_a_resume_must_keep_the_cache(server):
     code, details, _ = raw_stream(server.port, [msg])
     assert code == grpc.StatusCode.INVALID_ARGUMENT
     assert "resume of a session with cache 2500 slots lru by an Open asking for 2400 slots lru" in details
+
+
+def test_a_failover_to_another_server_starts_the_slots_afresh(make_server):
+    """A resume that reaches a server without the session (its replica gone) gets a
+    fresh cache-mode session: the client empties its slots and the fresh session's
+    keyframe fills them; what it draws is again the new server's state."""
+    from caveclod.client import Client
+    from caveclod.paths import circle
+    a, b = make_server(), make_server()
+    with proxy_to(a.port) as proxy, Client(f"127.0.0.1:{proxy.port}", cache_dir=False) as client:
+        with client.session("terrain", cameras=1, width=WIDTH, height=HEIGHT, cache_vertices=2500,
+                            cache_strategy="fa") as s:
+            lo, hi = s.info.mesh.bounds_min, s.info.mesh.bounds_max
+            lo, hi = (lo.x, lo.y, lo.z), (hi.x, hi.y, hi.z)
+            for i in range(10):
+                s.send_pose(0, *circle(lo, hi, 0, i / 30))
+                assert s.next_frame(timeout=10) is not None
+            held_before = s.slots(0).n_held
+            proxy.target = b.port
+            proxy.cut()
+            s.send_pose(0, *circle(lo, hi, 0, 11 / 30))
+            keyframe = None
+            for _ in range(30):                       # bounded: frames until the fresh session answers the pose
+                f = s.next_frame(timeout=10)
+                assert f is not None
+                if s.protocol.failovers and 0 in f.cameras:
+                    keyframe = keyframe or (f.cameras[0].keyframe and f.cameras[0].vertices_written)
+                    if f.cameras[0].pose_seq:
+                        break
+            while s.next_frame(timeout=0.3) is not None:
+                pass
+            assert s.protocol.failovers == 1 and not s.info.resumed and s.info.cache_vertices == 2500
+            assert held_before > 0 and keyframe, "the fresh session's keyframe wrote the slots again"
+            assert s.slots(0).n_held <= 2500
+            assert s.protocol.divergences == 0 and s.protocol.bad_frames == 0
+            _check_mirror(s.protocol, b)
