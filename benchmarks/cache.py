@@ -49,7 +49,7 @@ victim choice) are this shared machine's. Then the case for caches per
 camera rather than per session: four cameras' active vertices, summed and
 as a union. Writes ``benchmarks/results/cache.json``, ``cache.png``
 (cumulative inserts at 2 x P) and ``cache_sizes.png`` (inserts against the
-cache size). The default run takes about 2.5 minutes on a 2-core machine (the
+cache size). The default run takes about 3 minutes on a 2-core machine (the
 first run also builds the three meshes into benchmarks/results/, ignored by
 git: about 15 s).
 """
