@@ -41,9 +41,10 @@ _LAZY = {
     "CameraState": ".refine.camera",
     "Delta": ".refine.camera",
     "SurfaceDelta": ".refine.camera",
+    "CachedCamera": ".refine.cachedcamera",
 }
 
-__all__ = ["build", "load", "StaticMesh", "View", "CameraState", "Delta", "SurfaceDelta",
+__all__ = ["build", "load", "StaticMesh", "View", "CameraState", "Delta", "SurfaceDelta", "CachedCamera",
            "CaveclodError", "InputError", "FileFormatError"]
 __version__ = "0.1.0"
 

@@ -145,6 +145,13 @@ def _parser() -> argparse.ArgumentParser:
     t.add_argument("--token", help="bearer token (or set CAVECLOD_TOKEN)")
     t.add_argument("--tls-ca", metavar="F", help="PEM CA certificate: connect with TLS and trust it")
     t.add_argument("--cache-dir", help="vertex buffer cache (default $XDG_CACHE_HOME/caveclod/vertex-buffers)")
+    t.add_argument("--cache-vertices", type=int, metavar="N",
+                   help="cache mode: N vertex slots per camera instead of the whole vertex buffer; the JSON adds "
+                        "vertices_inserted, vertex_bytes_per_frame and cache_hit_rate")
+    t.add_argument("--cache-strategy", choices=("fa", "lru", "lru_pq"),
+                   help="cache mode: which slot a new vertex overwrites (default lru)")
+    t.add_argument("--cache-pq-fraction", type=float, metavar="F",
+                   help="cache mode with lru_pq: share of the slots in the error priority queue (default 0.1)")
     t.add_argument("--json", action="store_true", help="print one JSON object with the figures on stdout")
     t.add_argument("--samples", action="store_true", help="with --json: add every latency sample (ms) as latencies_ms")
     t.add_argument("--plot", metavar="FILE", help="write a pose->frame latency plot (PNG; needs matplotlib)")
@@ -164,6 +171,7 @@ def _parser() -> argparse.ArgumentParser:
     r.add_argument("--size", default="1280x720", help="image size WxH (default 1280x720)")
     r.add_argument("--wireframe", action="store_true", help="overlay the triangles' edges")
     r.add_argument("--out", required=True, metavar="DIR", help="directory for the frames")
+    _cache_arguments(r)
     r.set_defaults(run=_render)
 
     v = sub.add_parser("view", help="an interactive window flying one camera through a server (needs a display)",
@@ -176,6 +184,7 @@ def _parser() -> argparse.ArgumentParser:
     v.add_argument("--wireframe", action="store_true", help="start with the wireframe overlay on")
     v.add_argument("--frames", type=int, default=None, help="quit after this many drawn frames (default: run until closed)")
     v.add_argument("--screenshot", metavar="FILE", help="write the last drawn frame as PNG on exit")
+    _cache_arguments(v)
     v.set_defaults(run=_view)
 
     d = sub.add_parser("demo", help="build the default terrain, serve it, fly 4 cameras through the service and "
@@ -196,6 +205,16 @@ def _client_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--token", help="bearer token (or set CAVECLOD_TOKEN)")
     p.add_argument("--tls-ca", metavar="F", help="PEM CA certificate: connect with TLS and trust it")
     p.add_argument("--cache-dir", help="vertex buffer cache (default $XDG_CACHE_HOME/caveclod/vertex-buffers)")
+
+
+def _cache_arguments(p: argparse.ArgumentParser) -> None:
+    """Cache mode for the commands that draw a session: N vertex slots per camera on the GPU."""
+    p.add_argument("--cache-vertices", type=int, metavar="N",
+                   help="cache mode: N vertex slots per camera instead of the whole vertex buffer")
+    p.add_argument("--cache-strategy", choices=("fa", "lru", "lru_pq"),
+                   help="cache mode: which slot a new vertex overwrites (default lru)")
+    p.add_argument("--cache-pq-fraction", type=float, metavar="F",
+                   help="cache mode with lru_pq: share of the slots in the error priority queue (default 0.1)")
 
 
 def _render(args) -> int:

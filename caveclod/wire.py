@@ -10,18 +10,21 @@ Arrays travel as little-endian ``bytes`` (see the proto's Conventions):
   the k slots are consecutive, ``first_slot`` and no slot array;
 * a frame whose array data exceed ``max_chunk_bytes`` is split into parts
   (:func:`frame_parts`); so is the vertex payload (:func:`vertex_chunks`);
-* the vertex payload is PLANAR: one contiguous block per attribute.
+* the vertex payload is PLANAR: one contiguous block per attribute;
+* in cache mode a camera's VertexWrites carry ``slots`` (or ``first_slot``)
+  and k vertices as a PLANAR payload of their own (:class:`SlotWrites`);
+  the checksums both ends compute are in :mod:`caveclod.checksums`.
 """
 
 from __future__ import annotations
 
-import zlib
 from dataclasses import dataclass, field
-from typing import Iterable, Iterator, NamedTuple
+from typing import Iterator, NamedTuple
 
 import numpy as np
 from google.protobuf.message import DecodeError
 
+from .checksums import buffer_crc32, payload_crc32  # noqa: F401  (the codec's checksums, re-exported)
 from .v1 import caveclod_pb2 as pb
 
 MAX_CHUNK_BYTES = 1 << 20          # 1 MiB of array data per VertexChunk or Frame part
@@ -30,21 +33,6 @@ U32 = np.dtype("<u4")
 
 class WireError(ValueError):
     """A message that cannot be decoded or applied; the text is one line."""
-
-
-# -- checksums -------------------------------------------------------------------
-
-def buffer_crc32(buf: np.ndarray) -> int:
-    """CRC-32 of a (count, 3) index buffer as the proto defines it (0 when empty)."""
-    return zlib.crc32(np.ascontiguousarray(buf, dtype=U32)) if len(buf) else 0
-
-
-def payload_crc32(blocks: Iterable[np.ndarray]) -> int:
-    """CRC-32 of the concatenated bytes of ``blocks`` (the planar vertex payload)."""
-    crc = 0
-    for block in blocks:
-        crc = zlib.crc32(_bytes_of(block), crc)
-    return crc
 
 
 def _bytes_of(a: np.ndarray) -> np.ndarray:
@@ -91,6 +79,49 @@ def options_from_dict(options: dict) -> pb.RefineOptions:
         if value is not None:
             setattr(msg, name, value)
     return msg
+
+
+CACHE_STRATEGIES = {"fa": pb.CACHE_STRATEGY_FA, "lru": pb.CACHE_STRATEGY_LRU, "lru_pq": pb.CACHE_STRATEGY_LRU_PQ}
+_STRATEGY_NAMES = {v: k for k, v in CACHE_STRATEGIES.items()}
+
+
+def cache_options(msg: pb.Open) -> dict | None:
+    """Open's cache-mode fields as ``{vertices, strategy, pq_fraction}``, or
+    None when ``cache_vertices`` is unset (a resident vertex buffer).
+
+    ``strategy`` is a name (``fa``, ``lru``, ``lru_pq``) or None when
+    unspecified; ``pq_fraction`` None when unset. Nothing else is validated
+    here, except what only the wire can get wrong: a strategy or fraction
+    without ``cache_vertices``, or a strategy number this codec does not know
+    (WireError).
+    """
+    if not msg.HasField("cache_vertices"):
+        if msg.cache_strategy or msg.HasField("cache_pq_fraction"):
+            raise WireError("Open sets a cache strategy or priority-queue fraction but no cache_vertices; "
+                            "set cache_vertices to a slot count, or leave all three unset for a resident vertex buffer")
+        return None
+    if msg.cache_strategy and msg.cache_strategy not in _STRATEGY_NAMES:
+        raise WireError(f"Open.cache_strategy {msg.cache_strategy} is unknown; use one of "
+                        f"{', '.join(pb.CacheStrategy.Name(v) for v in _STRATEGY_NAMES)}")
+    return {"vertices": msg.cache_vertices, "strategy": _STRATEGY_NAMES.get(msg.cache_strategy),
+            "pq_fraction": msg.cache_pq_fraction if msg.HasField("cache_pq_fraction") else None}
+
+
+def set_cache_options(msg: pb.Open, cache: dict | None) -> None:
+    """The inverse of :func:`cache_options`: set Open's cache fields from the dict (None: leave them unset)."""
+    if cache is None or cache.get("vertices") is None:
+        return
+    msg.cache_vertices = int(cache["vertices"])
+    if cache.get("strategy") is not None:
+        msg.cache_strategy = CACHE_STRATEGIES[cache["strategy"]] if isinstance(cache["strategy"], str) \
+            else int(cache["strategy"])
+    if cache.get("pq_fraction") is not None:
+        msg.cache_pq_fraction = float(cache["pq_fraction"])
+
+
+def strategy_name(value: int) -> str | None:
+    """``fa``, ``lru`` or ``lru_pq`` for a CacheStrategy number (None: unspecified or unknown)."""
+    return _STRATEGY_NAMES.get(value)
 
 
 def parse_client_message(data: bytes) -> pb.ClientMessage | WireError:
@@ -178,6 +209,77 @@ def decode_surface(msg: pb.SurfaceDelta, n_vertices: int) -> Surface:
     return Surface(msg.material, msg.count, slots, tris, msg.crc32 if msg.HasField("crc32") else None)
 
 
+# -- vertex slot writes (cache mode) -----------------------------------------------------
+
+@dataclass
+class SlotWrites:
+    """Vertices written into one camera's cache slots.
+
+    Attributes:
+        slots: (k,) uint32 slots written, ascending and unique.
+        blocks: the vertices' attributes: one (k, c) array per attribute of
+            the VertexFormat, in its order (positions, normals, uvs[, colours]).
+        checksum: the camera's slots checksum after the frame
+            (:class:`caveclod.checksums.SlotChecksum`).
+    """
+
+    slots: np.ndarray
+    blocks: list
+    checksum: int = 0
+
+    @property
+    def row_bytes(self) -> int:
+        """Bytes of one vertex's attributes."""
+        return int(sum(b.shape[1] * b.dtype.itemsize for b in self.blocks))
+
+    def piece(self, start: int, stop: int) -> "SlotWrites":
+        return SlotWrites(self.slots[start:stop], [b[start:stop] for b in self.blocks], self.checksum)
+
+
+def encode_slot_writes(w: SlotWrites) -> pb.VertexWrites:
+    """A VertexWrites message: the k vertices as a PLANAR payload; consecutive slots as ``first_slot``."""
+    msg = pb.VertexWrites(data=b"".join(_bytes_of(b).tobytes() for b in w.blocks), slots_checksum=int(w.checksum))
+    k = len(w.slots)
+    if k and int(w.slots[-1]) - int(w.slots[0]) == k - 1:
+        msg.first_slot = int(w.slots[0])
+    elif k:
+        msg.slots = np.ascontiguousarray(w.slots, dtype=U32).tobytes()
+    return msg
+
+
+def decode_slot_writes(msg: pb.VertexWrites, fmt: pb.VertexFormat, n_slots: int) -> SlotWrites:
+    """A SlotWrites from a VertexWrites, checked as the proto requires.
+
+    Attribute blocks are views of ``msg.data`` laid out as ``fmt`` lists the
+    attributes. Raises WireError for data that are not whole vertices,
+    slots that are not ascending and unique, or a slot >= ``n_slots``.
+    """
+    widths = []
+    for a in fmt.attributes:
+        if a.type not in _SCALARS:
+            raise WireError(f"vertex attribute {a.semantic} has unknown scalar type {a.type}; upgrade the client")
+        widths.append((_SCALARS[a.type], a.components))
+    row = sum(t.itemsize * c for t, c in widths)
+    if row == 0 or len(msg.data) % row:
+        raise WireError(f"vertex writes: {len(msg.data)} bytes of data are not whole {row}-byte vertices")
+    k = len(msg.data) // row
+    if msg.slots:
+        if len(msg.slots) != 4 * k:
+            raise WireError(f"vertex writes: {len(msg.slots)} bytes of slots for {k} vertices")
+        slots = np.frombuffer(msg.slots, dtype=U32)
+        if k > 1 and not (np.diff(slots.astype(np.int64)) > 0).all():
+            raise WireError("vertex writes: slots are not ascending and unique")
+    else:
+        slots = np.arange(msg.first_slot, msg.first_slot + k, dtype=np.int64).astype(U32)
+    if k and int(slots[-1]) >= n_slots:
+        raise WireError(f"vertex writes: slot {int(slots[-1])} past the {n_slots} slots of the cache")
+    blocks, offset = [], 0
+    for dtype, c in widths:
+        blocks.append(np.frombuffer(msg.data, dtype=dtype, count=k * c, offset=offset).reshape(k, c))
+        offset += k * c * dtype.itemsize
+    return SlotWrites(slots, blocks, msg.slots_checksum)
+
+
 # -- frames --------------------------------------------------------------------------
 
 @dataclass
@@ -190,7 +292,10 @@ class CameraFrameData:
         keyframe: ``surfaces`` hold every material's full buffer.
         surfaces: the Surfaces written.
         stats: CameraStats fields (splits, collapses, update_us, active_faces,
-            budget_exhausted, pose_age_us) of the one update made, or None.
+            budget_exhausted, pose_age_us; in cache mode also cache_hits,
+            cache_inserts, cache_tolerance_px, updates) of the frame's
+            update, or None.
+        vertices: cache mode: the :class:`SlotWrites`, or None.
     """
 
     camera: int
@@ -198,6 +303,7 @@ class CameraFrameData:
     keyframe: bool = False
     surfaces: list = field(default_factory=list)
     stats: dict | None = None
+    vertices: SlotWrites | None = None
 
 
 def frame_parts(frame_seq: int, pose_seq: int, poses_superseded: int, cameras: list,
@@ -208,7 +314,9 @@ def frame_parts(frame_seq: int, pose_seq: int, poses_superseded: int, cameras: l
     the room left in a part is cut into row ranges; every piece carries the
     buffer's count and CRC, so each applies on its own (resize, then write).
     A camera's stats go in the first part that carries it, its keyframe flag
-    in every such part. Every frame has at least one part.
+    in every such part. In cache mode a camera's vertex writes come before
+    its surfaces, cut into row ranges the same way (each piece carries the
+    checksum). Every frame has at least one part.
     """
     parts: list[pb.Frame] = []
     room = 0
@@ -225,6 +333,25 @@ def frame_parts(frame_seq: int, pose_seq: int, poses_superseded: int, cameras: l
     part = new_part()
     for cam in cameras:
         entry, carried = None, False
+        w = cam.vertices
+        if w is not None:
+            start, k = 0, len(w.slots)
+            per_row = w.row_bytes + (0 if _is_run(w.slots) else 4)
+            if per_row > max_bytes:
+                raise ValueError(f"max_bytes must hold at least one vertex ({per_row} bytes), got {max_bytes}")
+            while True:
+                rows = min(k - start, room // per_row)
+                if rows == 0 and k - start > 0:
+                    part, entry = new_part(), None
+                    continue
+                if entry is None:
+                    entry, carried = _camera_entry(part, cam, with_stats=not carried), True
+                piece = w.piece(start, start + rows)
+                entry.vertices.CopyFrom(encode_slot_writes(piece))
+                room -= rows * per_row
+                start += rows
+                if start >= k:
+                    break
         for s in cam.surfaces:
             start, k = 0, len(s.slots)
             while True:
@@ -377,12 +504,18 @@ def mesh_info(name: str, *, faces: int, vertices: int, positions: int, nodes: in
 def session_info(*, token: str, resumed: bool, mesh: pb.MeshInfo, vertex_format: pb.VertexFormat,
                  vertex_buffer_cached: bool, vertex_payload_crc32: int, view_options: dict, budgets: tuple,
                  cameras: int, ack_window: int, resume_ttl_s: int, last_frame_seq: int,
-                 last_pose_seq: int) -> pb.ServerMessage:
-    """The SessionInfo ServerMessage; ``view_options`` are View keywords, ``budgets`` (max_ops, max_faces)."""
+                 last_pose_seq: int, cache: dict | None = None) -> pb.ServerMessage:
+    """The SessionInfo ServerMessage; ``view_options`` are View keywords, ``budgets`` (max_ops, max_faces),
+    ``cache`` the cache mode in use ``{vertices, strategy, pq_fraction}`` or None."""
     max_ops, max_faces = budgets
     options = options_from_dict({**view_options, "max_ops": max_ops, "max_faces": max_faces})
-    return pb.ServerMessage(session_info=pb.SessionInfo(
+    info = pb.SessionInfo(
         session_token=token, resumed=resumed, mesh=mesh, vertex_format=vertex_format,
         vertex_buffer_cached=vertex_buffer_cached, vertex_payload_crc32=vertex_payload_crc32, options=options,
         cameras=cameras, ack_window=ack_window, resume_ttl_s=resume_ttl_s, last_frame_seq=last_frame_seq,
-        last_pose_seq=last_pose_seq, max_chunk_bytes=MAX_CHUNK_BYTES))
+        last_pose_seq=last_pose_seq, max_chunk_bytes=MAX_CHUNK_BYTES)
+    if cache is not None:
+        info.cache_vertices = int(cache["vertices"])
+        info.cache_strategy = CACHE_STRATEGIES[cache["strategy"]]
+        info.cache_pq_fraction = float(cache["pq_fraction"] or 0.0)
+    return pb.ServerMessage(session_info=info)

@@ -43,3 +43,28 @@ def test_loadtest_of_an_unknown_mesh_or_no_server_is_one_line(server, capsys):
     assert cli.main(["loadtest", "--target", f"127.0.0.1:{server.port}", "--duration", "1"]) == 1
     err = capsys.readouterr().err
     assert "UNAVAILABLE" in err and err.count("\n") == 1
+
+
+def test_loadtest_in_cache_mode_reports_what_the_cache_did(server, tmp_path, capsys):
+    status = cli.main(["loadtest", "--target", f"127.0.0.1:{server.port}", "--sessions", "2", "--cameras", "2",
+                       "--duration", "2", "--rate", "20", "--trajectory", "rotate", "--json",
+                       "--cache-vertices", "1200", "--cache-strategy", "lru_pq", "--cache-dir", str(tmp_path)])
+    report = json.loads(capsys.readouterr().out)
+    assert status == 0, report
+    assert report["divergences"] == 0 and report["errors"] == {} and report["bad_frames"] == 0
+    assert report["cache_vertices"] == 1200 and report["cache_strategy"] == "lru_pq"
+    assert report["vertices_inserted"] > 0 and report["vertex_bytes_per_frame"] > 0
+    assert 0.0 <= report["cache_hit_rate"] <= 1.0
+    assert not list(tmp_path.iterdir()), "cache mode downloads no vertex buffer"
+
+
+def test_loadtest_cache_flags_are_checked(server, capsys):
+    target = ["loadtest", "--target", f"127.0.0.1:{server.port}", "--duration", "1"]
+    assert cli.main(target + ["--cache-strategy", "fa"]) == 2
+    assert "need --cache-vertices" in capsys.readouterr().err
+    assert cli.main(target + ["--cache-vertices", "0"]) == 2
+    assert "at least 1" in capsys.readouterr().err
+    assert cli.main(target + ["--cache-vertices", "3", "--json"]) == 1        # below the base mesh: refused
+    out, err = capsys.readouterr()
+    assert json.loads(out)["errors"] == {"INVALID_ARGUMENT": 1}
+    assert "ask for at least" in err

@@ -285,7 +285,13 @@ def test_the_comments_settle_what_other_languages_must_know(compiled):
     for rule in ("protos/grpc/health/v1/health.proto", "UNAUTHENTICATED", "authorization: Bearer <token>",
                  "v1 servers always set it, so it needs no presence",
                  "empties every index buffer of the camera (count 0)",
-                 "resumable ones included"):
+                 "resumable ones included",
+                 # cache mode: what a client in another language must do
+                 "no VertexChunk is sent",
+                 "the sum, modulo 2^32, over the slots that hold a vertex, of the CRC-32",
+                 "in cache mode every vertex slot of the camera (no slot holds a vertex)",
+                 "applied before the surfaces of this same entry",
+                 "raises the camera's tolerance by factors of 1.25 until the vertices fit"):
         assert rule in flat, f"{PROTO} must say: {rule}"
 
 

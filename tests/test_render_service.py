@@ -90,6 +90,38 @@ def test_a_renderer_made_mid_session_starts_from_what_the_client_holds(server, g
             late.release()
 
 
+def test_a_cache_mode_session_renderer_mirrors_the_slots_and_the_buffers(server, gl, tmp_path):
+    """Cache mode: N vertex slots per camera on the GPU, fed by the frames' vertex writes;
+    after every frame (a keyframe among them) the slots the client holds and the index
+    buffers read back equal the client library's, and a renderer made mid-session draws
+    the same image as the one that saw every frame."""
+    with Client(f"127.0.0.1:{server.port}", cache_dir=False) as client:
+        with client.session("terrain", cameras=2, width=160, height=90, cache_vertices=1500,
+                            cache_strategy="lru_pq") as s:
+            view = SessionRenderer(s, 320, 180, ctx=gl)
+            assert view.renderer.cache_vertices == 1500
+            written = 0
+            for rec in fly(s, view, "flyover", 24, fps=10.0, draw=False, verify=True):
+                written += sum(cam.vertices_written for f in rec.frames for cam in f.cameras.values())
+                if rec.index == 12:
+                    s.request_keyframe()
+            assert written > 0 and s.protocol.divergences == 0 and s.protocol.bad_frames == 0
+            assert all(s.slots(c).n_held <= 1500 for c in range(2))
+            late = SessionRenderer(s, 320, 180, ctx=gl)        # replays the held slots and the buffers
+            assert not late.mismatches()
+            poses = rec.poses
+            image = view.render(poses)
+            assert not_blank(image, 0.05)
+            np.testing.assert_array_equal(late.render(poses), image)
+            # A slot that differs on the GPU is found.
+            held = int(np.flatnonzero(s.slots(1).held)[0])
+            late.renderer.write_vertices(1, [held], s.slots(1).positions[[held]] + 1.0, s.slots(1).normals[[held]],
+                                         s.slots(1).uvs[[held]])
+            assert late.mismatches() == [(1, -1)]
+            view.release()
+            late.release()
+
+
 def test_path_poses_names_the_paths():
     lo, hi = (0, 0, 0), (100, 100, 10)
     assert len(path_poses("line", lo, hi, 3, 1.0)) == 3
@@ -119,7 +151,23 @@ def test_render_command_writes_frames_an_animation_and_figures(server, tmp_path)
     assert "latency p50" in r.stdout
 
 
+def test_render_command_in_cache_mode(server, tmp_path):
+    out = tmp_path / "frames"
+    r = run_cli("render", "--target", f"127.0.0.1:{server.port}", "--cameras", "2", "--trajectory", "line",
+                "--frames", "4", "--size", "320x180", "--out", out, "--cache-vertices", "1200",
+                "--cache-strategy", "fa")
+    assert r.returncode == 0, r.stderr
+    assert all(not_blank(png(f), 0.05) for f in sorted(out.glob("frame_*.png")))
+    report = json.loads((out / "render.json").read_text())
+    assert (report["cache_vertices"], report["cache_strategy"]) == (1200, "fa")
+    assert report["vertices_inserted"] > 0 and report["divergences"] == 0
+    assert report["gpu_buffers_verified_frames"] == 4
+
+
 @pytest.mark.parametrize("args, message", [
+    (["--cache-strategy", "lru"], "need --cache-vertices N"),
+    (["--cache-vertices", "0"], "at least 1"),
+    (["--cache-vertices", "3"], "INVALID_ARGUMENT: Open.cache_vertices is 3"),
     (["--size", "big"], "WIDTHxHEIGHT"),
     (["--cameras", "5"], "1 to 4"),
     (["--frames", "0"], "at least 1"),
@@ -175,6 +223,16 @@ def test_view_draws_a_window_on_a_virtual_screen(server, tmp_path):
                 wrap=("xvfb-run", "-a", "-s", "-screen 0 640x480x24"), timeout=120)
     assert r.returncode == 0, r.stderr[-2000:]
     assert "40 frames drawn, 0 divergences" in r.stdout
+    assert not_blank(png(shot), 0.05)
+
+
+def test_view_in_cache_mode(server, tmp_path):
+    shot = tmp_path / "view.png"
+    r = run_cli("view", "--target", f"127.0.0.1:{server.port}", "--size", "320x180", "--frames", "20",
+                "--screenshot", shot, "--cache-vertices", "1500", "--cache-strategy", "lru",
+                wrap=("xvfb-run", "-a", "-s", "-screen 0 640x480x24"), timeout=120)
+    assert r.returncode == 0, r.stderr[-2000:]
+    assert "20 frames drawn, 0 divergences" in r.stdout
     assert not_blank(png(shot), 0.05)
 
 

@@ -17,7 +17,9 @@ buffer once and caches it on disk by ``vertex_buffer_hash``
 (:mod:`.cache`); applies each frame, part by part, to per-(camera,
 material) index buffers (:mod:`.buffers`); checks every CRC-32, acks, and
 asks for a keyframe on a mismatch or a bad frame; resumes a broken stream
-with its session token, backing off (:mod:`.session`). The rules live once,
+with its session token, backing off (:mod:`.session`). In cache mode
+(``cache_vertices=N``) it holds N vertex slots per camera instead of the
+vertex buffer (:mod:`.slots`), written by the frames. The rules live once,
 without I/O, in :mod:`.protocol`; the load tester is :mod:`.loadtest`.
 
 This package must not import the server, the core's build or refinement
@@ -30,6 +32,7 @@ from .buffers import IndexBuffers
 from .cache import VertexBufferCache
 from .protocol import CameraUpdate, FrameUpdate, ProtocolError, SessionProtocol, VertexBuffer
 from .session import Client, Session, SessionEnded
+from .slots import SlotBuffer
 
 __all__ = ["Client", "Session", "SessionEnded", "FrameUpdate", "CameraUpdate", "VertexBuffer", "IndexBuffers",
-           "VertexBufferCache", "SessionProtocol", "ProtocolError"]
+           "VertexBufferCache", "SessionProtocol", "ProtocolError", "SlotBuffer"]

@@ -27,7 +27,8 @@ from ..v1 import caveclod_pb2 as pb
 from ..v1 import caveclod_pb2_grpc as pb_grpc
 from .cache import VertexBufferCache
 from .protocol import FrameUpdate, ProtocolError, SessionProtocol, VertexBuffer
-from .session import CHANNEL_OPTIONS, SessionEnded, backoff, credentials, metadata, refine_options, retriable
+from .session import (CHANNEL_OPTIONS, SessionEnded, backoff, cache_mode, credentials, metadata, refine_options,
+                      retriable)
 
 
 class AsyncClient:
@@ -53,11 +54,14 @@ class AsyncClient:
     async def session(self, mesh: str, cameras: int = 1, *, width: int = 1280, height: int = 720,
                       fov_y: float | None = None, tolerance_px: float | None = None, cull: bool | None = None,
                       backface: bool | None = None, max_ops: int | None = None, max_faces: int | None = None,
-                      ack_window: int = 0, retries: int = 6, timeout: float = 30.0) -> "AsyncSession":
-        """Open a session and wait for its vertex buffer; see :meth:`caveclod.client.Client.session`."""
+                      ack_window: int = 0, retries: int = 6, timeout: float = 30.0, cache_vertices: int | None = None,
+                      cache_strategy: str | None = None, cache_pq_fraction: float | None = None) -> "AsyncSession":
+        """Open a session and wait for its vertex buffer (or, in cache mode,
+        its SessionInfo); see :meth:`caveclod.client.Client.session`."""
         protocol = SessionProtocol(mesh, cameras, refine_options(width, height, fov_y, tolerance_px, cull,
                                                                  backface, max_ops, max_faces),
-                                   cache=self.cache, ack_window=ack_window)
+                                   cache=self.cache, ack_window=ack_window,
+                                   cache_mode=cache_mode(cache_vertices, cache_strategy, cache_pq_fraction))
         session = AsyncSession(self, protocol, retries)
         await session._open(timeout)
         return session
@@ -105,7 +109,7 @@ class AsyncSession:
         self._read_task: asyncio.Task | None = None      # a read a timed-out next_frame left running
 
     async def _open(self, timeout: float) -> None:
-        if not self.protocol.token and self.client.cache is not None:
+        if not self.protocol.token and self.client.cache is not None and self.protocol.cache_mode is None:
             try:
                 meshes = {m.name: m for m in await self.client.list_meshes(timeout=timeout)}
             except grpc.RpcError as exc:
@@ -243,8 +247,15 @@ class AsyncSession:
         return self.protocol.info
 
     @property
-    def vertex_buffer(self) -> VertexBuffer:
+    def vertex_buffer(self) -> VertexBuffer | None:
+        """The resident vertex buffer; None in cache mode."""
         return self.protocol.vertex
+
+    def slots(self, camera: int):
+        """Cache mode: camera's :class:`~caveclod.client.slots.SlotBuffer`."""
+        if self.protocol.slots is None:
+            raise ValueError("slots() is for cache mode; this session holds the whole vertex buffer (vertex_buffer)")
+        return self.protocol.slots[camera]
 
     @property
     def buffers(self):

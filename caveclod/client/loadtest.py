@@ -19,6 +19,13 @@ mismatches), ``resumes`` and ``failovers`` (broken streams resumed with
 their token, and answered by a fresh session because the replica was gone),
 ``errors`` (streams that ended with a status, by code), and the
 load generator's own CPU. Exit status 1 when there are divergences or errors.
+
+In cache mode (``--cache-vertices N``, ``--cache-strategy S``) the figures
+add ``vertices_inserted`` (vertices written into slots, keyframes included),
+``vertex_bytes_per_frame`` (bytes of VertexWrites per frame),
+``cache_hit_rate`` (of the vertices that became active, the share still in
+a slot: CameraStats.cache_hits over hits + inserts) and
+``cache_tolerance_px_max`` (the most a camera was coarsened to fit).
 """
 
 from __future__ import annotations
@@ -59,6 +66,11 @@ class Tally:
     bad_frames: int = 0
     resumes: int = 0
     failovers: int = 0          # broken streams answered by a fresh session (a replica gone)
+    vertices_inserted: int = 0       # cache mode: vertex slot writes received
+    vertex_bytes: int = 0
+    cache_hits: int = 0
+    cache_inserts: int = 0
+    cache_tolerance_max: float = 0.0
 
 
 async def _fly(session: AsyncSession, index: int, args, lo, hi, t0: float, tally: Tally) -> None:
@@ -99,6 +111,13 @@ async def _receive(session: AsyncSession, until: float, timed_from: float, tally
                 raise
             tally.frames += 1
             tally.bytes += frame.nbytes
+            for cam in frame.cameras.values():
+                tally.vertices_inserted += cam.vertices_written
+                tally.vertex_bytes += cam.vertex_bytes
+                if cam.stats is not None:
+                    tally.cache_hits += cam.stats.cache_hits
+                    tally.cache_inserts += cam.stats.cache_inserts
+                    tally.cache_tolerance_max = max(tally.cache_tolerance_max, cam.stats.cache_tolerance_px)
             keyframe = any(cam.keyframe for cam in frame.cameras.values())
             if keyframe:
                 tally.keyframes += 1
@@ -118,14 +137,19 @@ async def _one(client: AsyncClient, index: int, args, mesh, tally: Tally, t0: fl
     session = None
     try:
         session = await client.session(mesh.name, cameras=args.cameras, width=args.width, height=args.height,
-                                       fov_y=args.fov, tolerance_px=args.tolerance)
+                                       fov_y=args.fov, tolerance_px=args.tolerance,
+                                       cache_vertices=args.cache_vertices, cache_strategy=args.cache_strategy,
+                                       cache_pq_fraction=args.cache_pq_fraction)
         flying = asyncio.ensure_future(_fly(session, index, args, lo, hi, t0, tally))
         try:
             await _receive(session, t0 + args.duration + TAIL_SECONDS, t0 + args.warmup, tally)
         finally:
             flying.cancel()
     except SessionEnded as exc:
-        tally.errors[exc.code.name if exc.code is not None else "ENDED"] += 1
+        code = exc.code.name if exc.code is not None else "ENDED"
+        if not tally.errors[code]:                 # the first of each kind, so that a refusal says why
+            print(f"loadtest: session {index}: {exc}", file=sys.stderr, flush=True)
+        tally.errors[code] += 1
     finally:
         if session is not None:
             tally.divergences += session.protocol.divergences
@@ -169,6 +193,14 @@ async def run(args) -> dict:
     pct = {k: round(float(np.percentile(lat, q)), 2) if len(lat) else None
            for k, q in (("p50", 50), ("p95", 95), ("p99", 99))}
     pct["max"] = round(float(lat.max()), 2) if len(lat) else None
+    cache = {}
+    if args.cache_vertices is not None:
+        activated = tally.cache_hits + tally.cache_inserts
+        cache = {"cache_vertices": args.cache_vertices, "cache_strategy": args.cache_strategy or "lru",
+                 "vertices_inserted": tally.vertices_inserted,
+                 "vertex_bytes_per_frame": round(tally.vertex_bytes / tally.frames, 1) if tally.frames else None,
+                 "cache_hit_rate": round(tally.cache_hits / activated, 4) if activated else None,
+                 "cache_tolerance_px_max": tally.cache_tolerance_max}
     return {
         "target": args.target, "mesh": mesh.name, "mesh_faces": mesh.faces, "sessions": args.sessions,
         "cameras": args.cameras, "duration_s": args.duration, "warmup_s": args.warmup, "rate_hz": args.rate, "trajectory": args.trajectory,
@@ -181,7 +213,7 @@ async def run(args) -> dict:
         if tally.delta_triangles else None,
         "divergences": tally.divergences, "bad_frames": tally.bad_frames, "resumes": tally.resumes,
         "failovers": tally.failovers,
-        "errors": dict(tally.errors),
+        "errors": dict(tally.errors), **cache,
         "client_cpu_seconds": round(cpu, 2), "client_cpu_cores": round(cpu / wall, 2),
         "latencies_ms": lat.round(3).tolist(),
     }
@@ -195,6 +227,14 @@ def main(args) -> int:
             return 2
     if args.duration <= 0 or args.rate <= 0 or args.warmup < 0:
         print("caveclod: error: --duration and --rate must be positive, --warmup at least 0", file=sys.stderr)
+        return 2
+    if args.cache_vertices is None and (args.cache_strategy is not None or args.cache_pq_fraction is not None):
+        print("caveclod: error: --cache-strategy and --cache-pq-fraction need --cache-vertices N (slots per camera)",
+              file=sys.stderr)
+        return 2
+    if args.cache_vertices is not None and args.cache_vertices < 1:
+        print(f"caveclod: error: --cache-vertices must be at least 1 (slots per camera), got {args.cache_vertices}",
+              file=sys.stderr)
         return 2
     try:
         report = asyncio.run(run(args))

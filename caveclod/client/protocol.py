@@ -5,6 +5,12 @@ says what to send back (acks, keyframe requests); it numbers poses and
 times each pose -> frame by pose_seq; it remembers what a resume needs.
 The blocking (:mod:`.session`) and asyncio (:mod:`.aio`) APIs drive it over
 a gRPC stream, so both behave exactly alike.
+
+In cache mode (``cache_mode``: the proto's Open.cache_vertices) there is no
+vertex buffer: each camera has N slots (:class:`.slots.SlotBuffer`) that the
+frames write, the index buffers hold slot numbers, and every frame is
+checked for slots checksums and for triangles that use a slot holding no
+vertex (a bad frame: a keyframe is asked for).
 """
 
 from __future__ import annotations
@@ -20,6 +26,7 @@ from .. import wire
 from ..v1 import caveclod_pb2 as pb
 from .buffers import IndexBuffers
 from .cache import VertexBufferCache
+from .slots import SlotBuffer
 
 CLIENT_NAME = "caveclod-client/0.1"
 # Call metadata sent on every Session call of a session, its first Open and
@@ -68,9 +75,14 @@ class CameraUpdate:
             frame is the first to answer it; else None.
         stats: CameraStats of the server's update, or None.
         triangles_written: slot writes applied.
+        vertices_written: cache mode: vertices written into slots.
+        vertex_bytes: cache mode: bytes of the VertexWrites (slots and data).
         surfaces: the :class:`caveclod.wire.Surface` writes applied to the
             camera's buffers, in order (after emptying them, on a keyframe):
             a renderer applies the same to its GPU buffers to mirror them.
+        vertex_writes: cache mode: the decoded :class:`caveclod.wire.SlotWrites`,
+            in the order applied (before the surfaces; a keyframe empties
+            every slot first).
     """
 
     pose_seq: int
@@ -78,7 +90,10 @@ class CameraUpdate:
     latency: float | None = None
     stats: pb.CameraStats | None = None
     triangles_written: int = 0
+    vertices_written: int = 0
+    vertex_bytes: int = 0
     surfaces: list = field(default_factory=list)
+    vertex_writes: list = field(default_factory=list)
 
 
 @dataclass
@@ -114,12 +129,17 @@ class SessionProtocol:
         cache: vertex buffer cache, or None for none.
         ack_window: the window asked for (0: the server's default).
         client: name sent in Open.
+        cache_mode: ``{vertices, strategy, pq_fraction}`` to ask for cache
+            mode (strategy a name, or None for the server's default), or None
+            for a resident vertex buffer.
     """
 
     def __init__(self, mesh: str, cameras: int, options: dict, *, cache: VertexBufferCache | None = None,
-                 ack_window: int = 0, client: str = CLIENT_NAME):
+                 ack_window: int = 0, client: str = CLIENT_NAME, cache_mode: dict | None = None):
         self.mesh, self.n_cameras, self.options = mesh, cameras, dict(options)
         self.cache, self.ack_window, self.client = cache, ack_window, client
+        self.cache_mode = dict(cache_mode) if cache_mode is not None else None
+        self.slots: list[SlotBuffer] | None = None     # cache mode: each camera's slots
         self.info: pb.SessionInfo | None = None
         self.ready = False               # this stream's SessionInfo and vertex buffer have arrived
         self.token = ""
@@ -142,6 +162,8 @@ class SessionProtocol:
         self._asked: set[int] = set()    # cameras with a keyframe request outstanding
         self._frame: FrameUpdate | None = None                      # the frame whose parts are arriving
         self._crcs: dict = {}
+        self._sums: dict = {}            # cache mode: camera -> slots checksum the frame announced
+        self._used: dict = {}            # cache mode: camera -> slot arrays the frame's triangles use
         self._untrusted: set[int] = set()
 
     # -- what to send ------------------------------------------------------------------
@@ -162,10 +184,11 @@ class SessionProtocol:
         if self.vertex is not None:
             self._known_hash = self.vertex.hash
         self.ready = False
-        return pb.ClientMessage(open=pb.Open(
-            mesh=self.mesh, options=wire.options_from_dict(self.options), cameras=self.n_cameras,
-            vertex_buffer_hash=self._known_hash, resume_token=self.token, last_frame_seq=self.last_applied,
-            ack_window=self.ack_window, client=self.client))
+        msg = pb.Open(mesh=self.mesh, options=wire.options_from_dict(self.options), cameras=self.n_cameras,
+                      vertex_buffer_hash=self._known_hash, resume_token=self.token, last_frame_seq=self.last_applied,
+                      ack_window=self.ack_window, client=self.client)
+        wire.set_cache_options(msg, self.cache_mode)
+        return pb.ClientMessage(open=msg)
 
     def pose_message(self, camera: int, eye, target, up, now: float | None = None) -> pb.ClientMessage:
         """A CameraPose with the next pose_seq; its send time is kept for the latency."""
@@ -206,6 +229,10 @@ class SessionProtocol:
     def _session_info(self, info: pb.SessionInfo) -> list[pb.ClientMessage]:
         if info.vertex_format.layout not in (pb.VERTEX_LAYOUT_PLANAR, pb.VERTEX_LAYOUT_INTERLEAVED):
             raise ProtocolError(f"vertex layout {info.vertex_format.layout} is unknown to this client; upgrade it")
+        if (self.cache_mode is not None) != (info.cache_vertices > 0):
+            raise ProtocolError("this client asked for cache mode and the server answered without it (a server "
+                                "older than cache mode); upgrade the server" if self.cache_mode is not None else
+                                "the server answered with cache mode, which this client did not ask for")
         resumed = info.resumed and self.info is not None
         if self.info is not None:
             self.resumes += resumed
@@ -222,11 +249,18 @@ class SessionProtocol:
             self._answered = [0] * self.n_cameras
             self.pose_seq = info.last_pose_seq
             self._sent = [{} for _ in range(self.n_cameras)]
+            if info.cache_vertices:
+                try:
+                    self.slots = [SlotBuffer(info.cache_vertices, info.vertex_format) for _ in range(self.n_cameras)]
+                except wire.WireError as exc:
+                    raise ProtocolError(str(exc)) from None
         self.last_acked = self.last_applied   # the server restarts its window at every SessionInfo
         self._frame = None
         self.pose_seq = max(self.pose_seq, info.last_pose_seq)
         out = []
-        if info.vertex_buffer_cached:
+        if info.cache_vertices:
+            self.ready = True                  # no vertex buffer: frames follow at once
+        elif info.vertex_buffer_cached:
             self._use_cached(info)
         else:
             self._chunks = bytearray()
@@ -293,7 +327,7 @@ class SessionProtocol:
                                                  f"frame {frame.frame_seq} after {self.last_applied}"))
                 self.bad_frames += 1
             self._frame = FrameUpdate(frame.frame_seq, frame.pose_seq)
-            self._crcs, self._untrusted = {}, set()
+            self._crcs, self._sums, self._used, self._untrusted = {}, {}, {}, set()
         elif frame.frame_seq != self._frame.frame_seq:
             raise ProtocolError(f"part of frame {frame.frame_seq} inside frame {self._frame.frame_seq}")
         update = self._frame
@@ -322,6 +356,8 @@ class SessionProtocol:
             cam = update.cameras[c] = CameraUpdate(cf.pose_seq, keyframe=cf.keyframe)
             if cf.keyframe:
                 self.buffers.reset(c)          # the keyframe replaces everything the camera held
+                if self.slots is not None:
+                    self.slots[c].reset()
                 self._asked.discard(c)
             if cf.pose_seq > self._answered[c]:
                 self._answered[c] = cf.pose_seq
@@ -333,24 +369,57 @@ class SessionProtocol:
             cam.stats = cf.stats
         if c in self._untrusted:
             return
-        for sd in cf.surfaces:
-            try:
-                surface = wire.decode_surface(sd, self.vertex.n_vertices)
+        try:
+            if cf.HasField("vertices"):
+                if self.slots is None:
+                    raise wire.WireError("vertex writes in a session without cache mode")
+                writes = wire.decode_slot_writes(cf.vertices, self.info.vertex_format, self.info.cache_vertices)
+                self.slots[c].write(writes)
+                self._sums[c] = writes.checksum
+                cam.vertices_written += len(writes.slots)
+                cam.vertex_bytes += cf.vertices.ByteSize()
+                cam.vertex_writes.append(writes)
+            n = self.info.cache_vertices or self.vertex.n_vertices
+            for sd in cf.surfaces:
+                surface = wire.decode_surface(sd, n)
                 self.buffers.apply(c, surface)
-            except wire.WireError as exc:
-                self._untrusted.add(c)
-                update.bad.append(c)
-                self.bad_frames += 1
-                if c not in self._asked:
-                    out.append(self.keyframe_message(c, pb.KEYFRAME_REASON_BAD_FRAME, str(exc)))
-                return
-            cam.triangles_written += len(surface.slots)
-            cam.surfaces.append(surface)
-            if surface.crc32 is not None:
-                self._crcs[c, surface.material] = surface.crc32
+                cam.surfaces.append(surface)
+                cam.triangles_written += len(surface.slots)
+                if self.slots is not None:
+                    self._used.setdefault(c, []).append(surface.tris)
+                if surface.crc32 is not None:
+                    self._crcs[c, surface.material] = surface.crc32
+        except wire.WireError as exc:
+            self._bad(c, update, out, str(exc))
+
+    def _bad(self, c: int, update: FrameUpdate, out: list, detail: str) -> None:
+        """Camera ``c``'s frame could not be applied: distrust it until a keyframe comes."""
+        self._untrusted.add(c)
+        update.bad.append(c)
+        self.bad_frames += 1
+        if c not in self._asked:
+            out.append(self.keyframe_message(c, pb.KEYFRAME_REASON_BAD_FRAME, detail))
 
     def _check_crcs(self, update: FrameUpdate, out: list) -> None:
-        """Compare every buffer the frame touched with its CRC; ask a keyframe on a mismatch."""
+        """Compare every buffer the frame touched with its CRC (cache mode: and
+        every slot set with its checksum, every slot a written triangle uses
+        with what the slots hold); ask a keyframe on a mismatch."""
+        for c, used in sorted(self._used.items()):
+            if c in self._untrusted:
+                continue
+            missing = self.slots[c].unheld(np.concatenate(used)) if used else ()
+            if len(missing):
+                self._bad(c, update, out, f"triangles use slot {int(missing[0])}, which holds no vertex "
+                                          f"({len(missing)} such slots)")
+        for c, value in sorted(self._sums.items()):
+            if c in self._untrusted or c in self._asked or c in update.diverged:
+                continue
+            mine = self.slots[c].checksum.value
+            if mine != value:
+                self.divergences += 1
+                update.diverged.append(c)
+                out.append(self.keyframe_message(c, pb.KEYFRAME_REASON_CHECKSUM_MISMATCH,
+                                                 f"vertex slots: checksum 0x{mine:08x}, server 0x{value:08x}"))
         for (c, m), crc in sorted(self._crcs.items()):
             if c in self._untrusted or c in self._asked or c in update.diverged:
                 continue

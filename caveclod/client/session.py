@@ -90,6 +90,17 @@ def refine_options(width: int, height: int, fov_y: float | None, tolerance_px: f
             "backface": backface, "max_ops": max_ops, "max_faces": max_faces}
 
 
+def cache_mode(cache_vertices: int | None, cache_strategy: str | None, cache_pq_fraction: float | None) -> dict | None:
+    """Cache-mode options as SessionProtocol takes them; None (no cache_vertices): a resident vertex buffer."""
+    if cache_vertices is None:
+        if cache_strategy is not None or cache_pq_fraction is not None:
+            raise ValueError("cache_strategy and cache_pq_fraction need cache_vertices (a slot count)")
+        return None
+    if cache_strategy is not None and cache_strategy not in ("fa", "lru", "lru_pq"):
+        raise ValueError(f"unknown cache strategy {cache_strategy!r}; choose one of fa, lru, lru_pq")
+    return {"vertices": cache_vertices, "strategy": cache_strategy, "pq_fraction": cache_pq_fraction}
+
+
 def backoff(attempt: int, base: float = 0.1, cap: float = 2.0) -> float:
     """Seconds to wait before retry ``attempt`` (0, 1, ...): exponential with jitter."""
     return min(cap, base * 2 ** attempt) * random.uniform(0.5, 1.0)
@@ -127,16 +138,25 @@ class Client:
     def session(self, mesh: str, cameras: int = 1, *, width: int = 1280, height: int = 720,
                 fov_y: float | None = None, tolerance_px: float | None = None, cull: bool | None = None,
                 backface: bool | None = None, max_ops: int | None = None, max_faces: int | None = None,
-                ack_window: int = 0, retries: int = 6, timeout: float = 30.0) -> "Session":
+                ack_window: int = 0, retries: int = 6, timeout: float = 30.0, cache_vertices: int | None = None,
+                cache_strategy: str | None = None, cache_pq_fraction: float | None = None) -> "Session":
         """Open a session and wait for its vertex buffer (from the cache when it holds it).
 
         Options left None take the server's defaults (60 degrees, 1 px,
         culling on, no back-face culling, no budgets). Raises SessionEnded
-        when the server refuses (e.g. NOT_FOUND, RESOURCE_EXHAUSTED).
+        when the server refuses (e.g. NOT_FOUND, RESOURCE_EXHAUSTED, or
+        INVALID_ARGUMENT for a cache too small for the base mesh).
+
+        Cache mode: ``cache_vertices`` slots per camera instead of the vertex
+        buffer (``cache_strategy`` ``fa``, ``lru`` or ``lru_pq``, default
+        ``lru``; ``cache_pq_fraction`` for ``lru_pq``, default 0.1). Nothing
+        is downloaded up front; :meth:`Session.slots` holds each camera's
+        vertices and the index buffers hold slot numbers.
         """
         protocol = SessionProtocol(mesh, cameras, refine_options(width, height, fov_y, tolerance_px, cull,
                                                                  backface, max_ops, max_faces),
-                                   cache=self.cache, ack_window=ack_window)
+                                   cache=self.cache, ack_window=ack_window,
+                                   cache_mode=cache_mode(cache_vertices, cache_strategy, cache_pq_fraction))
         session = Session(self, protocol, retries)
         session._open(timeout)
         return session
@@ -199,7 +219,7 @@ class Session:
     # -- opening and resuming ----------------------------------------------------------
     def _open(self, timeout: float) -> None:
         """Start a stream (new or resumed) and receive until the vertex buffer is complete."""
-        if not self.protocol.token and self.client.cache is not None:
+        if not self.protocol.token and self.client.cache is not None and self.protocol.cache_mode is None:
             try:
                 meshes = {m.name: m for m in self.client.list_meshes(timeout=timeout)}
             except grpc.RpcError as exc:
@@ -311,8 +331,15 @@ class Session:
         return self.protocol.info
 
     @property
-    def vertex_buffer(self) -> VertexBuffer:
+    def vertex_buffer(self) -> VertexBuffer | None:
+        """The resident vertex buffer; None in cache mode."""
         return self.protocol.vertex
+
+    def slots(self, camera: int):
+        """Cache mode: camera's :class:`~caveclod.client.slots.SlotBuffer` (the vertices its buffers index)."""
+        if self.protocol.slots is None:
+            raise ValueError("slots() is for cache mode; this session holds the whole vertex buffer (vertex_buffer)")
+        return self.protocol.slots[camera]
 
     @property
     def buffers(self):

@@ -12,6 +12,12 @@ cameras as the quadrants of one image::
     image = r.render([pose_a, pose_b], wireframe=False)  # (720, 1280, 3) uint8
     save_png("frame.png", image)
 
+Cache mode (a client holding N vertex slots per camera, not the buffer)::
+
+    r = Renderer(1280, 720, None, materials, bounds=(lo, hi), cache_vertices=N)
+    r.write_vertices(camera, slots, positions, normals, uvs)   # one VertexWrites, patched in place
+    r.apply(camera, material, count, tris, slots)               # tris are slot numbers
+
 Images go out with :func:`save_png`, :func:`save_animation` (animated PNG or
 GIF) and :func:`contact_sheet`. Only numpy, moderngl and Pillow are imported.
 

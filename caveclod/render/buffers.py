@@ -33,7 +33,9 @@ class UploadStats:
         index_writes: ``Buffer.write`` calls for index data.
         grows: index buffers reallocated because they outgrew their capacity.
         gpu_copy_bytes: index bytes copied GPU-to-GPU when growing (not uploaded).
-        vertex_bytes: vertex-buffer bytes uploaded (once, at creation).
+        vertex_bytes: vertex bytes uploaded: the resident buffer once, at
+            creation; in cache mode, the vertices the frames write into slots.
+        vertex_writes: ``Buffer.write`` calls for vertex data (cache mode).
         texture_bytes: texture bytes uploaded (once per material).
     """
 
@@ -42,6 +44,7 @@ class UploadStats:
     grows: int = 0
     gpu_copy_bytes: int = 0
     vertex_bytes: int = 0
+    vertex_writes: int = 0
     texture_bytes: int = 0
 
 

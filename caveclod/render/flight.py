@@ -73,7 +73,7 @@ def fly(session, view: SessionRenderer, path: str, frames: int, *, fps: float = 
         view: the :class:`SessionRenderer` of that session.
         fps: path time between frames is 1 / fps seconds.
         draw: render each frame's image (False: only apply the frames).
-        verify: after every frame, read the GPU index buffers back and
+        verify: after every frame, read the GPU index buffers (and vertex slots) back and
             compare them with the client library's; FlightError on a difference.
         timeout: seconds to wait for the frame answering a pose.
 
@@ -113,8 +113,8 @@ def fly(session, view: SessionRenderer, path: str, frames: int, *, fps: float = 
         if verify:
             bad = view.mismatches()
             if bad:
-                raise FlightError(f"frame {k}: the GPU index buffers of (camera, material) {bad} differ from the "
-                                  "client library's")
+                raise FlightError(f"frame {k}: the GPU buffers of (camera, material) {bad} differ from the "
+                                  "client library's (material -1: the camera's vertex slots)")
         if draw:
             t = time.perf_counter()
             record.image = view.render(poses, wireframe=wireframe)

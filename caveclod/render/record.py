@@ -21,6 +21,7 @@ from pathlib import Path
 import numpy as np
 
 from ..errors import InputError
+from ..wire import strategy_name
 from .camera import quadrants
 from .flight import FlightError, fly
 from .images import save_animation, save_png
@@ -42,6 +43,18 @@ def parse_size(text: str) -> tuple[int, int]:
     return w, h
 
 
+def cache_options(args) -> dict:
+    """``client.session`` keywords for ``--cache-vertices N [--cache-strategy S] [--cache-pq-fraction F]``."""
+    n, strategy, fraction = args.cache_vertices, args.cache_strategy, args.cache_pq_fraction
+    if n is None:
+        if strategy is not None or fraction is not None:
+            raise InputError("--cache-strategy and --cache-pq-fraction need --cache-vertices N (slots per camera)")
+        return {}
+    if n < 1:
+        raise InputError(f"--cache-vertices must be at least 1 (slots per camera), got {n}")
+    return {"cache_vertices": n, "cache_strategy": strategy, "cache_pq_fraction": fraction}
+
+
 def shrink(image: np.ndarray, width: int = ANIMATION_WIDTH) -> np.ndarray:
     """``image`` (h, w, 3) scaled down by a whole factor until it is at most ``width`` wide (box filter)."""
     from PIL import Image
@@ -60,7 +73,7 @@ def record(session, out: Path, *, size: tuple[int, int], trajectory: str, frames
     Args:
         session: an open blocking :class:`caveclod.client.Session`.
         size: (width, height) of the quadrant image.
-        verify: compare the GPU index buffers with the client library's after every frame.
+        verify: compare the GPU buffers (and vertex slots) with the client library's after every frame.
         keep_every: write every n-th frame as a PNG (the animation has them all).
         animation: where the animation goes (default ``out / "animation.gif"``).
         animation_width: the animation's frames are shrunk to at most this width.
@@ -75,7 +88,7 @@ def record(session, out: Path, *, size: tuple[int, int], trajectory: str, frames
         old.unlink()                  # frames of an earlier, longer run would mix in
     n = int(session.info.cameras)
     latency, ops, nbytes, faces, written, small, draw_ms = [], [], [], [], [], [], []
-    verified = 0
+    verified, inserted = 0, 0
     started = time.perf_counter()
     with SessionRenderer(session, *size) as view:
         for rec in fly(session, view, trajectory, frames, fps=fps, wireframe=wireframe, verify=verify):
@@ -88,6 +101,7 @@ def record(session, out: Path, *, size: tuple[int, int], trajectory: str, frames
             if rec.index % keep_every == 0 or rec.index == frames - 1:
                 written.append(save_png(out / f"frame_{rec.index:04d}.png", rec.image).name)
             draw_ms.append(rec.draw_ms)
+            inserted += sum(cam.vertices_written for f in rec.frames for cam in f.cameras.values())
             if progress and (rec.index % 30 == 29 or rec.index == frames - 1):
                 print(f"render: frame {rec.index + 1}/{frames}, {sum(rec.active_faces):,} faces, "
                       f"latency {np.median(latency) if latency else float('nan'):.1f} ms (p50 so far)",
@@ -119,6 +133,9 @@ def record(session, out: Path, *, size: tuple[int, int], trajectory: str, frames
         "latency_ms": {k: round(float(np.percentile(lat, q)), 2) if len(lat) else None
                        for k, q in (("p50", 50), ("p90", 90), ("p99", 99), ("max", 100))},
         "divergences": session.protocol.divergences,
+        # Cache mode: N vertex slots per camera, and the vertices the frames wrote into them.
+        "cache_vertices": int(session.info.cache_vertices) or None,
+        "cache_strategy": strategy_name(session.info.cache_strategy), "vertices_inserted": inserted,
         "bad_frames": session.protocol.bad_frames, "resumes": session.protocol.resumes,
         # Frames after which every GPU index buffer, read back, equalled the
         # client library's (a difference stops the flight with FlightError).
@@ -140,6 +157,7 @@ def main(args) -> int:
         raise InputError(f"--cameras must be 1 to 4 (the quadrants of one image), got {args.cameras}")
     if args.frames < 1:
         raise InputError(f"--frames must be at least 1, got {args.frames}")
+    cache = cache_options(args)
     qw, qh = quadrants(*size, args.cameras)[0][2:]
     token = args.token or os.environ.get("CAVECLOD_TOKEN")
     out = Path(args.out)
@@ -147,7 +165,7 @@ def main(args) -> int:
         with Client(args.target, token=token, tls_ca=args.tls_ca, cache_dir=args.cache_dir) as client:
             mesh = pick_mesh(client, args.mesh, args.target)
             with client.session(mesh, cameras=args.cameras, width=qw, height=qh, fov_y=args.fov,
-                                tolerance_px=args.tolerance) as session:
+                                tolerance_px=args.tolerance, **cache) as session:
                 summary, _ = record(session, out, size=size, trajectory=args.trajectory, frames=args.frames,
                                  fps=args.fps, wireframe=args.wireframe)
     except SessionEnded as exc:

@@ -4,7 +4,10 @@ The vertex buffer is uploaded once and stays resident; each (camera,
 material) pair has an index buffer patched in place by the frames
 (:mod:`caveclod.render.buffers`). Cameras are drawn as the quadrants of one
 image (Kram & Shaw's figures), each with its own view and index buffers, all
-over the one vertex buffer.
+over the one vertex buffer. In cache mode (``cache_vertices=N``) there is no
+vertex buffer: each camera has N vertex slots, patched in place by the
+frames' vertex writes (:mod:`caveclod.render.slots`), and its index buffers
+hold slot numbers.
 """
 
 from __future__ import annotations
@@ -18,6 +21,7 @@ from . import shaders
 from .buffers import IndexBuffer, UploadStats
 from .camera import Camera, quadrants
 from .context import create_context
+from .slots import SlotVertices
 from .textures import check_texture, material_texture
 
 MAX_CAMERAS = 4
@@ -45,7 +49,8 @@ class Renderer:
 
     Args:
         width, height: the image in pixels.
-        vertices: a :class:`Vertices` (or the same 3-4 arrays as a tuple).
+        vertices: a :class:`Vertices` (or the same 3-4 arrays as a tuple);
+            None in cache mode.
         materials: material names by id (``water``, ``grass``, ``rock`` and
             ``snow`` get generated textures of their own, others a neutral one).
         cameras: 1 to 4, laid out as :func:`caveclod.render.camera.quadrants`.
@@ -59,26 +64,40 @@ class Renderer:
         anisotropy: texture filtering; 1 is trilinear. Higher values sharpen
             terrain seen at grazing angles; free on a GPU, but 4 makes a
             1280x720 frame 2.4 times slower on llvmpipe.
+        cache_vertices: cache mode: N vertex slots per camera instead of a
+            vertex buffer (``vertices`` None, ``bounds`` required: the
+            MeshInfo's box); frames' vertex writes go in with
+            :meth:`write_vertices`, and index buffers hold slot numbers.
+        colors: cache mode: whether vertices carry colours (the
+            VertexFormat lists ATTRIBUTE_SEMANTIC_COLOR).
 
-    Frames go in with :meth:`apply` and :meth:`reset`, images come out of
-    :meth:`render`; :attr:`stats` counts every byte sent to the GPU.
+    Frames go in with :meth:`apply` and :meth:`reset` (and in cache mode
+    :meth:`write_vertices`), images come out of :meth:`render`;
+    :attr:`stats` counts every byte sent to the GPU.
     """
 
     def __init__(self, width: int, height: int, vertices, materials, *, cameras: int = 1, bounds=None,
                  ctx: moderngl.Context | None = None, textures: dict | None = None,
-                 light=LIGHT, ambient: float = AMBIENT, anisotropy: float = 1.0):
+                 light=LIGHT, ambient: float = AMBIENT, anisotropy: float = 1.0,
+                 cache_vertices: int | None = None, colors: bool = False):
         # Everything is checked before the first GL object is made.
         _check_size(width, height)
         if not (isinstance(cameras, (int, np.integer)) and 1 <= cameras <= MAX_CAMERAS):
             raise ValueError(f"cameras must be 1 to {MAX_CAMERAS}, got {cameras!r}")
-        vertices = _check_vertices(vertices)
+        if cache_vertices is None:
+            vertices = _check_vertices(vertices)
+            with_colors = vertices.colors is not None
+        else:
+            _check_cache(cache_vertices, vertices, bounds)
+            with_colors = bool(colors)
         self.materials = [str(name) for name in materials]
         if not self.materials:
             raise ValueError("a renderer needs at least one material name")
         images = _texture_images(self.materials, textures or {})
         self.width, self.height, self.cameras = int(width), int(height), int(cameras)
-        self.n_vertices = len(vertices.positions)
-        self.lo, self.hi = _check_bounds(bounds, vertices.positions)
+        self.cache_vertices = None if cache_vertices is None else int(cache_vertices)
+        self.n_vertices = len(vertices.positions) if cache_vertices is None else self.cache_vertices
+        self.lo, self.hi = _check_bounds(bounds, None if vertices is None else vertices.positions)
         self.origin = 0.5 * (self.lo + self.hi)
         self.stats = UploadStats()
         self._owns_ctx = ctx is None
@@ -88,12 +107,20 @@ class Renderer:
             True: self.ctx.program(vertex_shader=shaders.VERTEX, geometry_shader=shaders.GEOMETRY,
                                    fragment_shader=shaders.FRAGMENT_WIREFRAME),
         }
-        self._vertex_content = self._upload_vertices(vertices)
+        if cache_vertices is None:
+            self._slots = []
+            self._vertex_content = self._upload_vertices(vertices)
+            self._contents = [self._vertex_content] * self.cameras      # every camera draws the one buffer
+        else:
+            self._slots = [SlotVertices(self.ctx, self.cache_vertices, with_colors, self.stats)
+                           for _ in range(self.cameras)]
+            self._vertex_content = []
+            self._contents = [slots.content for slots in self._slots]
         self._textures = self._upload_textures(images, anisotropy)
         light = np.asarray(light, dtype=np.float64)
         for program in self._programs.values():
             _set(program, u_texture=0, u_light=tuple(light / np.linalg.norm(light)), u_ambient=float(ambient),
-                 u_colors=vertices.colors is not None, u_origin=tuple(self.origin), u_edge_color=EDGE_COLOR)
+                 u_colors=with_colors, u_origin=tuple(self.origin), u_edge_color=EDGE_COLOR)
         self._buffers = [[IndexBuffer(self.ctx, self.n_vertices, self.stats) for _ in self.materials]
                          for _ in range(self.cameras)]
         self._fbo = self._framebuffer()
@@ -112,9 +139,34 @@ class Renderer:
         self._buffer(camera, material).apply(count, tris, slots, first_slot)
 
     def reset(self, camera: int) -> None:
-        """Empty every buffer of ``camera``: a keyframe's first part follows."""
+        """Empty every buffer of ``camera``: a keyframe's first part follows
+        (in cache mode it brings every vertex the buffers use again)."""
         for buffer in self._camera_buffers(camera):
             buffer.clear()
+
+    def write_vertices(self, camera: int, slots, positions, normals, uvs, colors=None, first_slot=0) -> None:
+        """Cache mode: apply one ``VertexWrites``: write k vertices (positions
+        (k, 3), normals (k, 3), uvs (k, 2)[, colors (k, 4) uint8]) into
+        ``slots`` (k,) ascending, or into ``first_slot ..`` when ``slots`` is
+        None. Each run of consecutive slots is one write per attribute.
+
+        Raises:
+            ValueError: not in cache mode, a bad camera, shapes or types, a
+                slot >= N; nothing is written then.
+        """
+        if self.cache_vertices is None:
+            raise ValueError("write_vertices() is for cache mode (Renderer(..., cache_vertices=N)); "
+                             "this renderer holds the whole vertex buffer")
+        self._camera_buffers(camera)
+        arrays = (positions, normals, uvs) if colors is None else (positions, normals, uvs, colors)
+        self._slots[camera].write(slots, arrays, first_slot)
+
+    def slot_vertices(self, camera: int) -> Vertices:
+        """Cache mode: the camera's N slots read back from the GPU (unwritten slots are undefined)."""
+        if self.cache_vertices is None:
+            raise ValueError("slot_vertices() is for cache mode")
+        self._camera_buffers(camera)
+        return Vertices(*self._slots[camera].read())
 
     def index_buffer(self, camera: int, material: int) -> np.ndarray:
         """(count, 3) uint32 triangles of the (camera, material) buffer, read back from the GPU."""
@@ -166,7 +218,7 @@ class Renderer:
             for material, buffer in enumerate(self._buffers[camera]):
                 if buffer.count:
                     self._textures[material].use(0)
-                    vao = buffer.vertex_array(program, self._vertex_content)
+                    vao = buffer.vertex_array(program, self._contents[camera])
                     vao.render(moderngl.TRIANGLES, vertices=buffer.count * 3)
 
     def resize(self, width: int, height: int) -> None:
@@ -182,6 +234,8 @@ class Renderer:
         for buffers in self._buffers:
             for buffer in buffers:
                 buffer.release()
+        for slots in self._slots:
+            slots.release()
         self._release_framebuffer()
         for resource in [*self._textures, *(buffer for buffer, *_ in self._vertex_content), *self._programs.values()]:
             resource.release()
@@ -244,7 +298,19 @@ def _check_size(width, height) -> None:
         raise ValueError(f"the image must be at least 2 x 2 pixels, got {width!r} x {height!r}")
 
 
-def _check_bounds(bounds, positions: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+def _check_cache(cache_vertices, vertices, bounds) -> None:
+    if isinstance(cache_vertices, (bool, np.bool_)) or not isinstance(cache_vertices, (int, np.integer)) \
+            or cache_vertices < 1:
+        raise ValueError(f"cache_vertices must be a slot count of at least 1, got {cache_vertices!r}")
+    if vertices is not None:
+        raise ValueError("in cache mode there is no vertex buffer: pass vertices=None, and write vertices into "
+                         "slots with write_vertices()")
+    if bounds is None:
+        raise ValueError("cache mode needs bounds=(lo, hi), the scene box (MeshInfo.bounds_min/max): "
+                         "there are no positions to take it from")
+
+
+def _check_bounds(bounds, positions: np.ndarray | None) -> tuple[np.ndarray, np.ndarray]:
     """(lo, hi) float64 (3,) of the scene box given, or of the positions."""
     if bounds is None:
         return positions.min(axis=0).astype(np.float64), positions.max(axis=0).astype(np.float64)

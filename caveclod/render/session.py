@@ -14,6 +14,10 @@ order::
 The client library checks every frame's CRCs; the GPU buffers receive the
 exact slot writes it applied, so after each frame they hold the same
 triangles (:meth:`SessionRenderer.mismatches` reads them back to prove it).
+
+A cache-mode session (``cache_vertices=N``) has no vertex buffer: the
+renderer gets N vertex slots per camera, and each frame's vertex writes go
+into them before its index writes, as the client library applies them.
 """
 
 from __future__ import annotations
@@ -30,7 +34,8 @@ class SessionRenderer:
     Args:
         session: a :class:`caveclod.client.Session` (or an object with the same
             ``protocol``, ``vertex_buffer`` and ``info`` attributes, such as
-            the asyncio session) whose vertex buffer has arrived.
+            the asyncio session) whose vertex buffer has arrived, or in
+            cache mode whose SessionInfo has.
         width, height: image size in pixels; the cameras share it as quadrants.
         fov_y: vertical field of view in degrees (default: the session's).
         **renderer_options: passed to :class:`Renderer` (``ctx``, ``textures``, ...).
@@ -39,13 +44,18 @@ class SessionRenderer:
     def __init__(self, session, width: int, height: int, *, fov_y: float | None = None, **renderer_options):
         self.session = session
         info = session.info
-        vb = session.vertex_buffer
         self.fov_y = float(fov_y if fov_y is not None else (info.options.fov_y_deg or 60.0))
         lo = (info.mesh.bounds_min.x, info.mesh.bounds_min.y, info.mesh.bounds_min.z)
         hi = (info.mesh.bounds_max.x, info.mesh.bounds_max.y, info.mesh.bounds_max.z)
         names = [m.name for m in sorted(info.mesh.materials, key=lambda m: m.id)]
-        self.renderer = Renderer(width, height, Vertices(vb.positions, vb.normals, vb.uvs, vb.colors), names,
-                                 cameras=int(info.cameras), bounds=(lo, hi), **renderer_options)
+        if info.cache_vertices:
+            colors = session.protocol.slots[0].colors is not None
+            self.renderer = Renderer(width, height, None, names, cameras=int(info.cameras), bounds=(lo, hi),
+                                     cache_vertices=int(info.cache_vertices), colors=colors, **renderer_options)
+        else:
+            vb = session.vertex_buffer
+            self.renderer = Renderer(width, height, Vertices(vb.positions, vb.normals, vb.uvs, vb.colors), names,
+                                     cameras=int(info.cameras), bounds=(lo, hi), **renderer_options)
         self._epoch = session.protocol.epoch
         self._replay()
 
@@ -66,6 +76,8 @@ class SessionRenderer:
         for c, cam in sorted(update.cameras.items()):
             if cam.keyframe:
                 self.renderer.reset(c)
+            for w in cam.vertex_writes:          # cache mode: before the index writes that use them
+                self.renderer.write_vertices(c, w.slots, *w.blocks)
             for s in cam.surfaces:
                 self.renderer.apply(c, s.material, s.count, s.tris, s.slots)
 
@@ -78,10 +90,22 @@ class SessionRenderer:
         return self.renderer.render(self.views(poses), wireframe=wireframe)
 
     def mismatches(self) -> list[tuple[int, int]]:
-        """(camera, material) pairs whose GPU buffer, read back, differs from the client library's."""
-        buffers = self.session.protocol.buffers
-        return [(c, m) for c in range(self.cameras) for m in range(len(self.renderer.materials))
-                if not np.array_equal(self.renderer.index_buffer(c, m), buffers.buffer(c, m))]
+        """(camera, material) pairs whose GPU buffer, read back, differs from the client library's;
+        in cache mode also (camera, -1) where a slot the client holds differs on the GPU."""
+        protocol = self.session.protocol
+        out = [(c, m) for c in range(self.cameras) for m in range(len(self.renderer.materials))
+               if not np.array_equal(self.renderer.index_buffer(c, m), protocol.buffers.buffer(c, m))]
+        if protocol.slots is not None:
+            for c in range(self.cameras):
+                held = protocol.slots[c].held          # other slots are stale on both sides: never drawn
+                gpu = self.renderer.slot_vertices(c)
+                mine = protocol.slots[c]
+                pairs = [(gpu.positions, mine.positions), (gpu.normals, mine.normals), (gpu.uvs, mine.uvs)]
+                if mine.colors is not None:
+                    pairs.append((gpu.colors, mine.colors))
+                if not all(np.array_equal(a[held], b[held]) for a, b in pairs):
+                    out.append((c, -1))
+        return sorted(out)
 
     def release(self) -> None:
         self.renderer.release()
@@ -95,7 +119,11 @@ class SessionRenderer:
     def _replay(self) -> None:
         """Upload what the client already holds (a renderer made mid-session), once, whole."""
         buffers = self.session.protocol.buffers
+        slots = self.session.protocol.slots
         for c in range(self.cameras):
+            if slots is not None and slots[c].n_held:
+                held = np.flatnonzero(slots[c].held)
+                self.renderer.write_vertices(c, held, *(a[held] for a in slots[c].arrays.values()))
             for m in range(len(self.renderer.materials)):
                 buf = buffers.buffer(c, m)
                 if len(buf):

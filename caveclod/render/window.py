@@ -97,8 +97,9 @@ def open_window(width: int, height: int, title: str):
 
 def main(args) -> int:
     """``caveclod view``: run the window until it is closed (or ``--frames`` draws)."""
-    from .record import parse_size
+    from .record import cache_options, parse_size
     size = parse_size(args.size)
+    cache = cache_options(args)
     if not 1 <= args.cameras <= 4:
         raise InputError(f"--cameras must be 1 to 4, got {args.cameras}")
     if args.frames is not None and args.frames < 1:
@@ -119,7 +120,7 @@ def main(args) -> int:
         with Client(args.target, token=token, tls_ca=args.tls_ca, cache_dir=args.cache_dir) as client:
             mesh = pick_mesh(client, args.mesh, args.target)
             with client.session(mesh, cameras=args.cameras, width=qw, height=qh, fov_y=args.fov,
-                                tolerance_px=args.tolerance) as session:
+                                tolerance_px=args.tolerance, **cache) as session:
                 view = SessionRenderer(session, *size, ctx=ctx)
                 drawn, image = _loop(glfw, window, ctx, session, view, args)
                 if args.screenshot and image is not None:

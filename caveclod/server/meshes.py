@@ -41,6 +41,18 @@ class ServedMesh:
     def vertex_format(self) -> pb.VertexFormat:
         return wire.vertex_format(self.blocks)
 
+    @cached_property
+    def base_vertices(self) -> int:
+        """Vertices the base mesh uses: the fewest slots a cache-mode session needs."""
+        from ..refine.activevertices import ActiveVertices
+        return ActiveVertices(self.mesh.n_vertices, self.mesh.new_camera().triangles()).count
+
+    @cached_property
+    def vertex_keys(self):
+        """(d,) float32 priority-queue keys of the ``lru_pq`` cache strategy (computed once, shared)."""
+        from ..refine.vertexcache import vertex_keys
+        return vertex_keys(self.mesh)
+
     @property
     def payload_crc32(self) -> int:
         """CRC-32 of the planar vertex payload (reads it once: ~10 ms per million vertices)."""

@@ -46,6 +46,12 @@ class Metrics:
         self.session_ends = Counter("caveclod_session_ends_total",
                                     "Sessions ended, by reason (closed, expired, drained, a status code)",
                                     ["reason"], registry=r)
+        self.cache_inserts = Counter("caveclod_cache_vertices_inserted_total",
+                                     "Cache mode: vertices written into clients' slots (misses; keyframes not counted)",
+                                     registry=r)
+        self.cache_hits = Counter("caveclod_cache_hits_total",
+                                  "Cache mode: vertices that became active while still in a client's slot",
+                                  registry=r)
         self._http = None
 
     def serve(self, host: str, port: int) -> int:
@@ -67,6 +73,10 @@ class Metrics:
         self.refine_seconds.observe(seconds)
         self.operations.inc(operations)
         self.refine_cpu.inc(cpu_seconds)
+
+    def cached(self, inserted: int, hits: int) -> None:
+        self.cache_inserts.inc(inserted)
+        self.cache_hits.inc(hits)
 
     def pose_answered(self, seconds: float) -> None:
         self.pose_to_frame.observe(seconds)

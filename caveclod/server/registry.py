@@ -49,6 +49,7 @@ class Sessions:
             raise Refused(grpc.StatusCode.NOT_FOUND, f"mesh {msg.mesh!r} is not served here; this server serves "
                           f"{', '.join(self.catalogue.names())} (see ListMeshes)")
         view_options, budgets = self._options(msg.options)
+        cache = self._cache(msg, served)
         self.ready.wait()
         with self.lock:
             if self.draining:                # drained while this Open waited for the kernels
@@ -63,6 +64,12 @@ class Sessions:
                     raise Refused(grpc.StatusCode.INVALID_ARGUMENT,
                                   f"resume of a session of mesh {old.served.name!r} with {old.n_cameras} cameras by an "
                                   f"Open of {msg.mesh!r} with {msg.cameras}; resume with the same mesh and cameras")
+                if old.cache != cache:
+                    self._drop(old, "refused")
+                    raise Refused(grpc.StatusCode.INVALID_ARGUMENT,
+                                  f"resume of a session with cache {_describe_cache(old.cache)} by an Open asking for "
+                                  f"{_describe_cache(cache)}; resume with the same cache_vertices, cache_strategy and "
+                                  "cache_pq_fraction")
                 generation = old.attach(msg.last_frame_seq, view_options)
                 self._gauges()
                 return old, generation, True
@@ -76,7 +83,7 @@ class Sessions:
             window = msg.ack_window or self.config.ack_window
             session = Session(secrets.token_urlsafe(24), served, view_options, budgets, msg.cameras,
                               min(max(window, 1), MAX_ACK_WINDOW), self.config.settle_seconds, self.metrics,
-                              client=msg.client[:80])
+                              client=msg.client[:80], cache=cache)
             self.sessions[session.token] = session
             generation = session.attach(0)
             self._gauges()
@@ -102,6 +109,28 @@ class Sessions:
         if self.config.max_faces is not None:
             max_faces = min(max_faces or self.config.max_faces, self.config.max_faces)
         return view, (max_ops, max_faces)
+
+    def _cache(self, msg: pb.Open, served) -> dict | None:
+        """Open's cache mode checked: ``{vertices, strategy, pq_fraction}`` in use, or None (resident)."""
+        from ..refine.vertexcache import check_options
+        try:
+            opts = wire.cache_options(msg)
+        except wire.WireError as exc:
+            raise Refused(grpc.StatusCode.INVALID_ARGUMENT, str(exc)) from None
+        if opts is None:
+            return None
+        try:
+            slots, strategy, pq = check_options(opts["vertices"], opts["strategy"] or "lru", opts["pq_fraction"])
+        except InputError as exc:
+            raise Refused(grpc.StatusCode.INVALID_ARGUMENT, f"Open: {exc}") from None
+        slots = min(slots, served.mesh.n_vertices)           # more slots than vertices would never fill
+        base = served.base_vertices
+        if slots < base:
+            raise Refused(grpc.StatusCode.INVALID_ARGUMENT,
+                          f"Open.cache_vertices is {slots}, but the base mesh of {served.name!r} alone uses {base} "
+                          f"vertices; ask for at least {base} slots (several times more keeps detail), or leave "
+                          "cache_vertices unset for a resident vertex buffer")
+        return {"vertices": slots, "strategy": strategy, "pq_fraction": pq}
 
     # -- ends ----------------------------------------------------------------------------
     def stream_ended(self, session: Session, generation: int, end: End) -> None:
@@ -158,3 +187,10 @@ class Sessions:
     def _gauges(self) -> None:
         self.metrics.set_sessions(*self.counts())
 
+
+
+def _describe_cache(cache: dict | None) -> str:
+    if cache is None:
+        return "none (a resident vertex buffer)"
+    pq = f", pq_fraction {cache['pq_fraction']}" if cache["pq_fraction"] is not None else ""
+    return f"{cache['vertices']} slots {cache['strategy']}{pq}"

@@ -124,17 +124,18 @@ class LodService:
     def _start(self, session, opened: pb.Open, resumed: bool):
         """SessionInfo, then the vertex chunks unless the client holds the buffer."""
         served = session.served
-        cached = opened.vertex_buffer_hash == served.mesh.vertex_buffer_hash
+        # In cache mode the client holds slots, never the buffer: no chunks.
+        cached = session.cache is None and opened.vertex_buffer_hash == served.mesh.vertex_buffer_hash
         info = wire.session_info(
             token=session.token, resumed=resumed, mesh=served.info, vertex_format=served.vertex_format,
             vertex_buffer_cached=cached, vertex_payload_crc32=served.payload_crc32,
             view_options=session.view_options, budgets=session.budgets, cameras=session.n_cameras,
             ack_window=session.ack_window, resume_ttl_s=self.sessions.config.resume_ttl,
             last_frame_seq=session.frame_seq if resumed else 0,
-            last_pose_seq=session.last_pose_seq if resumed else 0)
+            last_pose_seq=session.last_pose_seq if resumed else 0, cache=session.cache)
         self.metrics.bytes_out(info.ByteSize())
         yield info
-        if not cached:
+        if not cached and session.cache is None:
             for chunk in served.vertex_chunks():
                 self.metrics.bytes_out(chunk.ByteSize())
                 yield chunk

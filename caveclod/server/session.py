@@ -14,6 +14,12 @@ The per-pose rules (all in the proto's ``Lod.Session`` comment): latest pose
 wins; at most one update per camera per frame; a camera whose last update
 made operations is updated again for the same pose, after ``settle``
 seconds (at once when a budget stopped it), until an update makes none.
+
+Cache mode (Open.cache_vertices): each camera is a
+:class:`~caveclod.refine.cachedcamera.CachedCamera`, the exact mirror of the
+client's slots; a frame carries its vertex writes (attributes read from the
+mapped vertex buffer) and index writes in slot numbers, with the slots
+checksum kept up to date per written slot.
 """
 
 from __future__ import annotations
@@ -26,6 +32,7 @@ import grpc
 import numpy as np
 
 from .. import wire
+from ..checksums import SlotChecksum
 from ..errors import InputError
 from ..refine.view import View
 from ..v1 import caveclod_pb2 as pb
@@ -76,16 +83,27 @@ class Session:
         ack_window: frames in flight before an ack.
         settle: seconds before a convergence update.
         hooks: the server's metrics (see :mod:`.metrics`).
+        cache: cache mode ``{vertices, strategy, pq_fraction}`` (checked:
+            :meth:`.registry.Sessions._cache`), or None for a resident
+            vertex buffer. Each camera has a cache of its own.
     """
 
     def __init__(self, token: str, served, view_options: dict, budgets: tuple, cameras: int, ack_window: int,
-                 settle: float, hooks, client: str = ""):
+                 settle: float, hooks, client: str = "", cache: dict | None = None):
         self.token, self.served, self.client = token, served, client
         self.view_options, self.budgets = view_options, budgets
         self.ack_window, self.settle, self.hooks = ack_window, settle, hooks
         max_ops, max_faces = budgets
         self.cams = [served.mesh.new_camera(max_ops=max_ops, max_faces=max_faces) for _ in range(cameras)]
         self.n_materials = self.cams[0].n_materials
+        self.cache = cache
+        self.cached, self.sums = [], []
+        if cache is not None:
+            from ..refine.cachedcamera import CachedCamera
+            keys = served.vertex_keys if cache["strategy"] == "lru_pq" else None
+            self.cached = [CachedCamera(cam, cache["vertices"], cache["strategy"], cache["pq_fraction"], keys)
+                           for cam in self.cams]
+            self.sums = [SlotChecksum(cache["vertices"]) for _ in self.cams]
         self.cond = threading.Condition()
         self.writer = threading.Lock()
         self.generation = 0          # bumped by every attach; a writer of an older one stops (ABORTED)
@@ -114,8 +132,8 @@ class Session:
 
     @property
     def nbytes(self) -> int:
-        """Bytes of the cameras' states (the static mesh is shared)."""
-        return sum(c.nbytes for c in self.cams)
+        """Bytes of the cameras' states (the static mesh is shared), with their caches' in cache mode."""
+        return sum(c.nbytes for c in self.cams) + sum(c.nbytes + s.terms.nbytes for c, s in zip(self.cached, self.sums))
 
     # -- streams --------------------------------------------------------------------
     def attach(self, last_frame_seq: int, view_options: dict | None = None) -> int:
@@ -280,31 +298,62 @@ class Session:
     def _refine(self, c: int, pose: _Pose | None, fresh: bool, keyframe: bool) -> wire.CameraFrameData:
         """One camera's update (when it has a pose to refine for) and its surfaces."""
         cam = self.cams[c]
+        cached = self.cached[c] if self.cached else None
         out = wire.CameraFrameData(camera=c, pose_seq=0, keyframe=keyframe)
         touched = range(self.n_materials) if keyframe else ()
         if pose is not None:
+            view = View(eye=pose.eye, target=pose.target, up=pose.up, **self.view_options)
             cpu = time.thread_time()
-            delta = cam.update(View(eye=pose.eye, target=pose.target, up=pose.up, **self.view_options))
+            if cached is None:
+                delta = cam.update(view)
+            else:
+                cd = cached.update(view, relax=fresh)     # a new pose may relax a raised tolerance
+                delta = cd.delta
             cpu = time.thread_time() - cpu          # the CPU refinement really used, not wall time
             self.current[c] = pose
             converged = delta.operations == 0 and not delta.budget_exhausted
             self.due[c] = None if converged else time.monotonic() + (0.0 if delta.budget_exhausted else self.settle)
             out.stats = {"splits": delta.splits, "collapses": delta.collapses,
                          "update_us": int(1e6 * delta.seconds), "active_faces": cam.n_faces,
-                         "budget_exhausted": delta.budget_exhausted}
+                         "budget_exhausted": delta.budget_exhausted, "updates": 1}
             self.hooks.refined(delta.seconds, delta.operations, cpu)
-            if not keyframe:
+            if cached is not None:
+                out.stats.update(cache_hits=cd.hits, cache_inserts=cd.inserted, cache_tolerance_px=cd.tolerance_px,
+                                 updates=cd.updates)
+                self.hooks.cached(cd.inserted, cd.hits)
+            if keyframe:
+                pass
+            elif cached is None:
                 for m, d in sorted(delta.surfaces.items()):
                     out.surfaces.append(wire.Surface(m, d.count, d.slots, d.tris,
                                                      wire.buffer_crc32(cam.index_buffer(m))))
+            else:
+                if cd.inserted:
+                    out.vertices = self._slot_writes(c, cd.slots, cd.vertices)
+                for m, d in sorted(cd.surfaces.items()):
+                    out.surfaces.append(wire.Surface(m, d.count, d.slots, d.tris,
+                                                     wire.buffer_crc32(cached.slot_buffer(m))))
+        if keyframe and cached is not None:      # the client empties its slots: every active vertex again
+            kd = cached.keyframe()
+            self.sums[c].reset()
+            out.vertices = self._slot_writes(c, kd.slots, kd.vertices)
         for m in touched:                        # a keyframe: every material's whole buffer
-            buf = cam.index_buffer(m)
+            buf = cam.index_buffer(m) if cached is None else cached.slot_buffer(m)
             out.surfaces.append(wire.Surface(m, len(buf), np.arange(len(buf), dtype=np.uint32), buf, wire.buffer_crc32(buf)))
         if self.current[c] is not None:
             out.pose_seq = self.current[c].seq
         return out
 
+    def _slot_writes(self, c: int, slots: np.ndarray, vertices: np.ndarray) -> wire.SlotWrites:
+        """The attributes of ``vertices`` for ``slots`` of camera ``c``, and the slots checksum after them."""
+        blocks = [np.asarray(b.data[vertices]) for b in self.served.blocks]
+        self.sums[c].write(slots, blocks)
+        return wire.SlotWrites(slots, blocks, self.sums[c].value)
+
     def describe(self) -> dict:
         """Fields for the session's log lines."""
-        return {"session": self.token[:8], "mesh": self.served.name, "cameras": self.n_cameras,
-                "client": self.client, "frame_seq": self.frame_seq, "pose_seq": self.last_pose_seq}
+        out = {"session": self.token[:8], "mesh": self.served.name, "cameras": self.n_cameras,
+               "client": self.client, "frame_seq": self.frame_seq, "pose_seq": self.last_pose_seq}
+        if self.cache is not None:
+            out["cache"] = f"{self.cache['vertices']} {self.cache['strategy']}"
+        return out

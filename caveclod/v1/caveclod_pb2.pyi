@@ -7,6 +7,13 @@ from typing import ClassVar as _ClassVar, Optional as _Optional, Union as _Union
 
 DESCRIPTOR: _descriptor.FileDescriptor
 
+class CacheStrategy(int, metaclass=_enum_type_wrapper.EnumTypeWrapper):
+    __slots__ = ()
+    CACHE_STRATEGY_UNSPECIFIED: _ClassVar[CacheStrategy]
+    CACHE_STRATEGY_FA: _ClassVar[CacheStrategy]
+    CACHE_STRATEGY_LRU: _ClassVar[CacheStrategy]
+    CACHE_STRATEGY_LRU_PQ: _ClassVar[CacheStrategy]
+
 class KeyframeReason(int, metaclass=_enum_type_wrapper.EnumTypeWrapper):
     __slots__ = ()
     KEYFRAME_REASON_UNSPECIFIED: _ClassVar[KeyframeReason]
@@ -33,6 +40,10 @@ class ScalarType(int, metaclass=_enum_type_wrapper.EnumTypeWrapper):
     SCALAR_TYPE_UNSPECIFIED: _ClassVar[ScalarType]
     SCALAR_TYPE_FLOAT32: _ClassVar[ScalarType]
     SCALAR_TYPE_UINT8: _ClassVar[ScalarType]
+CACHE_STRATEGY_UNSPECIFIED: CacheStrategy
+CACHE_STRATEGY_FA: CacheStrategy
+CACHE_STRATEGY_LRU: CacheStrategy
+CACHE_STRATEGY_LRU_PQ: CacheStrategy
 KEYFRAME_REASON_UNSPECIFIED: KeyframeReason
 KEYFRAME_REASON_CHECKSUM_MISMATCH: KeyframeReason
 KEYFRAME_REASON_BAD_FRAME: KeyframeReason
@@ -64,7 +75,7 @@ class ClientMessage(_message.Message):
     def __init__(self, open: _Optional[_Union[Open, _Mapping]] = ..., pose: _Optional[_Union[CameraPose, _Mapping]] = ..., ack: _Optional[_Union[Ack, _Mapping]] = ..., keyframe_request: _Optional[_Union[KeyframeRequest, _Mapping]] = ..., close: _Optional[_Union[Close, _Mapping]] = ...) -> None: ...
 
 class Open(_message.Message):
-    __slots__ = ("mesh", "options", "cameras", "vertex_buffer_hash", "resume_token", "last_frame_seq", "ack_window", "client")
+    __slots__ = ("mesh", "options", "cameras", "vertex_buffer_hash", "resume_token", "last_frame_seq", "ack_window", "client", "cache_vertices", "cache_strategy", "cache_pq_fraction")
     MESH_FIELD_NUMBER: _ClassVar[int]
     OPTIONS_FIELD_NUMBER: _ClassVar[int]
     CAMERAS_FIELD_NUMBER: _ClassVar[int]
@@ -73,6 +84,9 @@ class Open(_message.Message):
     LAST_FRAME_SEQ_FIELD_NUMBER: _ClassVar[int]
     ACK_WINDOW_FIELD_NUMBER: _ClassVar[int]
     CLIENT_FIELD_NUMBER: _ClassVar[int]
+    CACHE_VERTICES_FIELD_NUMBER: _ClassVar[int]
+    CACHE_STRATEGY_FIELD_NUMBER: _ClassVar[int]
+    CACHE_PQ_FRACTION_FIELD_NUMBER: _ClassVar[int]
     mesh: str
     options: RefineOptions
     cameras: int
@@ -81,7 +95,10 @@ class Open(_message.Message):
     last_frame_seq: int
     ack_window: int
     client: str
-    def __init__(self, mesh: _Optional[str] = ..., options: _Optional[_Union[RefineOptions, _Mapping]] = ..., cameras: _Optional[int] = ..., vertex_buffer_hash: _Optional[str] = ..., resume_token: _Optional[str] = ..., last_frame_seq: _Optional[int] = ..., ack_window: _Optional[int] = ..., client: _Optional[str] = ...) -> None: ...
+    cache_vertices: int
+    cache_strategy: CacheStrategy
+    cache_pq_fraction: float
+    def __init__(self, mesh: _Optional[str] = ..., options: _Optional[_Union[RefineOptions, _Mapping]] = ..., cameras: _Optional[int] = ..., vertex_buffer_hash: _Optional[str] = ..., resume_token: _Optional[str] = ..., last_frame_seq: _Optional[int] = ..., ack_window: _Optional[int] = ..., client: _Optional[str] = ..., cache_vertices: _Optional[int] = ..., cache_strategy: _Optional[_Union[CacheStrategy, str]] = ..., cache_pq_fraction: _Optional[float] = ...) -> None: ...
 
 class RefineOptions(_message.Message):
     __slots__ = ("viewport_width", "viewport_height", "fov_y_deg", "tolerance_px", "cull", "backface", "max_ops", "max_faces")
@@ -152,7 +169,7 @@ class ServerMessage(_message.Message):
     def __init__(self, session_info: _Optional[_Union[SessionInfo, _Mapping]] = ..., vertex_chunk: _Optional[_Union[VertexChunk, _Mapping]] = ..., frame: _Optional[_Union[Frame, _Mapping]] = ...) -> None: ...
 
 class SessionInfo(_message.Message):
-    __slots__ = ("session_token", "resumed", "mesh", "vertex_format", "vertex_buffer_cached", "vertex_payload_crc32", "options", "cameras", "ack_window", "resume_ttl_s", "last_frame_seq", "last_pose_seq", "max_chunk_bytes")
+    __slots__ = ("session_token", "resumed", "mesh", "vertex_format", "vertex_buffer_cached", "vertex_payload_crc32", "options", "cameras", "ack_window", "resume_ttl_s", "last_frame_seq", "last_pose_seq", "max_chunk_bytes", "cache_vertices", "cache_strategy", "cache_pq_fraction")
     SESSION_TOKEN_FIELD_NUMBER: _ClassVar[int]
     RESUMED_FIELD_NUMBER: _ClassVar[int]
     MESH_FIELD_NUMBER: _ClassVar[int]
@@ -166,6 +183,9 @@ class SessionInfo(_message.Message):
     LAST_FRAME_SEQ_FIELD_NUMBER: _ClassVar[int]
     LAST_POSE_SEQ_FIELD_NUMBER: _ClassVar[int]
     MAX_CHUNK_BYTES_FIELD_NUMBER: _ClassVar[int]
+    CACHE_VERTICES_FIELD_NUMBER: _ClassVar[int]
+    CACHE_STRATEGY_FIELD_NUMBER: _ClassVar[int]
+    CACHE_PQ_FRACTION_FIELD_NUMBER: _ClassVar[int]
     session_token: str
     resumed: bool
     mesh: MeshInfo
@@ -179,7 +199,10 @@ class SessionInfo(_message.Message):
     last_frame_seq: int
     last_pose_seq: int
     max_chunk_bytes: int
-    def __init__(self, session_token: _Optional[str] = ..., resumed: _Optional[bool] = ..., mesh: _Optional[_Union[MeshInfo, _Mapping]] = ..., vertex_format: _Optional[_Union[VertexFormat, _Mapping]] = ..., vertex_buffer_cached: _Optional[bool] = ..., vertex_payload_crc32: _Optional[int] = ..., options: _Optional[_Union[RefineOptions, _Mapping]] = ..., cameras: _Optional[int] = ..., ack_window: _Optional[int] = ..., resume_ttl_s: _Optional[int] = ..., last_frame_seq: _Optional[int] = ..., last_pose_seq: _Optional[int] = ..., max_chunk_bytes: _Optional[int] = ...) -> None: ...
+    cache_vertices: int
+    cache_strategy: CacheStrategy
+    cache_pq_fraction: float
+    def __init__(self, session_token: _Optional[str] = ..., resumed: _Optional[bool] = ..., mesh: _Optional[_Union[MeshInfo, _Mapping]] = ..., vertex_format: _Optional[_Union[VertexFormat, _Mapping]] = ..., vertex_buffer_cached: _Optional[bool] = ..., vertex_payload_crc32: _Optional[int] = ..., options: _Optional[_Union[RefineOptions, _Mapping]] = ..., cameras: _Optional[int] = ..., ack_window: _Optional[int] = ..., resume_ttl_s: _Optional[int] = ..., last_frame_seq: _Optional[int] = ..., last_pose_seq: _Optional[int] = ..., max_chunk_bytes: _Optional[int] = ..., cache_vertices: _Optional[int] = ..., cache_strategy: _Optional[_Union[CacheStrategy, str]] = ..., cache_pq_fraction: _Optional[float] = ...) -> None: ...
 
 class MeshInfo(_message.Message):
     __slots__ = ("name", "faces", "vertices", "positions", "nodes", "base_faces", "surface_group_ids", "materials", "bounds_min", "bounds_max", "content_hash", "vertex_buffer_hash")
@@ -270,18 +293,32 @@ class Frame(_message.Message):
     def __init__(self, frame_seq: _Optional[int] = ..., pose_seq: _Optional[int] = ..., cameras: _Optional[_Iterable[_Union[CameraFrame, _Mapping]]] = ..., continued: _Optional[bool] = ..., poses_superseded: _Optional[int] = ...) -> None: ...
 
 class CameraFrame(_message.Message):
-    __slots__ = ("camera", "pose_seq", "keyframe", "surfaces", "stats")
+    __slots__ = ("camera", "pose_seq", "keyframe", "surfaces", "stats", "vertices")
     CAMERA_FIELD_NUMBER: _ClassVar[int]
     POSE_SEQ_FIELD_NUMBER: _ClassVar[int]
     KEYFRAME_FIELD_NUMBER: _ClassVar[int]
     SURFACES_FIELD_NUMBER: _ClassVar[int]
     STATS_FIELD_NUMBER: _ClassVar[int]
+    VERTICES_FIELD_NUMBER: _ClassVar[int]
     camera: int
     pose_seq: int
     keyframe: bool
     surfaces: _containers.RepeatedCompositeFieldContainer[SurfaceDelta]
     stats: CameraStats
-    def __init__(self, camera: _Optional[int] = ..., pose_seq: _Optional[int] = ..., keyframe: _Optional[bool] = ..., surfaces: _Optional[_Iterable[_Union[SurfaceDelta, _Mapping]]] = ..., stats: _Optional[_Union[CameraStats, _Mapping]] = ...) -> None: ...
+    vertices: VertexWrites
+    def __init__(self, camera: _Optional[int] = ..., pose_seq: _Optional[int] = ..., keyframe: _Optional[bool] = ..., surfaces: _Optional[_Iterable[_Union[SurfaceDelta, _Mapping]]] = ..., stats: _Optional[_Union[CameraStats, _Mapping]] = ..., vertices: _Optional[_Union[VertexWrites, _Mapping]] = ...) -> None: ...
+
+class VertexWrites(_message.Message):
+    __slots__ = ("slots", "first_slot", "data", "slots_checksum")
+    SLOTS_FIELD_NUMBER: _ClassVar[int]
+    FIRST_SLOT_FIELD_NUMBER: _ClassVar[int]
+    DATA_FIELD_NUMBER: _ClassVar[int]
+    SLOTS_CHECKSUM_FIELD_NUMBER: _ClassVar[int]
+    slots: bytes
+    first_slot: int
+    data: bytes
+    slots_checksum: int
+    def __init__(self, slots: _Optional[bytes] = ..., first_slot: _Optional[int] = ..., data: _Optional[bytes] = ..., slots_checksum: _Optional[int] = ...) -> None: ...
 
 class SurfaceDelta(_message.Message):
     __slots__ = ("material", "count", "slots", "first_slot", "tris", "crc32")
@@ -300,20 +337,28 @@ class SurfaceDelta(_message.Message):
     def __init__(self, material: _Optional[int] = ..., count: _Optional[int] = ..., slots: _Optional[bytes] = ..., first_slot: _Optional[int] = ..., tris: _Optional[bytes] = ..., crc32: _Optional[int] = ...) -> None: ...
 
 class CameraStats(_message.Message):
-    __slots__ = ("splits", "collapses", "update_us", "active_faces", "budget_exhausted", "pose_age_us")
+    __slots__ = ("splits", "collapses", "update_us", "active_faces", "budget_exhausted", "pose_age_us", "cache_hits", "cache_inserts", "cache_tolerance_px", "updates")
     SPLITS_FIELD_NUMBER: _ClassVar[int]
     COLLAPSES_FIELD_NUMBER: _ClassVar[int]
     UPDATE_US_FIELD_NUMBER: _ClassVar[int]
     ACTIVE_FACES_FIELD_NUMBER: _ClassVar[int]
     BUDGET_EXHAUSTED_FIELD_NUMBER: _ClassVar[int]
     POSE_AGE_US_FIELD_NUMBER: _ClassVar[int]
+    CACHE_HITS_FIELD_NUMBER: _ClassVar[int]
+    CACHE_INSERTS_FIELD_NUMBER: _ClassVar[int]
+    CACHE_TOLERANCE_PX_FIELD_NUMBER: _ClassVar[int]
+    UPDATES_FIELD_NUMBER: _ClassVar[int]
     splits: int
     collapses: int
     update_us: int
     active_faces: int
     budget_exhausted: bool
     pose_age_us: int
-    def __init__(self, splits: _Optional[int] = ..., collapses: _Optional[int] = ..., update_us: _Optional[int] = ..., active_faces: _Optional[int] = ..., budget_exhausted: _Optional[bool] = ..., pose_age_us: _Optional[int] = ...) -> None: ...
+    cache_hits: int
+    cache_inserts: int
+    cache_tolerance_px: float
+    updates: int
+    def __init__(self, splits: _Optional[int] = ..., collapses: _Optional[int] = ..., update_us: _Optional[int] = ..., active_faces: _Optional[int] = ..., budget_exhausted: _Optional[bool] = ..., pose_age_us: _Optional[int] = ..., cache_hits: _Optional[int] = ..., cache_inserts: _Optional[int] = ..., cache_tolerance_px: _Optional[float] = ..., updates: _Optional[int] = ...) -> None: ...
 
 class Vec3(_message.Message):
     __slots__ = ("x", "y", "z")

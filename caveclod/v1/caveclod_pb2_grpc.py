@@ -60,8 +60,8 @@ class LodServicer:
         Open, without waiting for SessionInfo.
 
         Server -> client, in this order: one SessionInfo; the vertex buffer as
-        VertexChunk messages (none when SessionInfo.vertex_buffer_cached); then
-        Frame messages. Frame 1 is a keyframe of every camera; later frames are
+        VertexChunk messages (none when SessionInfo.vertex_buffer_cached, and
+        none in cache mode); then Frame messages. Frame 1 is a keyframe of every camera; later frames are
         deltas, except where a camera is marked keyframe.
 
         Frame 1 is sent right after SessionInfo and the vertex chunks, without
@@ -88,7 +88,10 @@ class LodServicer:
         has usually sent its next pose. Every CameraFrame that carries stats
         reports exactly one update's operations, so replaying, for each such
         CameraFrame, one update with the view of its pose_seq rebuilds the
-        server's state exactly.
+        server's state exactly. In cache mode, a frame whose LOD needs more
+        vertices than the camera's slots makes more updates for the same pose,
+        at raised tolerances, until the vertices fit (CameraStats.updates counts
+        them, and its operations cover all of them; see Open.cache_vertices).
 
         Ack window: the server sends frame N (keyframes included) only once the
         client has acked frame N - ack_window (SessionInfo.ack_window). While
