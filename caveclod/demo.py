@@ -194,6 +194,8 @@ def plot(summary: dict, path: Path) -> None:
     import matplotlib
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
+
+    from .client.loadtest import draw_latency_cdf
     ops = np.asarray(summary["series"]["operations"], dtype=np.float64)
     fps = summary["frames"] / summary["path_seconds"]
     t = np.arange(len(ops)) / fps
@@ -208,18 +210,9 @@ def plot(summary: dict, path: Path) -> None:
     a.set_title(f"operations per camera-second (mean {summary['operations_per_camera_second']:,.0f})", fontsize=9)
     a.legend(fontsize=8)
     a.grid(alpha=0.3)
-    lat = np.sort(np.asarray(summary["series"]["latency_ms"]))
-    if len(lat):
-        b.plot(lat, np.arange(1, len(lat) + 1) / len(lat))
-        for q in (50, 99):
-            v = np.percentile(lat, q)
-            b.axvline(v, ls="--", lw=0.8, color="grey")
-            b.text(v, 0.05 + 0.12 * (q == 99), f" p{q} {v:.1f} ms", fontsize=8)
-    b.set_xlabel("pose -> frame latency (ms)")
-    b.set_ylabel("fraction of poses")
+    draw_latency_cdf(b, summary["series"]["latency_ms"])
     b.set_title(f"{summary['cameras']} cameras, {summary['mesh_faces']:,} triangles, over gRPC on loopback",
                 fontsize=9)
-    b.grid(alpha=0.3)
     fig.tight_layout()
     fig.savefig(path, dpi=100)
     plt.close(fig)

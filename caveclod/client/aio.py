@@ -27,8 +27,8 @@ from ..v1 import caveclod_pb2 as pb
 from ..v1 import caveclod_pb2_grpc as pb_grpc
 from .cache import VertexBufferCache
 from .protocol import FrameUpdate, ProtocolError, SessionProtocol, VertexBuffer
-from .session import (CHANNEL_OPTIONS, SessionEnded, backoff, cache_mode, credentials, metadata, refine_options,
-                      retriable)
+from .session import (CHANNEL_OPTIONS, SessionEnded, SessionState, backoff, cache_mode, credentials, metadata,
+                      refine_options, retriable)
 
 
 class AsyncClient:
@@ -99,7 +99,7 @@ class _Stream:
         self.call.cancel()
 
 
-class AsyncSession:
+class AsyncSession(SessionState):
     """An asyncio session. Make one with :meth:`AsyncClient.session`."""
 
     def __init__(self, client: AsyncClient, protocol: SessionProtocol, retries: int):
@@ -202,17 +202,6 @@ class AsyncSession:
             self._read_task = asyncio.ensure_future(self._receive())
         return self._read_task
 
-    def send_pose(self, camera: int, eye, target, up=(0.0, 0.0, 1.0)) -> int:
-        """Queue a camera's new pose (three 3-vectors, world units); returns its pose_seq."""
-        msg = self.protocol.pose_message(camera, eye, target, up)
-        self._stream.send(msg)
-        return msg.pose.pose_seq
-
-    def request_keyframe(self, camera: int | None = None,
-                         reason: int = pb.KEYFRAME_REASON_CLIENT_RESET, detail: str = "") -> None:
-        """Ask for full buffers of ``camera`` (None: every camera)."""
-        self._stream.send(self.protocol.keyframe_message(camera, reason, detail))
-
     def begin_close(self, reason: str = "") -> None:
         """Send Close without waiting: the server then ends the stream, and
         a pending :meth:`next_frame` raises SessionEnded with code None."""
@@ -237,34 +226,3 @@ class AsyncSession:
             await asyncio.wait_for(until_end(), timeout)
         except (asyncio.TimeoutError, grpc.RpcError):
             self._stream.call.cancel()
-
-    def drop(self) -> None:
-        """Cancel the stream without Close (as a crash would); the session stays resumable."""
-        self._stream.end()
-
-    @property
-    def info(self) -> pb.SessionInfo:
-        return self.protocol.info
-
-    @property
-    def vertex_buffer(self) -> VertexBuffer | None:
-        """The resident vertex buffer; None in cache mode."""
-        return self.protocol.vertex
-
-    def slots(self, camera: int):
-        """Cache mode: camera's :class:`~caveclod.client.slots.SlotBuffer`."""
-        if self.protocol.slots is None:
-            raise ValueError("slots() is for cache mode; this session holds the whole vertex buffer (vertex_buffer)")
-        return self.protocol.slots[camera]
-
-    @property
-    def buffers(self):
-        return self.protocol.buffers
-
-    def buffer(self, camera: int, material: int):
-        """(count, 3) uint32 index buffer of one (camera, material)."""
-        return self.protocol.buffers.buffer(camera, material)
-
-    def triangles(self, camera: int) -> dict:
-        """{material: (k, 3) uint32} copies of a camera's non-empty buffers."""
-        return self.protocol.buffers.triangles(camera)

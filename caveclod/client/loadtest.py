@@ -252,13 +252,9 @@ def main(args) -> int:
     return 1 if report["divergences"] or report["errors"] else 0
 
 
-def plot_latency(latencies_ms: list, report: dict, path: str) -> None:
-    """A CDF of pose -> frame latency, as a PNG (needs matplotlib: the ``bench`` extra)."""
-    import matplotlib
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+def draw_latency_cdf(ax, latencies_ms) -> None:
+    """Draw the CDF of pose -> frame latencies (ms) on a matplotlib ``ax``, p50 and p99 marked."""
     lat = np.sort(np.asarray(latencies_ms))
-    fig, ax = plt.subplots(figsize=(6, 4))
     if len(lat):
         ax.plot(lat, np.arange(1, len(lat) + 1) / len(lat))
         for q in (50, 99):
@@ -267,9 +263,18 @@ def plot_latency(latencies_ms: list, report: dict, path: str) -> None:
             ax.text(v, 0.05 + 0.1 * (q == 99), f" p{q} {v:.1f} ms", fontsize=8)
     ax.set_xlabel("pose -> frame latency (ms)")
     ax.set_ylabel("fraction of poses")
+    ax.grid(alpha=0.3)
+
+
+def plot_latency(latencies_ms: list, report: dict, path: str) -> None:
+    """A CDF of pose -> frame latency, as a PNG (needs matplotlib: the ``bench`` extra)."""
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    fig, ax = plt.subplots(figsize=(6, 4))
+    draw_latency_cdf(ax, latencies_ms)
     ax.set_title(f"{report['sessions']} sessions x {report['cameras']} camera(s) at {report['rate_hz']:g} Hz, "
                  f"{report['mesh_faces']:,} triangles", fontsize=9)
-    ax.grid(alpha=0.3)
     fig.tight_layout()
     fig.savefig(path, dpi=110)
     plt.close(fig)

@@ -203,7 +203,59 @@ class _Stream:
         self.call.cancel()
 
 
-class Session:
+class SessionState:
+    """What the blocking and the asyncio sessions share: sending poses and
+    keyframe requests, and reading what the client holds (all through
+    ``self.protocol``, a :class:`SessionProtocol`, and ``self._stream``)."""
+
+    protocol: SessionProtocol
+
+    def send_pose(self, camera: int, eye, target, up=(0.0, 0.0, 1.0)) -> int:
+        """Send a camera's new pose (three 3-vectors, world units); returns its pose_seq."""
+        msg = self.protocol.pose_message(camera, eye, target, up)
+        self._stream.send(msg)
+        return msg.pose.pose_seq
+
+    def request_keyframe(self, camera: int | None = None,
+                         reason: int = pb.KEYFRAME_REASON_CLIENT_RESET, detail: str = "") -> None:
+        """Ask for full buffers of ``camera`` (None: every camera), e.g. after losing a GL context."""
+        self._stream.send(self.protocol.keyframe_message(camera, reason, detail))
+
+    def drop(self) -> None:
+        """Cancel the stream without Close (as a crash would); the session stays resumable."""
+        self._stream.end()
+
+    # -- what the client holds ---------------------------------------------------------------
+    @property
+    def info(self) -> pb.SessionInfo:
+        return self.protocol.info
+
+    @property
+    def vertex_buffer(self) -> VertexBuffer | None:
+        """The resident vertex buffer; None in cache mode."""
+        return self.protocol.vertex
+
+    def slots(self, camera: int):
+        """Cache mode: camera's :class:`~caveclod.client.slots.SlotBuffer` (the vertices its buffers index)."""
+        if self.protocol.slots is None:
+            raise ValueError("slots() is for cache mode; this session holds the whole vertex buffer (vertex_buffer)")
+        return self.protocol.slots[camera]
+
+    @property
+    def buffers(self):
+        """The :class:`~caveclod.client.buffers.IndexBuffers`."""
+        return self.protocol.buffers
+
+    def buffer(self, camera: int, material: int):
+        """(count, 3) uint32 index buffer of one (camera, material), to draw."""
+        return self.protocol.buffers.buffer(camera, material)
+
+    def triangles(self, camera: int) -> dict:
+        """{material: (k, 3) uint32} copies of a camera's non-empty buffers."""
+        return self.protocol.buffers.triangles(camera)
+
+
+class Session(SessionState):
     """A blocking session. Make one with :meth:`Client.session`.
 
     Attributes:
@@ -293,17 +345,6 @@ class Session:
                 return None
 
     # -- sending --------------------------------------------------------------------------
-    def send_pose(self, camera: int, eye, target, up=(0.0, 0.0, 1.0)) -> int:
-        """Send a camera's new pose (three 3-vectors, world units); returns its pose_seq."""
-        msg = self.protocol.pose_message(camera, eye, target, up)
-        self._stream.send(msg)
-        return msg.pose.pose_seq
-
-    def request_keyframe(self, camera: int | None = None,
-                         reason: int = pb.KEYFRAME_REASON_CLIENT_RESET, detail: str = "") -> None:
-        """Ask for full buffers of ``camera`` (None: every camera), e.g. after losing a GL context."""
-        self._stream.send(self.protocol.keyframe_message(camera, reason, detail))
-
     def close(self, reason: str = "", timeout: float = 5.0) -> None:
         """Send Close and wait (up to ``timeout``) for the server to end the stream."""
         if self._closed or self._stream is None:
@@ -320,39 +361,6 @@ class Session:
             if isinstance(item, _StreamEnd):
                 return
         self._stream.call.cancel()
-
-    def drop(self) -> None:
-        """Cancel the stream without Close (as a crash would); the session stays resumable."""
-        self._stream.end()
-
-    # -- what the client holds ---------------------------------------------------------------
-    @property
-    def info(self) -> pb.SessionInfo:
-        return self.protocol.info
-
-    @property
-    def vertex_buffer(self) -> VertexBuffer | None:
-        """The resident vertex buffer; None in cache mode."""
-        return self.protocol.vertex
-
-    def slots(self, camera: int):
-        """Cache mode: camera's :class:`~caveclod.client.slots.SlotBuffer` (the vertices its buffers index)."""
-        if self.protocol.slots is None:
-            raise ValueError("slots() is for cache mode; this session holds the whole vertex buffer (vertex_buffer)")
-        return self.protocol.slots[camera]
-
-    @property
-    def buffers(self):
-        """The :class:`~caveclod.client.buffers.IndexBuffers`."""
-        return self.protocol.buffers
-
-    def buffer(self, camera: int, material: int):
-        """(count, 3) uint32 index buffer of one (camera, material), to draw."""
-        return self.protocol.buffers.buffer(camera, material)
-
-    def triangles(self, camera: int) -> dict:
-        """{material: (k, 3) uint32} copies of a camera's non-empty buffers."""
-        return self.protocol.buffers.triangles(camera)
 
     def __enter__(self) -> "Session":
         return self
