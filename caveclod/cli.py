@@ -145,13 +145,7 @@ def _parser() -> argparse.ArgumentParser:
     t.add_argument("--token", help="bearer token (or set CAVECLOD_TOKEN)")
     t.add_argument("--tls-ca", metavar="F", help="PEM CA certificate: connect with TLS and trust it")
     t.add_argument("--cache-dir", help="vertex buffer cache (default $XDG_CACHE_HOME/caveclod/vertex-buffers)")
-    t.add_argument("--cache-vertices", type=int, metavar="N",
-                   help="cache mode: N vertex slots per camera instead of the whole vertex buffer; the JSON adds "
-                        "vertices_inserted, vertex_bytes_per_frame and cache_hit_rate")
-    t.add_argument("--cache-strategy", choices=("fa", "lru", "lru_pq"),
-                   help="cache mode: which slot a new vertex overwrites (default lru)")
-    t.add_argument("--cache-pq-fraction", type=float, metavar="F",
-                   help="cache mode with lru_pq: share of the slots in the error priority queue (default 0.1)")
+    _cache_arguments(t, "; the JSON adds vertices_inserted, vertex_bytes_per_frame and cache_hit_rate")
     t.add_argument("--json", action="store_true", help="print one JSON object with the figures on stdout")
     t.add_argument("--samples", action="store_true", help="with --json: add every latency sample (ms) as latencies_ms")
     t.add_argument("--plot", metavar="FILE", help="write a pose->frame latency plot (PNG; needs matplotlib)")
@@ -207,10 +201,10 @@ def _client_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--cache-dir", help="vertex buffer cache (default $XDG_CACHE_HOME/caveclod/vertex-buffers)")
 
 
-def _cache_arguments(p: argparse.ArgumentParser) -> None:
-    """Cache mode for the commands that draw a session: N vertex slots per camera on the GPU."""
+def _cache_arguments(p: argparse.ArgumentParser, more: str = "") -> None:
+    """Cache mode for the commands that open sessions: N vertex slots per camera."""
     p.add_argument("--cache-vertices", type=int, metavar="N",
-                   help="cache mode: N vertex slots per camera instead of the whole vertex buffer")
+                   help="cache mode: N vertex slots per camera instead of the whole vertex buffer" + more)
     p.add_argument("--cache-strategy", choices=("fa", "lru", "lru_pq"),
                    help="cache mode: which slot a new vertex overwrites (default lru)")
     p.add_argument("--cache-pq-fraction", type=float, metavar="F",

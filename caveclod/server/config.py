@@ -12,7 +12,8 @@ MAX_ACK_WINDOW = 32          # a client may ask for up to this many frames in fl
 # Measured (README, "Service figures"; benchmarks/server_model.py and
 # benchmarks/service.py): one server process on 2 cores held 16 one-camera
 # sessions at 30 Hz on the 1M-triangle terrain with p99 pose -> frame under
-# 15 ms, and 32 with p99 near 90 ms. The deploy files use the same limit;
+# 15 ms; 32 with p99 36 to 44 ms on a quiet machine but 85 to 90 ms while
+# other work held a core, so 16 leaves room. The deploy files use the same limit;
 # past it, a replica refuses with RESOURCE_EXHAUSTED and the balancer's
 # next replica takes the session.
 DEFAULT_MAX_SESSIONS = 16
