@@ -26,7 +26,7 @@ import grpc.aio
 from ..v1 import caveclod_pb2 as pb
 from ..v1 import caveclod_pb2_grpc as pb_grpc
 from .cache import VertexBufferCache
-from .protocol import FrameUpdate, ProtocolError, SessionProtocol, VertexBuffer
+from .protocol import FrameUpdate, SessionProtocol
 from .session import (CHANNEL_OPTIONS, SessionEnded, SessionState, backoff, cache_mode, credentials, metadata,
                       refine_options, retriable)
 
@@ -161,14 +161,7 @@ class AsyncSession(SessionState):
                 await self._resume(details)
                 return None
             raise SessionEnded(code, details)
-        try:
-            out, update = self.protocol.receive(msg)
-        except ProtocolError as exc:
-            self._stream.end()
-            raise SessionEnded(grpc.StatusCode.DATA_LOSS, str(exc)) from None
-        for m in out:
-            self._stream.send(m)
-        return update
+        return self._apply(msg)
 
     async def next_frame(self, timeout: float | None = None) -> FrameUpdate | None:
         """The next frame, applied in full and acked; None when ``timeout`` seconds pass first.

@@ -221,6 +221,19 @@ class SessionState:
         """Ask for full buffers of ``camera`` (None: every camera), e.g. after losing a GL context."""
         self._stream.send(self.protocol.keyframe_message(camera, reason, detail))
 
+    def _apply(self, msg: pb.ServerMessage) -> FrameUpdate | None:
+        """Hand one ServerMessage to the protocol and send what it answers; the
+        frame it completed, or None. A message that breaks the protocol ends
+        the stream with DATA_LOSS."""
+        try:
+            out, update = self.protocol.receive(msg)
+        except ProtocolError as exc:
+            self._stream.end()
+            raise SessionEnded(grpc.StatusCode.DATA_LOSS, str(exc)) from None
+        for reply in out:
+            self._stream.send(reply)
+        return update
+
     def drop(self) -> None:
         """Cancel the stream without Close (as a crash would); the session stays resumable."""
         self._stream.end()
@@ -319,14 +332,7 @@ class Session(SessionState):
                 self._resume(item.error)
                 return None
             raise SessionEnded(code, details)
-        try:
-            out, update = self.protocol.receive(item)
-        except ProtocolError as exc:
-            self._stream.end()
-            raise SessionEnded(grpc.StatusCode.DATA_LOSS, str(exc)) from None
-        for msg in out:
-            self._stream.send(msg)
-        return update
+        return self._apply(item)
 
     def next_frame(self, timeout: float | None = None) -> FrameUpdate | None:
         """The next frame, applied in full and acked; None when ``timeout`` seconds pass first
