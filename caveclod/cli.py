@@ -146,6 +146,9 @@ def _parser() -> argparse.ArgumentParser:
     t.add_argument("--tls-ca", metavar="F", help="PEM CA certificate: connect with TLS and trust it")
     t.add_argument("--cache-dir", help="vertex buffer cache (default $XDG_CACHE_HOME/caveclod/vertex-buffers)")
     _cache_arguments(t, "; the JSON adds vertices_inserted, vertex_bytes_per_frame and cache_hit_rate")
+    t.add_argument("--frame-encoding", choices=("ops", "raw"), default="ops",
+                   help="how index-buffer writes travel: ops (op streams, the default) or raw (uint32 arrays, "
+                        "what caveclod.v1 clients before op streams read)")
     t.add_argument("--json", action="store_true", help="print one JSON object with the figures on stdout")
     t.add_argument("--samples", action="store_true", help="with --json: add every latency sample (ms) as latencies_ms")
     t.add_argument("--plot", metavar="FILE", help="write a pose->frame latency plot (PNG; needs matplotlib)")

@@ -24,6 +24,7 @@ from typing import Iterator, NamedTuple
 import numpy as np
 from google.protobuf.message import DecodeError
 
+from . import opstream
 from .checksums import buffer_crc32, payload_crc32  # noqa: F401  (the codec's checksums, re-exported)
 from .v1 import caveclod_pb2 as pb
 
@@ -157,6 +158,8 @@ class Surface:
         slots: (k,) uint32 slots written, ascending and unique.
         tris: (k, 3) uint32 vertex-buffer indices written to them.
         crc32: CRC-32 of the whole buffer after the frame, or None.
+        ops: the same writes as an op stream (FRAME_ENCODING_OPS,
+            :mod:`caveclod.opstream`), sent instead of slots and tris, or None.
     """
 
     material: int
@@ -164,10 +167,23 @@ class Surface:
     slots: np.ndarray
     tris: np.ndarray
     crc32: int | None = None
+    ops: bytes | None = None
+
+    @property
+    def wire_bytes(self) -> int:
+        """Bytes of array data this surface puts in a part."""
+        if self.ops is not None:
+            return len(self.ops)
+        return len(self.slots) * (12 if _is_run(self.slots) else 16)
 
 
 def encode_surface(s: Surface) -> pb.SurfaceDelta:
-    """A SurfaceDelta message; consecutive slots travel as ``first_slot``."""
+    """A SurfaceDelta message; consecutive slots travel as ``first_slot``, an op stream as ``ops``."""
+    if s.ops is not None:
+        msg = pb.SurfaceDelta(material=int(s.material), count=int(s.count), ops=s.ops)
+        if s.crc32 is not None:
+            msg.crc32 = int(s.crc32)
+        return msg
     msg = pb.SurfaceDelta(material=int(s.material), count=int(s.count),
                           tris=np.ascontiguousarray(s.tris, dtype=U32).tobytes())
     k = len(s.slots)
@@ -180,12 +196,26 @@ def encode_surface(s: Surface) -> pb.SurfaceDelta:
     return msg
 
 
-def decode_surface(msg: pb.SurfaceDelta, n_vertices: int) -> Surface:
+def decode_surface(msg: pb.SurfaceDelta, n_vertices: int, held=None) -> Surface:
     """A Surface from a SurfaceDelta, checked as the proto requires.
 
-    Raises WireError for arrays of a wrong length, slots that are not
-    ascending, unique and < count, or vertex indices >= ``n_vertices``.
+    ``held(material)`` gives the (old_count, 3) uint32 buffer the client
+    holds before this delta; an op stream (``ops``) is decoded against it
+    (:func:`caveclod.opstream.decode`). Raises WireError for arrays of a
+    wrong length, slots that are not ascending, unique and < count, vertex
+    indices >= ``n_vertices``, or an op stream that does not decode.
     """
+    if msg.ops:
+        if msg.slots or msg.tris:
+            raise WireError(f"material {msg.material}: a SurfaceDelta with both ops and slots or tris")
+        if held is None:
+            raise WireError(f"material {msg.material}: an op stream, but no buffer to decode it against")
+        old = held(msg.material)
+        try:
+            slots, tris = opstream.decode(msg.ops, old, msg.count, n_vertices)
+        except opstream.OpStreamError as exc:
+            raise WireError(f"material {msg.material}: {exc}") from None
+        return Surface(msg.material, msg.count, slots, tris, msg.crc32 if msg.HasField("crc32") else None)
     if len(msg.tris) % 12:
         raise WireError(f"material {msg.material}: tris has {len(msg.tris)} bytes, not whole (k, 3) uint32 rows")
     tris = np.frombuffer(msg.tris, dtype=U32).reshape(-1, 3)
@@ -353,6 +383,14 @@ def frame_parts(frame_seq: int, pose_seq: int, poses_superseded: int, cameras: l
                 if start >= k:
                     break
         for s in cam.surfaces:
+            if s.ops is not None:                # an op stream is not cut: it goes whole in one part
+                if len(s.ops) > room and room < max_bytes:
+                    part, entry = new_part(), None
+                if entry is None:
+                    entry, carried = _camera_entry(part, cam, with_stats=not carried), True
+                entry.surfaces.append(encode_surface(s))
+                room -= len(s.ops)
+                continue
             start, k = 0, len(s.slots)
             while True:
                 rows = min(k - start, room // (12 if _is_run(s.slots) else 16))
@@ -504,7 +542,8 @@ def mesh_info(name: str, *, faces: int, vertices: int, positions: int, nodes: in
 def session_info(*, token: str, resumed: bool, mesh: pb.MeshInfo, vertex_format: pb.VertexFormat,
                  vertex_buffer_cached: bool, vertex_payload_crc32: int, view_options: dict, budgets: tuple,
                  cameras: int, ack_window: int, resume_ttl_s: int, last_frame_seq: int,
-                 last_pose_seq: int, cache: dict | None = None) -> pb.ServerMessage:
+                 last_pose_seq: int, cache: dict | None = None,
+                 frame_encoding: int = pb.FRAME_ENCODING_RAW) -> pb.ServerMessage:
     """The SessionInfo ServerMessage; ``view_options`` are View keywords, ``budgets`` (max_ops, max_faces),
     ``cache`` the cache mode in use ``{vertices, strategy, pq_fraction}`` or None."""
     max_ops, max_faces = budgets
@@ -513,7 +552,7 @@ def session_info(*, token: str, resumed: bool, mesh: pb.MeshInfo, vertex_format:
         session_token=token, resumed=resumed, mesh=mesh, vertex_format=vertex_format,
         vertex_buffer_cached=vertex_buffer_cached, vertex_payload_crc32=vertex_payload_crc32, options=options,
         cameras=cameras, ack_window=ack_window, resume_ttl_s=resume_ttl_s, last_frame_seq=last_frame_seq,
-        last_pose_seq=last_pose_seq, max_chunk_bytes=MAX_CHUNK_BYTES)
+        last_pose_seq=last_pose_seq, max_chunk_bytes=MAX_CHUNK_BYTES, frame_encoding=frame_encoding)
     if cache is not None:
         info.cache_vertices = int(cache["vertices"])
         info.cache_strategy = CACHE_STRATEGIES[cache["strategy"]]

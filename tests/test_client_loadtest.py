@@ -4,14 +4,17 @@ from __future__ import annotations
 
 import json
 
+import pytest
+
 from caveclod import cli
 
 
-def test_loadtest_reports_json_and_exits_0(server, tmp_path, capsys):
+@pytest.mark.parametrize("encoding", ["ops", "raw"])
+def test_loadtest_reports_json_and_exits_0(server, tmp_path, capsys, encoding):
     plot = tmp_path / "latency.png"
     status = cli.main(["loadtest", "--target", f"127.0.0.1:{server.port}", "--sessions", "3", "--cameras", "2",
                        "--duration", "2", "--rate", "20", "--trajectory", "circle", "--json",
-                       "--plot", str(plot), "--cache-dir", str(tmp_path / "cache")])
+                       "--plot", str(plot), "--cache-dir", str(tmp_path / "cache"), "--frame-encoding", encoding])
     out, err = capsys.readouterr()
     report = json.loads(out)
     assert status == 0, report
@@ -21,7 +24,9 @@ def test_loadtest_reports_json_and_exits_0(server, tmp_path, capsys):
     assert set(report["latency_ms"]) == {"p50", "p95", "p99", "max"}
     assert 0 < report["latency_ms"]["p50"] <= report["latency_ms"]["p99"] <= report["latency_ms"]["max"]
     assert 0.8 * 3 * 2 * 40 <= report["poses_sent"] <= 3 * 2 * 40        # ticks missed while opening are skipped
-    assert report["bytes_per_frame"] > 0 and report["bytes_per_changed_triangle"] > 12
+    assert report["frame_encoding"] == encoding and report["bytes_per_frame"] > 0
+    # RAW costs at least 12 bytes a triangle (its three indices); op streams well under that.
+    assert report["bytes_per_changed_triangle"] > 12 if encoding == "raw" else report["bytes_per_changed_triangle"] < 9
     assert "loadtest:" in err and "latency p50" in err              # the progress line
     assert plot.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
 

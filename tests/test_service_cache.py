@@ -314,7 +314,8 @@ def test_a_tampered_vertex_write_is_found_and_repaired_by_a_keyframe(server):
 
 def test_a_triangle_on_an_empty_slot_is_a_bad_frame(server):
     protocol = SessionProtocol("terrain", 1, _options(), cache=None, ack_window=1,
-                               cache_mode={"vertices": 3000, "strategy": "fa", "pq_fraction": None})
+                               cache_mode={"vertices": 3000, "strategy": "fa", "pq_fraction": None},
+                               frame_encoding="raw")         # the test rewrites raw triangles
     original = protocol.receive
     done = []
 

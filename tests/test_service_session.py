@@ -43,6 +43,10 @@ def _check_frame(driver, server, core, views, update):
         mirror = session.cams[c].triangles()
         assert _same(p.buffers.triangles(c), mirror), f"frame {update.frame_seq}: camera {c} differs from the mirror"
         assert _same(core[c].triangles(), mirror), f"frame {update.frame_seq}: camera {c} differs from the replay"
+        if session.held is not None:      # OPS: what the server takes the client to hold is what it holds
+            held = {m: session.held_buffer(c, m) for m in range(p.buffers.materials) if p.buffers.count(c, m)}
+            assert _same(held, mirror), f"frame {update.frame_seq}: camera {c}'s held buffers differ"
+    assert session.frame_encoding == (pb.FRAME_ENCODING_OPS if p.frame_encoding == "ops" else pb.FRAME_ENCODING_RAW)
     assert p.divergences == 0 and p.bad_frames == 0
 
 
@@ -60,11 +64,11 @@ def _view(info, eye, target):
                          height=o.viewport_height, tolerance_px=o.tolerance_px, cull=o.cull, backface=o.backface)
 
 
-@pytest.mark.parametrize("tolerance, max_ops", [(1.0, None), (0.5, 40)])
-def test_random_walk_client_equals_mirror_equals_core(server, terrain_path, tolerance, max_ops, tmp_path):
+@pytest.mark.parametrize("tolerance, max_ops, encoding", [(1.0, None, "ops"), (0.5, 40, "ops"), (1.0, None, "raw")])
+def test_random_walk_client_equals_mirror_equals_core(server, terrain_path, tolerance, max_ops, encoding, tmp_path):
     rng = np.random.default_rng(11 if max_ops is None else 12)
     protocol = SessionProtocol("terrain", 3, _options(tolerance=tolerance, max_ops=max_ops),
-                               cache=VertexBufferCache(tmp_path), ack_window=1)
+                               cache=VertexBufferCache(tmp_path), ack_window=1, frame_encoding=encoding)
     driver = Driver(server.port, protocol)
     try:
         update = driver.next_frame(ack=False)
@@ -117,7 +121,9 @@ def big_terrain(tmp_path_factory):
 
 def test_frames_over_1_mib_come_in_parts_and_keyframes_replace_buffers(make_server, big_terrain, tmp_path):
     server = make_server(meshes=[big_terrain])
-    protocol = SessionProtocol("big", 1, _options(tolerance=0.0, cull=False), cache=None, ack_window=1)
+    # RAW: op streams make the whole mesh's delta fit one part (0.5 MB).
+    protocol = SessionProtocol("big", 1, _options(tolerance=0.0, cull=False), cache=None, ack_window=1,
+                               frame_encoding="raw")
     driver = Driver(server.port, protocol)
     parts = []
     original = protocol.receive

@@ -14,7 +14,8 @@ Figures (``--json`` prints them as one object): ``sessions``, ``frames``,
 after the first ``--warmup`` seconds, while cameras refine up from the base
 mesh, are not timed), ``bytes_per_frame``
 (all frames), ``bytes_per_changed_triangle`` (delta frames: their bytes over
-the triangles they write; keyframes left out), ``divergences`` (CRC
+the triangles they write; keyframes left out; ``_steady``: after the
+warm-up only), ``divergences`` (CRC
 mismatches), ``resumes`` and ``failovers`` (broken streams resumed with
 their token, and answered by a fresh session because the replica was gone),
 ``errors`` (streams that ended with a status, by code), and the
@@ -59,6 +60,8 @@ class Tally:
     bytes: int = 0
     delta_bytes: int = 0
     delta_triangles: int = 0
+    steady_bytes: int = 0            # delta frames after the warm-up
+    steady_triangles: int = 0
     poses_sent: int = 0
     latencies: list = field(default_factory=list)     # seconds
     errors: Counter = field(default_factory=Counter)
@@ -124,8 +127,13 @@ async def _receive(session: AsyncSession, until: float, timed_from: float, tally
             else:
                 tally.delta_frames += 1
                 tally.delta_bytes += frame.nbytes
-                tally.delta_triangles += sum(cam.triangles_written for cam in frame.cameras.values())
-            if time.perf_counter() >= timed_from:
+                written = sum(cam.triangles_written for cam in frame.cameras.values())
+                tally.delta_triangles += written
+            steady = time.perf_counter() >= timed_from
+            if steady and not keyframe:
+                tally.steady_bytes += frame.nbytes
+                tally.steady_triangles += written
+            if steady:
                 tally.latencies.extend(cam.latency for cam in frame.cameras.values() if cam.latency is not None)
     finally:
         closing.cancel()
@@ -139,7 +147,8 @@ async def _one(client: AsyncClient, index: int, args, mesh, tally: Tally, t0: fl
         session = await client.session(mesh.name, cameras=args.cameras, width=args.width, height=args.height,
                                        fov_y=args.fov, tolerance_px=args.tolerance,
                                        cache_vertices=args.cache_vertices, cache_strategy=args.cache_strategy,
-                                       cache_pq_fraction=args.cache_pq_fraction)
+                                       cache_pq_fraction=args.cache_pq_fraction,
+                                       frame_encoding=getattr(args, "frame_encoding", "ops"))
         flying = asyncio.ensure_future(_fly(session, index, args, lo, hi, t0, tally))
         try:
             await _receive(session, t0 + args.duration + TAIL_SECONDS, t0 + args.warmup, tally)
@@ -205,12 +214,15 @@ async def run(args) -> dict:
         "target": args.target, "mesh": mesh.name, "mesh_faces": mesh.faces, "sessions": args.sessions,
         "cameras": args.cameras, "duration_s": args.duration, "warmup_s": args.warmup, "rate_hz": args.rate, "trajectory": args.trajectory,
         "viewport": [args.width, args.height], "fov_y": args.fov, "tolerance_px": args.tolerance,
+        "frame_encoding": getattr(args, "frame_encoding", "ops"),
         "frames": tally.frames, "frames_per_second": round(tally.frames / args.duration, 1),
         "keyframes": tally.keyframes, "poses_sent": tally.poses_sent, "poses_timed": len(lat),
         "latency_ms": pct,
         "bytes_per_frame": round(tally.bytes / tally.frames, 1) if tally.frames else None,
         "bytes_per_changed_triangle": round(tally.delta_bytes / tally.delta_triangles, 2)
         if tally.delta_triangles else None,
+        "bytes_per_changed_triangle_steady": round(tally.steady_bytes / tally.steady_triangles, 2)
+        if tally.steady_triangles else None,
         "divergences": tally.divergences, "bad_frames": tally.bad_frames, "resumes": tally.resumes,
         "failovers": tally.failovers,
         "errors": dict(tally.errors), **cache,

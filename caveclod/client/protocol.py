@@ -35,6 +35,7 @@ CLIENT_NAME = "caveclod-client/0.1"
 # that holds the session. The session token cannot serve: the replica that
 # opens a session makes it, after the balancer has chosen that replica.
 AFFINITY_HEADER = "x-caveclod-session"
+FRAME_ENCODINGS = {"ops": pb.FRAME_ENCODING_OPS, "raw": pb.FRAME_ENCODING_RAW}
 
 
 class ProtocolError(Exception):
@@ -132,10 +133,16 @@ class SessionProtocol:
         cache_mode: ``{vertices, strategy, pq_fraction}`` to ask for cache
             mode (strategy a name, or None for the server's default), or None
             for a resident vertex buffer.
+        frame_encoding: ``"ops"`` (op streams, a quarter of the bytes; the
+            default) or ``"raw"`` (uint32 arrays) to ask for in Open.
     """
 
     def __init__(self, mesh: str, cameras: int, options: dict, *, cache: VertexBufferCache | None = None,
-                 ack_window: int = 0, client: str = CLIENT_NAME, cache_mode: dict | None = None):
+                 ack_window: int = 0, client: str = CLIENT_NAME, cache_mode: dict | None = None,
+                 frame_encoding: str = "ops"):
+        if frame_encoding not in FRAME_ENCODINGS:
+            raise ValueError(f"frame_encoding {frame_encoding!r}: use one of {', '.join(FRAME_ENCODINGS)}")
+        self.frame_encoding = frame_encoding
         self.mesh, self.n_cameras, self.options = mesh, cameras, dict(options)
         self.cache, self.ack_window, self.client = cache, ack_window, client
         self.cache_mode = dict(cache_mode) if cache_mode is not None else None
@@ -186,7 +193,8 @@ class SessionProtocol:
         self.ready = False
         msg = pb.Open(mesh=self.mesh, options=wire.options_from_dict(self.options), cameras=self.n_cameras,
                       vertex_buffer_hash=self._known_hash, resume_token=self.token, last_frame_seq=self.last_applied,
-                      ack_window=self.ack_window, client=self.client)
+                      ack_window=self.ack_window, client=self.client,
+                      frame_encoding=FRAME_ENCODINGS[self.frame_encoding])
         wire.set_cache_options(msg, self.cache_mode)
         return pb.ClientMessage(open=msg)
 
@@ -380,8 +388,15 @@ class SessionProtocol:
                 cam.vertex_bytes += cf.vertices.ByteSize()
                 cam.vertex_writes.append(writes)
             n = self.info.cache_vertices or self.vertex.n_vertices
+            buffers = self.buffers
+
+            def held(m: int) -> np.ndarray:       # what an op stream is read against
+                if m >= buffers.materials:
+                    raise wire.WireError(f"material {m} out of range: the mesh has {buffers.materials} materials")
+                return buffers.buffer(c, m)
+
             for sd in cf.surfaces:
-                surface = wire.decode_surface(sd, n)
+                surface = wire.decode_surface(sd, n, held)
                 self.buffers.apply(c, surface)
                 cam.surfaces.append(surface)
                 cam.triangles_written += len(surface.slots)

@@ -139,7 +139,8 @@ class Client:
                 fov_y: float | None = None, tolerance_px: float | None = None, cull: bool | None = None,
                 backface: bool | None = None, max_ops: int | None = None, max_faces: int | None = None,
                 ack_window: int = 0, retries: int = 6, timeout: float = 30.0, cache_vertices: int | None = None,
-                cache_strategy: str | None = None, cache_pq_fraction: float | None = None) -> "Session":
+                cache_strategy: str | None = None, cache_pq_fraction: float | None = None,
+                frame_encoding: str = "ops") -> "Session":
         """Open a session and wait for its vertex buffer (from the cache when it holds it).
 
         Options left None take the server's defaults (60 degrees, 1 px,
@@ -152,11 +153,16 @@ class Client:
         ``lru``; ``cache_pq_fraction`` for ``lru_pq``, default 0.1). Nothing
         is downloaded up front; :meth:`Session.slots` holds each camera's
         vertices and the index buffers hold slot numbers.
+
+        ``frame_encoding``: ``"ops"`` (the default) asks for op streams, about
+        a quarter of the bytes of ``"raw"`` uint32 writes; a server that does
+        not know them answers raw, which the client reads as well.
         """
         protocol = SessionProtocol(mesh, cameras, refine_options(width, height, fov_y, tolerance_px, cull,
                                                                  backface, max_ops, max_faces),
                                    cache=self.cache, ack_window=ack_window,
-                                   cache_mode=cache_mode(cache_vertices, cache_strategy, cache_pq_fraction))
+                                   cache_mode=cache_mode(cache_vertices, cache_strategy, cache_pq_fraction),
+                                   frame_encoding=frame_encoding)
         session = Session(self, protocol, retries)
         session._open(timeout)
         return session

@@ -50,6 +50,7 @@ class Sessions:
                           f"{', '.join(self.catalogue.names())} (see ListMeshes)")
         view_options, budgets = self._options(msg.options)
         cache = self._cache(msg, served)
+        ops = msg.frame_encoding == pb.FRAME_ENCODING_OPS      # an encoding we do not know: RAW (the proto says so)
         self.ready.wait()
         with self.lock:
             if self.draining:                # drained while this Open waited for the kernels
@@ -70,7 +71,7 @@ class Sessions:
                                   f"resume of a session with cache {_describe_cache(old.cache)} by an Open asking for "
                                   f"{_describe_cache(cache)}; resume with the same cache_vertices, cache_strategy and "
                                   "cache_pq_fraction")
-                generation = old.attach(msg.last_frame_seq, view_options)
+                generation = old.attach(msg.last_frame_seq, view_options, ops=ops)
                 self._gauges()
                 return old, generation, True
             if not 1 <= msg.cameras <= self.config.max_cameras:
@@ -83,7 +84,7 @@ class Sessions:
             window = msg.ack_window or self.config.ack_window
             session = Session(secrets.token_urlsafe(24), served, view_options, budgets, msg.cameras,
                               min(max(window, 1), MAX_ACK_WINDOW), self.config.settle_seconds, self.metrics,
-                              client=msg.client[:80], cache=cache)
+                              client=msg.client[:80], cache=cache, ops=ops)
             self.sessions[session.token] = session
             generation = session.attach(0)
             self._gauges()

@@ -132,7 +132,8 @@ class LodService:
             view_options=session.view_options, budgets=session.budgets, cameras=session.n_cameras,
             ack_window=session.ack_window, resume_ttl_s=self.sessions.config.resume_ttl,
             last_frame_seq=session.frame_seq if resumed else 0,
-            last_pose_seq=session.last_pose_seq if resumed else 0, cache=session.cache)
+            last_pose_seq=session.last_pose_seq if resumed else 0, cache=session.cache,
+            frame_encoding=session.frame_encoding)
         self.metrics.bytes_out(info.ByteSize())
         yield info
         if not cached and session.cache is None:

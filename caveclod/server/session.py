@@ -35,6 +35,7 @@ from .. import wire
 from ..checksums import SlotChecksum
 from ..errors import InputError
 from ..refine.view import View
+from .held import HeldBuffers
 from ..v1 import caveclod_pb2 as pb
 
 
@@ -86,10 +87,11 @@ class Session:
         cache: cache mode ``{vertices, strategy, pq_fraction}`` (checked:
             :meth:`.registry.Sessions._cache`), or None for a resident
             vertex buffer. Each camera has a cache of its own.
+        ops: send op streams (FRAME_ENCODING_OPS) rather than raw writes.
     """
 
     def __init__(self, token: str, served, view_options: dict, budgets: tuple, cameras: int, ack_window: int,
-                 settle: float, hooks, client: str = "", cache: dict | None = None):
+                 settle: float, hooks, client: str = "", cache: dict | None = None, ops: bool = False):
         self.token, self.served, self.client = token, served, client
         self.view_options, self.budgets = view_options, budgets
         self.ack_window, self.settle, self.hooks = ack_window, settle, hooks
@@ -120,6 +122,20 @@ class Session:
         self.keyframes: set[int] = set(range(cameras))          # frame 1 is a keyframe of every camera
         self.wakers: list = []       # callbacks that wake a waiting writer (any thread)
         self.frame_cpu = 1.0         # recent seconds to make a frame (an average); a first frame is not cheap
+        self.held: list[HeldBuffers] | None = None     # OPS: what each camera's client holds
+        self._set_encoding(ops)
+
+    def _set_encoding(self, ops: bool) -> None:
+        """Op streams on or off; turning them on starts from a keyframe of every camera."""
+        if ops and self.held is None:
+            self.held = [HeldBuffers(self.n_materials) for _ in self.cams]
+            self.keyframes.update(range(self.n_cameras))
+        elif not ops:
+            self.held = None
+
+    @property
+    def frame_encoding(self) -> int:
+        return pb.FRAME_ENCODING_OPS if self.held is not None else pb.FRAME_ENCODING_RAW
 
     @property
     def cheap(self) -> bool:
@@ -133,10 +149,11 @@ class Session:
     @property
     def nbytes(self) -> int:
         """Bytes of the cameras' states (the static mesh is shared), with their caches' in cache mode."""
-        return sum(c.nbytes for c in self.cams) + sum(c.nbytes + s.terms.nbytes for c, s in zip(self.cached, self.sums))
+        return sum(c.nbytes for c in self.cams) + sum(c.nbytes + s.terms.nbytes for c, s in zip(self.cached, self.sums)) \
+            + sum(h.nbytes for h in self.held or ())
 
     # -- streams --------------------------------------------------------------------
-    def attach(self, last_frame_seq: int, view_options: dict | None = None) -> int:
+    def attach(self, last_frame_seq: int, view_options: dict | None = None, ops: bool | None = None) -> int:
         """Start a stream on this session; returns its generation.
 
         A resumed client that missed frames gets a keyframe of every camera;
@@ -150,6 +167,8 @@ class Session:
             self.acked = self.frame_seq
             if view_options is not None:
                 self.view_options = view_options
+            if ops is not None:
+                self._set_encoding(ops)
             self.attached, self.end = True, None
             self._notify()
             return self.generation
@@ -323,16 +342,17 @@ class Session:
                 self.hooks.cached(cd.inserted, cd.hits)
             if keyframe:
                 pass
-            elif cached is None:
-                for m, d in sorted(delta.surfaces.items()):
-                    out.surfaces.append(wire.Surface(m, d.count, d.slots, d.tris,
-                                                     wire.buffer_crc32(cam.index_buffer(m))))
             else:
-                if cd.inserted:
+                if cached is not None and cd.inserted:
                     out.vertices = self._slot_writes(c, cd.slots, cd.vertices)
-                for m, d in sorted(cd.surfaces.items()):
-                    out.surfaces.append(wire.Surface(m, d.count, d.slots, d.tris,
-                                                     wire.buffer_crc32(cached.slot_buffer(m))))
+                surfaces = delta.surfaces if cached is None else cd.surfaces
+                held = self.held[c] if self.held is not None else None
+                for m, d in sorted(surfaces.items()):
+                    buf = cam.index_buffer(m) if cached is None else cached.slot_buffer(m)
+                    s = wire.Surface(m, d.count, d.slots, d.tris, wire.buffer_crc32(buf))
+                    if held is not None:
+                        s.ops = _smaller_ops(held.encode(m, d.count, d.slots, d.tris), s)
+                    out.surfaces.append(s)
         if keyframe and cached is not None:      # the client empties its slots: every active vertex again
             kd = cached.keyframe()
             self.sums[c].reset()
@@ -340,6 +360,8 @@ class Session:
         for m in touched:                        # a keyframe: every material's whole buffer
             buf = cam.index_buffer(m) if cached is None else cached.slot_buffer(m)
             out.surfaces.append(wire.Surface(m, len(buf), np.arange(len(buf), dtype=np.uint32), buf, wire.buffer_crc32(buf)))
+            if self.held is not None:
+                self.held[c].replace(m, buf)
         if self.current[c] is not None:
             out.pose_seq = self.current[c].seq
         return out
@@ -350,6 +372,10 @@ class Session:
         self.sums[c].write(slots, blocks)
         return wire.SlotWrites(slots, blocks, self.sums[c].value)
 
+    def held_buffer(self, camera: int, material: int) -> np.ndarray | None:
+        """OPS: (count, 3) what the server takes camera's client to hold (None: RAW)."""
+        return None if self.held is None else self.held[camera].buffer(material)
+
     def describe(self) -> dict:
         """Fields for the session's log lines."""
         out = {"session": self.token[:8], "mesh": self.served.name, "cameras": self.n_cameras,
@@ -357,3 +383,8 @@ class Session:
         if self.cache is not None:
             out["cache"] = f"{self.cache['vertices']} {self.cache['strategy']}"
         return out
+
+
+def _smaller_ops(ops: bytes, s: wire.Surface) -> bytes | None:
+    """``ops`` when it is smaller than the raw writes and fits a part whole; else None (send raw)."""
+    return ops if len(ops) < s.wire_bytes and len(ops) <= wire.MAX_CHUNK_BYTES // 2 else None

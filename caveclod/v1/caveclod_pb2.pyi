@@ -7,6 +7,12 @@ from typing import ClassVar as _ClassVar, Optional as _Optional, Union as _Union
 
 DESCRIPTOR: _descriptor.FileDescriptor
 
+class FrameEncoding(int, metaclass=_enum_type_wrapper.EnumTypeWrapper):
+    __slots__ = ()
+    FRAME_ENCODING_UNSPECIFIED: _ClassVar[FrameEncoding]
+    FRAME_ENCODING_RAW: _ClassVar[FrameEncoding]
+    FRAME_ENCODING_OPS: _ClassVar[FrameEncoding]
+
 class CacheStrategy(int, metaclass=_enum_type_wrapper.EnumTypeWrapper):
     __slots__ = ()
     CACHE_STRATEGY_UNSPECIFIED: _ClassVar[CacheStrategy]
@@ -40,6 +46,9 @@ class ScalarType(int, metaclass=_enum_type_wrapper.EnumTypeWrapper):
     SCALAR_TYPE_UNSPECIFIED: _ClassVar[ScalarType]
     SCALAR_TYPE_FLOAT32: _ClassVar[ScalarType]
     SCALAR_TYPE_UINT8: _ClassVar[ScalarType]
+FRAME_ENCODING_UNSPECIFIED: FrameEncoding
+FRAME_ENCODING_RAW: FrameEncoding
+FRAME_ENCODING_OPS: FrameEncoding
 CACHE_STRATEGY_UNSPECIFIED: CacheStrategy
 CACHE_STRATEGY_FA: CacheStrategy
 CACHE_STRATEGY_LRU: CacheStrategy
@@ -75,7 +84,7 @@ class ClientMessage(_message.Message):
     def __init__(self, open: _Optional[_Union[Open, _Mapping]] = ..., pose: _Optional[_Union[CameraPose, _Mapping]] = ..., ack: _Optional[_Union[Ack, _Mapping]] = ..., keyframe_request: _Optional[_Union[KeyframeRequest, _Mapping]] = ..., close: _Optional[_Union[Close, _Mapping]] = ...) -> None: ...
 
 class Open(_message.Message):
-    __slots__ = ("mesh", "options", "cameras", "vertex_buffer_hash", "resume_token", "last_frame_seq", "ack_window", "client", "cache_vertices", "cache_strategy", "cache_pq_fraction")
+    __slots__ = ("mesh", "options", "cameras", "vertex_buffer_hash", "resume_token", "last_frame_seq", "ack_window", "client", "cache_vertices", "cache_strategy", "cache_pq_fraction", "frame_encoding")
     MESH_FIELD_NUMBER: _ClassVar[int]
     OPTIONS_FIELD_NUMBER: _ClassVar[int]
     CAMERAS_FIELD_NUMBER: _ClassVar[int]
@@ -87,6 +96,7 @@ class Open(_message.Message):
     CACHE_VERTICES_FIELD_NUMBER: _ClassVar[int]
     CACHE_STRATEGY_FIELD_NUMBER: _ClassVar[int]
     CACHE_PQ_FRACTION_FIELD_NUMBER: _ClassVar[int]
+    FRAME_ENCODING_FIELD_NUMBER: _ClassVar[int]
     mesh: str
     options: RefineOptions
     cameras: int
@@ -98,7 +108,8 @@ class Open(_message.Message):
     cache_vertices: int
     cache_strategy: CacheStrategy
     cache_pq_fraction: float
-    def __init__(self, mesh: _Optional[str] = ..., options: _Optional[_Union[RefineOptions, _Mapping]] = ..., cameras: _Optional[int] = ..., vertex_buffer_hash: _Optional[str] = ..., resume_token: _Optional[str] = ..., last_frame_seq: _Optional[int] = ..., ack_window: _Optional[int] = ..., client: _Optional[str] = ..., cache_vertices: _Optional[int] = ..., cache_strategy: _Optional[_Union[CacheStrategy, str]] = ..., cache_pq_fraction: _Optional[float] = ...) -> None: ...
+    frame_encoding: FrameEncoding
+    def __init__(self, mesh: _Optional[str] = ..., options: _Optional[_Union[RefineOptions, _Mapping]] = ..., cameras: _Optional[int] = ..., vertex_buffer_hash: _Optional[str] = ..., resume_token: _Optional[str] = ..., last_frame_seq: _Optional[int] = ..., ack_window: _Optional[int] = ..., client: _Optional[str] = ..., cache_vertices: _Optional[int] = ..., cache_strategy: _Optional[_Union[CacheStrategy, str]] = ..., cache_pq_fraction: _Optional[float] = ..., frame_encoding: _Optional[_Union[FrameEncoding, str]] = ...) -> None: ...
 
 class RefineOptions(_message.Message):
     __slots__ = ("viewport_width", "viewport_height", "fov_y_deg", "tolerance_px", "cull", "backface", "max_ops", "max_faces")
@@ -169,7 +180,7 @@ class ServerMessage(_message.Message):
     def __init__(self, session_info: _Optional[_Union[SessionInfo, _Mapping]] = ..., vertex_chunk: _Optional[_Union[VertexChunk, _Mapping]] = ..., frame: _Optional[_Union[Frame, _Mapping]] = ...) -> None: ...
 
 class SessionInfo(_message.Message):
-    __slots__ = ("session_token", "resumed", "mesh", "vertex_format", "vertex_buffer_cached", "vertex_payload_crc32", "options", "cameras", "ack_window", "resume_ttl_s", "last_frame_seq", "last_pose_seq", "max_chunk_bytes", "cache_vertices", "cache_strategy", "cache_pq_fraction")
+    __slots__ = ("session_token", "resumed", "mesh", "vertex_format", "vertex_buffer_cached", "vertex_payload_crc32", "options", "cameras", "ack_window", "resume_ttl_s", "last_frame_seq", "last_pose_seq", "max_chunk_bytes", "cache_vertices", "cache_strategy", "cache_pq_fraction", "frame_encoding")
     SESSION_TOKEN_FIELD_NUMBER: _ClassVar[int]
     RESUMED_FIELD_NUMBER: _ClassVar[int]
     MESH_FIELD_NUMBER: _ClassVar[int]
@@ -186,6 +197,7 @@ class SessionInfo(_message.Message):
     CACHE_VERTICES_FIELD_NUMBER: _ClassVar[int]
     CACHE_STRATEGY_FIELD_NUMBER: _ClassVar[int]
     CACHE_PQ_FRACTION_FIELD_NUMBER: _ClassVar[int]
+    FRAME_ENCODING_FIELD_NUMBER: _ClassVar[int]
     session_token: str
     resumed: bool
     mesh: MeshInfo
@@ -202,7 +214,8 @@ class SessionInfo(_message.Message):
     cache_vertices: int
     cache_strategy: CacheStrategy
     cache_pq_fraction: float
-    def __init__(self, session_token: _Optional[str] = ..., resumed: _Optional[bool] = ..., mesh: _Optional[_Union[MeshInfo, _Mapping]] = ..., vertex_format: _Optional[_Union[VertexFormat, _Mapping]] = ..., vertex_buffer_cached: _Optional[bool] = ..., vertex_payload_crc32: _Optional[int] = ..., options: _Optional[_Union[RefineOptions, _Mapping]] = ..., cameras: _Optional[int] = ..., ack_window: _Optional[int] = ..., resume_ttl_s: _Optional[int] = ..., last_frame_seq: _Optional[int] = ..., last_pose_seq: _Optional[int] = ..., max_chunk_bytes: _Optional[int] = ..., cache_vertices: _Optional[int] = ..., cache_strategy: _Optional[_Union[CacheStrategy, str]] = ..., cache_pq_fraction: _Optional[float] = ...) -> None: ...
+    frame_encoding: FrameEncoding
+    def __init__(self, session_token: _Optional[str] = ..., resumed: _Optional[bool] = ..., mesh: _Optional[_Union[MeshInfo, _Mapping]] = ..., vertex_format: _Optional[_Union[VertexFormat, _Mapping]] = ..., vertex_buffer_cached: _Optional[bool] = ..., vertex_payload_crc32: _Optional[int] = ..., options: _Optional[_Union[RefineOptions, _Mapping]] = ..., cameras: _Optional[int] = ..., ack_window: _Optional[int] = ..., resume_ttl_s: _Optional[int] = ..., last_frame_seq: _Optional[int] = ..., last_pose_seq: _Optional[int] = ..., max_chunk_bytes: _Optional[int] = ..., cache_vertices: _Optional[int] = ..., cache_strategy: _Optional[_Union[CacheStrategy, str]] = ..., cache_pq_fraction: _Optional[float] = ..., frame_encoding: _Optional[_Union[FrameEncoding, str]] = ...) -> None: ...
 
 class MeshInfo(_message.Message):
     __slots__ = ("name", "faces", "vertices", "positions", "nodes", "base_faces", "surface_group_ids", "materials", "bounds_min", "bounds_max", "content_hash", "vertex_buffer_hash")
@@ -321,20 +334,22 @@ class VertexWrites(_message.Message):
     def __init__(self, slots: _Optional[bytes] = ..., first_slot: _Optional[int] = ..., data: _Optional[bytes] = ..., slots_checksum: _Optional[int] = ...) -> None: ...
 
 class SurfaceDelta(_message.Message):
-    __slots__ = ("material", "count", "slots", "first_slot", "tris", "crc32")
+    __slots__ = ("material", "count", "slots", "first_slot", "tris", "crc32", "ops")
     MATERIAL_FIELD_NUMBER: _ClassVar[int]
     COUNT_FIELD_NUMBER: _ClassVar[int]
     SLOTS_FIELD_NUMBER: _ClassVar[int]
     FIRST_SLOT_FIELD_NUMBER: _ClassVar[int]
     TRIS_FIELD_NUMBER: _ClassVar[int]
     CRC32_FIELD_NUMBER: _ClassVar[int]
+    OPS_FIELD_NUMBER: _ClassVar[int]
     material: int
     count: int
     slots: bytes
     first_slot: int
     tris: bytes
     crc32: int
-    def __init__(self, material: _Optional[int] = ..., count: _Optional[int] = ..., slots: _Optional[bytes] = ..., first_slot: _Optional[int] = ..., tris: _Optional[bytes] = ..., crc32: _Optional[int] = ...) -> None: ...
+    ops: bytes
+    def __init__(self, material: _Optional[int] = ..., count: _Optional[int] = ..., slots: _Optional[bytes] = ..., first_slot: _Optional[int] = ..., tris: _Optional[bytes] = ..., crc32: _Optional[int] = ..., ops: _Optional[bytes] = ...) -> None: ...
 
 class CameraStats(_message.Message):
     __slots__ = ("splits", "collapses", "update_us", "active_faces", "budget_exhausted", "pose_age_us", "cache_hits", "cache_inserts", "cache_tolerance_px", "updates")

@@ -1,0 +1,168 @@
+"""The compact index-buffer delta ("op stream", FRAME_ENCODING_OPS): the format and its decoder.
+
+Numpy only, so the thin client runs it (the server's encoder is the compiled
+:func:`caveclod.kernels.opstream.encode_and_apply`). The proto's
+``SurfaceDelta.ops`` comment is the specification for other languages; in
+short, a stream of LEB128 varints:
+
+``n`` (the number of slot writes), then ``n`` headers, then the payloads of
+the writes, in slot order. A header is ``(gap << 3) | kind``, where ``gap``
+is the number of slots skipped since the previous write (the first write's
+slot is its gap). Kinds and their payloads, read against the buffer as the
+client holds it *before* this delta (``old``, ``old_count`` rows):
+
+* ``0`` NEW: three vertex deltas; the triangle is the three vertices.
+* ``1`` COPY: ``r``; the triangle is ``old[old_count - 1 - r]`` (the last
+  triangle moved into a hole, mostly).
+* ``2 + k`` CORNER (k = 0, 1, 2): one zigzag delta; the triangle is
+  ``old[slot]`` with corner ``k`` replaced by ``old[slot][k] + delta``.
+* ``5 + 3e + p`` EDGE (e, p = 0, 1, 2): one vertex delta; the previous write
+  must be a NEW triangle ``P``; this one has ``P[(e + 1) % 3]`` at corner
+  ``p``, ``P[e]`` at corner ``(p + 1) % 3`` (P's edge e, reversed: the
+  other face of a split) and the vertex at corner ``(p + 2) % 3``.
+
+Deltas are zigzag-coded (``(d << 1) ^ (d >> 63)``). The vertex deltas of NEW
+and EDGE are chained: each vertex is the previous such vertex of the stream
+(0 at its start) plus its delta.
+
+Because the headers come first and every kind has a fixed payload length,
+a decoder needs no loop per write: numpy reads every varint at once, then
+gathers. Anything inconsistent raises :class:`caveclod.wire.WireError`
+(the client then asks for a keyframe), never a wrong buffer.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+NEW, COPY, CORNER0, EDGE0 = 0, 1, 2, 5
+KIND_BITS = 4
+N_KINDS = EDGE0 + 9                   # kinds 14 and 15 are invalid
+PAYLOAD_VARINTS = np.array([3] + [1] * (N_KINDS - 1), np.int64)   # varints each kind's payload holds
+MAX_VARINT_BYTES = 9                  # 63 bits: more is malformed
+
+
+class OpStreamError(ValueError):
+    """An op stream that does not decode against the buffer it is applied to (one line)."""
+
+
+def read_varints(data: bytes) -> np.ndarray:
+    """Every LEB128 varint of ``data``, at once: (m,) uint64.
+
+    Raises OpStreamError for a truncated last varint or one longer than
+    MAX_VARINT_BYTES.
+    """
+    b = np.frombuffer(data, np.uint8)
+    if len(b) == 0:
+        return np.zeros(0, np.uint64)
+    if b[-1] & 0x80:
+        raise OpStreamError(f"the op stream's last varint is cut off ({len(b)} bytes)")
+    ends = np.flatnonzero(b < 0x80)                      # the last byte of each varint
+    starts = np.empty_like(ends)
+    starts[0] = 0
+    starts[1:] = ends[:-1] + 1
+    lengths = ends - starts + 1
+    if lengths.max() > MAX_VARINT_BYTES:
+        raise OpStreamError(f"a varint of {int(lengths.max())} bytes in the op stream (at most {MAX_VARINT_BYTES})")
+    # Byte i of a varint carries bits 7i .. 7i + 6 of its value.
+    place = np.arange(len(b), dtype=np.int64) - np.repeat(starts, lengths)
+    bits = (b & 0x7F).astype(np.uint64) << (7 * place).astype(np.uint64)
+    return np.add.reduceat(bits, starts)
+
+
+def decode(ops: bytes, old: np.ndarray, count: int, n_vertices: int) -> tuple[np.ndarray, np.ndarray]:
+    """The slot writes an op stream encodes: (slots (n,) uint32, tris (n, 3) uint32).
+
+    Args:
+        ops: the SurfaceDelta's ``ops`` bytes.
+        old: (old_count, 3) uint32, the buffer as the client holds it before
+            this delta (rows of the previous frame; the delta's own writes
+            never read each other).
+        count: the SurfaceDelta's count (the buffer's length after).
+        n_vertices: vertex indices must be below it.
+
+    Raises OpStreamError naming the first thing wrong: a stream that is cut
+    off or too long, an unknown kind, a slot at or past ``count``, a COPY
+    from outside ``old``, a CORNER of a slot ``old`` does not have, a vertex
+    index out of range.
+    """
+    values = read_varints(ops)
+    if len(values) == 0:
+        raise OpStreamError("an empty op stream (it starts with the number of writes)")
+    n = int(values[0])
+    if n > len(values) - 1:
+        raise OpStreamError(f"the op stream announces {n} writes but holds {len(values) - 1} varints")
+    headers, payload = values[1:1 + n], values[1 + n:]
+    kinds = (headers & np.uint64((1 << KIND_BITS) - 1)).astype(np.int64)
+    if n and kinds.max() >= N_KINDS:
+        raise OpStreamError(f"op kind {int(kinds.max())} is unknown (0 NEW, 1 COPY, 2-4 CORNER, 5-13 EDGE)")
+    gaps = headers >> KIND_BITS
+    if n and int(gaps.max()) >= count:
+        raise OpStreamError(f"a slot gap of {int(gaps.max())} in a buffer of {count} triangles")
+    slots = np.cumsum(gaps.astype(np.int64) + 1) - 1
+    if n and int(slots[-1]) >= count:
+        raise OpStreamError(f"slot {int(slots[-1])} past the count {count}")
+    if count > len(old) and int((slots >= len(old)).sum()) != count - len(old):
+        raise OpStreamError(f"the buffer grows from {len(old)} to {count} triangles but not every new slot is written")
+    widths = PAYLOAD_VARINTS[kinds]
+    if int(widths.sum()) != len(payload):
+        raise OpStreamError(f"{n} writes need {int(widths.sum())} payload varints, the stream holds {len(payload)}")
+    first = np.cumsum(widths) - widths                   # each write's first payload varint
+    old_count = len(old)
+    tris = np.empty((n, 3), np.uint32)
+
+    # The chained vertex deltas: every NEW's three and every EDGE's one, in stream order.
+    chained = (kinds == NEW) | (kinds >= EDGE0)
+    vertices = _vertices(payload[np.repeat(chained, widths)], n_vertices)
+    in_chain = np.where(chained, widths, 0)
+    where = np.cumsum(in_chain) - in_chain               # each write's first chained vertex
+
+    new = np.flatnonzero(kinds == NEW)
+    if len(new):
+        tris[new] = vertices[where[new, None] + np.arange(3)]
+    edge = np.flatnonzero(kinds >= EDGE0)
+    if len(edge):
+        if edge[0] == 0 or (kinds[edge - 1] != NEW).any():
+            raise OpStreamError("an EDGE write that does not follow a NEW one")
+        e, p = np.divmod(kinds[edge] - EDGE0, 3)
+        prev = tris[edge - 1]
+        rows = np.arange(len(edge))
+        tris[edge, p] = prev[rows, (e + 1) % 3]
+        tris[edge, (p + 1) % 3] = prev[rows, e]
+        tris[edge, (p + 2) % 3] = vertices[where[edge]]
+    copy = np.flatnonzero(kinds == COPY)
+    if len(copy):
+        r = payload[first[copy]]
+        if int(r.max()) >= old_count:
+            raise OpStreamError(f"a COPY from {int(r.max())} slots before the end of a buffer of {old_count}")
+        tris[copy] = old[old_count - 1 - r.astype(np.int64)]
+    corner = np.flatnonzero((kinds >= CORNER0) & (kinds < EDGE0))
+    if len(corner):
+        s = slots[corner]
+        if int(s.max()) >= old_count:
+            raise OpStreamError(f"a CORNER write to slot {int(s.max())}, which the buffer of {old_count} "
+                                "triangles does not hold yet")
+        k = kinds[corner] - CORNER0
+        tris[corner] = old[s]
+        d = payload[first[corner]]
+        v = old[s, k].astype(np.int64) + _signed(d)
+        if (d >= np.uint64(1 << 34)).any() or int(v.min()) < 0 or int(v.max()) >= n_vertices:
+            raise OpStreamError(f"a CORNER write to a vertex outside the vertex buffer's {n_vertices} vertices")
+        tris[corner, k] = v
+    return slots.astype(np.uint32), tris
+
+
+def _signed(zigzag: np.ndarray) -> np.ndarray:
+    """Zigzag-decoded (n,) uint64 -> int64: 0, 1, 2, 3 ... -> 0, -1, 1, -2 ..."""
+    return (zigzag >> np.uint64(1)).astype(np.int64) ^ -(zigzag & np.uint64(1)).astype(np.int64)
+
+
+def _vertices(deltas: np.ndarray, n_vertices: int) -> np.ndarray:
+    """The chained vertex indices of (m,) zigzag deltas, checked to lie in [0, n_vertices)."""
+    if len(deltas) and int(deltas.max()) >= 1 << 34:
+        raise OpStreamError("a vertex delta too large for any vertex buffer")
+    vertices = np.cumsum(_signed(deltas))
+    if len(vertices) and (int(vertices.min()) < 0 or int(vertices.max()) >= n_vertices):
+        bad = int(vertices.min()) if int(vertices.min()) < 0 else int(vertices.max())
+        raise OpStreamError(f"vertex index {bad} outside the vertex buffer's {n_vertices} vertices")
+    return vertices

@@ -1,0 +1,56 @@
+"""What one camera's client holds, kept by the server to write op streams against.
+
+FRAME_ENCODING_OPS describes a delta by reference to the buffer the client
+holds before it (a COPY of a triangle at another slot, a CORNER re-pointed
+in place), so the server keeps that buffer: 12 bytes per active triangle of
+the camera, only in sessions that asked for op streams. It is updated by the
+same compiled call that writes the stream
+(:func:`caveclod.kernels.opstream.encode_and_apply`), so it is always the
+buffer the frames sent so far produce; the index buffers' CRCs check it.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from ..kernels import opstream as K
+
+
+class HeldBuffers:
+    """The (count, 3) uint32 index buffers of one camera's client, one per material."""
+
+    def __init__(self, materials: int):
+        self.rows = [np.zeros((0, 3), np.uint32) for _ in range(materials)]
+        self.count = np.zeros(materials, np.int64)
+        self._out = np.empty(256, np.uint8)
+
+    def encode(self, material: int, count: int, slots: np.ndarray, tris: np.ndarray) -> bytes:
+        """The op stream of writing ``tris`` (k, 3) into ``slots`` (k,) with the
+        buffer resized to ``count``; the writes are applied to the held buffer."""
+        rows = self.rows[material]
+        if count > len(rows):
+            grown = np.zeros((count + count // 4 + 16, 3), np.uint32)
+            grown[: self.count[material]] = rows[: self.count[material]]
+            self.rows[material] = rows = grown
+        need = 8 + len(slots) * K.MAX_OP_BYTES
+        if len(self._out) < need:
+            self._out = np.empty(need + need // 2, np.uint8)
+        n = K.encode_and_apply(rows, int(self.count[material]), int(count), slots, tris, self._out)
+        self.count[material] = count
+        return self._out[:n].tobytes()
+
+    def replace(self, material: int, buffer: np.ndarray) -> None:
+        """The client's buffer is now ``buffer`` (k, 3) (a keyframe, or a write sent raw)."""
+        k = len(buffer)
+        if k > len(self.rows[material]):
+            self.rows[material] = np.zeros((k + k // 4 + 16, 3), np.uint32)
+        self.rows[material][:k] = buffer
+        self.count[material] = k
+
+    def buffer(self, material: int) -> np.ndarray:
+        """(count, 3) view of what the client holds for ``material``."""
+        return self.rows[material][: self.count[material]]
+
+    @property
+    def nbytes(self) -> int:
+        return int(sum(r.nbytes for r in self.rows)) + self._out.nbytes + self.count.nbytes
