@@ -67,6 +67,7 @@ import numpy as np
 
 import caveclod
 from caveclod import paths, wire
+from caveclod.v1 import caveclod_pb2 as pb
 from caveclod.refine.activevertices import ActiveVertices
 from caveclod.refine.cachedcamera import CachedCamera
 from caveclod.refine.vertexcache import VertexCache, vertex_keys
@@ -231,7 +232,7 @@ class FrameSize:
             stats.update(cache_hits=hits, cache_inserts=0 if writes is None else len(writes.slots),
                          cache_tolerance_px=1.0)
         cam = wire.CameraFrameData(camera=0, pose_seq=1000, surfaces=self.surfaces, stats=stats, vertices=writes)
-        return wire.frame_parts(1000, 1000, 0, [cam])
+        return [pb.ServerMessage.FromString(b) for b in wire.frame_parts(1000, 1000, 0, [cam])]
 
     def cached(self, writes: wire.SlotWrites | None, hits: int) -> int:
         k = 0 if writes is None else len(writes.slots)

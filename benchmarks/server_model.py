@@ -62,9 +62,10 @@ def serve_sync(argv: list) -> int:
             token=session.token, resumed=resumed, mesh=served.info, vertex_format=served.vertex_format,
             vertex_buffer_cached=cached, vertex_payload_crc32=served.payload_crc32,
             view_options=session.view_options, budgets=session.budgets, cameras=session.n_cameras,
-            ack_window=session.ack_window, resume_ttl_s=config.resume_ttl, last_frame_seq=0, last_pose_seq=0)
+            ack_window=session.ack_window, resume_ttl_s=config.resume_ttl, last_frame_seq=0, last_pose_seq=0,
+            frame_encoding=session.frame_encoding).SerializeToString()
         if not cached:
-            yield from served.vertex_chunks()
+            yield from (chunk.SerializeToString() for chunk in served.vertex_chunks())
 
     def session_rpc(requests, context):
         first = next(requests, None)
@@ -114,7 +115,7 @@ def serve_sync(argv: list) -> int:
                     continue
                 parts = session.make_frame(generation)
                 if parts is not None:
-                    metrics.frame_sent(sum(p.ByteSize() for p in parts))
+                    metrics.frame_sent(sum(len(p) for p in parts))
                     yield from parts
         finally:
             sessions.stream_ended(session, generation, end)
@@ -125,8 +126,7 @@ def serve_sync(argv: list) -> int:
                          options=[("grpc.max_receive_message_length", 64 * 1024)])
     server.add_generic_rpc_handlers((grpc.method_handlers_generic_handler(SERVICE, {
         "Session": grpc.stream_stream_rpc_method_handler(
-            session_rpc, request_deserializer=wire.parse_client_message,
-            response_serializer=pb.ServerMessage.SerializeToString),
+            session_rpc, request_deserializer=wire.parse_client_message, response_serializer=None),
         "ListMeshes": grpc.unary_unary_rpc_method_handler(
             lambda request, context: catalogue.listing(), request_deserializer=wire.parse_list_request,
             response_serializer=pb.ListMeshesResponse.SerializeToString)}),))

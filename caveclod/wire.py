@@ -18,7 +18,6 @@ Arrays travel as little-endian ``bytes`` (see the proto's Conventions):
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
 from typing import Iterator, NamedTuple
 
 import numpy as np
@@ -26,10 +25,10 @@ from google.protobuf.message import DecodeError
 
 from . import opstream
 from .checksums import buffer_crc32, payload_crc32  # noqa: F401  (the codec's checksums, re-exported)
+# Frames are written as bytes by caveclod.frames; its types are the codec's, re-exported.
+from .frames import (MAX_CHUNK_BYTES, U32, CameraFrameData, SlotWrites, Surface,  # noqa: F401
+                     frame_parts, is_run, slot_writes_bytes, surface_bytes)
 from .v1 import caveclod_pb2 as pb
-
-MAX_CHUNK_BYTES = 1 << 20          # 1 MiB of array data per VertexChunk or Frame part
-U32 = np.dtype("<u4")
 
 
 class WireError(ValueError):
@@ -148,52 +147,9 @@ def parse_list_request(data: bytes) -> pb.ListMeshesRequest | WireError:
 
 # -- surface deltas ------------------------------------------------------------------
 
-@dataclass
-class Surface:
-    """Slot writes of one (camera, material) index buffer.
-
-    Attributes:
-        material: material id.
-        count: triangles in the buffer after the writes.
-        slots: (k,) uint32 slots written, ascending and unique.
-        tris: (k, 3) uint32 vertex-buffer indices written to them.
-        crc32: CRC-32 of the whole buffer after the frame, or None.
-        ops: the same writes as an op stream (FRAME_ENCODING_OPS,
-            :mod:`caveclod.opstream`), sent instead of slots and tris, or None.
-    """
-
-    material: int
-    count: int
-    slots: np.ndarray
-    tris: np.ndarray
-    crc32: int | None = None
-    ops: bytes | None = None
-
-    @property
-    def wire_bytes(self) -> int:
-        """Bytes of array data this surface puts in a part."""
-        if self.ops is not None:
-            return len(self.ops)
-        return len(self.slots) * (12 if _is_run(self.slots) else 16)
-
-
 def encode_surface(s: Surface) -> pb.SurfaceDelta:
-    """A SurfaceDelta message; consecutive slots travel as ``first_slot``, an op stream as ``ops``."""
-    if s.ops is not None:
-        msg = pb.SurfaceDelta(material=int(s.material), count=int(s.count), ops=s.ops)
-        if s.crc32 is not None:
-            msg.crc32 = int(s.crc32)
-        return msg
-    msg = pb.SurfaceDelta(material=int(s.material), count=int(s.count),
-                          tris=np.ascontiguousarray(s.tris, dtype=U32).tobytes())
-    k = len(s.slots)
-    if k and int(s.slots[-1]) - int(s.slots[0]) == k - 1:     # ascending and unique: a run
-        msg.first_slot = int(s.slots[0])
-    elif k:
-        msg.slots = np.ascontiguousarray(s.slots, dtype=U32).tobytes()
-    if s.crc32 is not None:
-        msg.crc32 = int(s.crc32)
-    return msg
+    """A SurfaceDelta message (what :func:`caveclod.frames.surface_bytes` writes, parsed)."""
+    return pb.SurfaceDelta.FromString(surface_bytes(s))
 
 
 def decode_surface(msg: pb.SurfaceDelta, n_vertices: int, held=None) -> Surface:
@@ -241,40 +197,9 @@ def decode_surface(msg: pb.SurfaceDelta, n_vertices: int, held=None) -> Surface:
 
 # -- vertex slot writes (cache mode) -----------------------------------------------------
 
-@dataclass
-class SlotWrites:
-    """Vertices written into one camera's cache slots.
-
-    Attributes:
-        slots: (k,) uint32 slots written, ascending and unique.
-        blocks: the vertices' attributes: one (k, c) array per attribute of
-            the VertexFormat, in its order (positions, normals, uvs[, colours]).
-        checksum: the camera's slots checksum after the frame
-            (:class:`caveclod.checksums.SlotChecksum`).
-    """
-
-    slots: np.ndarray
-    blocks: list
-    checksum: int = 0
-
-    @property
-    def row_bytes(self) -> int:
-        """Bytes of one vertex's attributes."""
-        return int(sum(b.shape[1] * b.dtype.itemsize for b in self.blocks))
-
-    def piece(self, start: int, stop: int) -> "SlotWrites":
-        return SlotWrites(self.slots[start:stop], [b[start:stop] for b in self.blocks], self.checksum)
-
-
 def encode_slot_writes(w: SlotWrites) -> pb.VertexWrites:
-    """A VertexWrites message: the k vertices as a PLANAR payload; consecutive slots as ``first_slot``."""
-    msg = pb.VertexWrites(data=b"".join(_bytes_of(b).tobytes() for b in w.blocks), slots_checksum=int(w.checksum))
-    k = len(w.slots)
-    if k and int(w.slots[-1]) - int(w.slots[0]) == k - 1:
-        msg.first_slot = int(w.slots[0])
-    elif k:
-        msg.slots = np.ascontiguousarray(w.slots, dtype=U32).tobytes()
-    return msg
+    """A VertexWrites message (what :func:`caveclod.frames.slot_writes_bytes` writes, parsed)."""
+    return pb.VertexWrites.FromString(slot_writes_bytes(w))
 
 
 def decode_slot_writes(msg: pb.VertexWrites, fmt: pb.VertexFormat, n_slots: int) -> SlotWrites:
@@ -308,119 +233,6 @@ def decode_slot_writes(msg: pb.VertexWrites, fmt: pb.VertexFormat, n_slots: int)
         blocks.append(np.frombuffer(msg.data, dtype=dtype, count=k * c, offset=offset).reshape(k, c))
         offset += k * c * dtype.itemsize
     return SlotWrites(slots, blocks, msg.slots_checksum)
-
-
-# -- frames --------------------------------------------------------------------------
-
-@dataclass
-class CameraFrameData:
-    """One camera's share of a frame, before splitting into parts.
-
-    Attributes:
-        camera: camera index.
-        pose_seq: pose the camera is refined for (0: none).
-        keyframe: ``surfaces`` hold every material's full buffer.
-        surfaces: the Surfaces written.
-        stats: CameraStats fields (splits, collapses, update_us, active_faces,
-            budget_exhausted, pose_age_us; in cache mode also cache_hits,
-            cache_inserts, cache_tolerance_px, updates) of the frame's
-            update, or None.
-        vertices: cache mode: the :class:`SlotWrites`, or None.
-    """
-
-    camera: int
-    pose_seq: int
-    keyframe: bool = False
-    surfaces: list = field(default_factory=list)
-    stats: dict | None = None
-    vertices: SlotWrites | None = None
-
-
-def frame_parts(frame_seq: int, pose_seq: int, poses_superseded: int, cameras: list,
-                max_bytes: int = MAX_CHUNK_BYTES) -> list[pb.ServerMessage]:
-    """The ServerMessages of one frame: parts with at most ``max_bytes`` of array data.
-
-    ``cameras`` is a list of :class:`CameraFrameData`. A surface larger than
-    the room left in a part is cut into row ranges; every piece carries the
-    buffer's count and CRC, so each applies on its own (resize, then write).
-    A camera's stats go in the first part that carries it, its keyframe flag
-    in every such part. In cache mode a camera's vertex writes come before
-    its surfaces, cut into row ranges the same way (each piece carries the
-    checksum). Every frame has at least one part.
-    """
-    parts: list[pb.Frame] = []
-    room = 0
-
-    def new_part() -> pb.Frame:
-        nonlocal room
-        parts.append(pb.Frame(frame_seq=frame_seq, pose_seq=pose_seq,
-                              poses_superseded=poses_superseded if not parts else 0))
-        room = max_bytes
-        return parts[-1]
-
-    if max_bytes < 16:
-        raise ValueError(f"max_bytes must hold at least one triangle (16 bytes), got {max_bytes}")
-    part = new_part()
-    for cam in cameras:
-        entry, carried = None, False
-        w = cam.vertices
-        if w is not None:
-            start, k = 0, len(w.slots)
-            per_row = w.row_bytes + (0 if _is_run(w.slots) else 4)
-            if per_row > max_bytes:
-                raise ValueError(f"max_bytes must hold at least one vertex ({per_row} bytes), got {max_bytes}")
-            while True:
-                rows = min(k - start, room // per_row)
-                if rows == 0 and k - start > 0:
-                    part, entry = new_part(), None
-                    continue
-                if entry is None:
-                    entry, carried = _camera_entry(part, cam, with_stats=not carried), True
-                piece = w.piece(start, start + rows)
-                entry.vertices.CopyFrom(encode_slot_writes(piece))
-                room -= rows * per_row
-                start += rows
-                if start >= k:
-                    break
-        for s in cam.surfaces:
-            if s.ops is not None:                # an op stream is not cut: it goes whole in one part
-                if len(s.ops) > room and room < max_bytes:
-                    part, entry = new_part(), None
-                if entry is None:
-                    entry, carried = _camera_entry(part, cam, with_stats=not carried), True
-                entry.surfaces.append(encode_surface(s))
-                room -= len(s.ops)
-                continue
-            start, k = 0, len(s.slots)
-            while True:
-                rows = min(k - start, room // (12 if _is_run(s.slots) else 16))
-                if rows == 0 and k - start > 0:          # no room for a single row: next part
-                    part, entry = new_part(), None
-                    continue
-                if entry is None:
-                    entry, carried = _camera_entry(part, cam, with_stats=not carried), True
-                piece = Surface(s.material, s.count, s.slots[start:start + rows], s.tris[start:start + rows], s.crc32)
-                entry.surfaces.append(encode_surface(piece))
-                room -= rows * (12 if _is_run(piece.slots) else 16)
-                start += rows
-                if start >= k:
-                    break
-        if not carried:                   # no surfaces: the answered pose and stats only
-            _camera_entry(part, cam, with_stats=True)
-    for p in parts[:-1]:
-        p.continued = True
-    return [pb.ServerMessage(frame=p) for p in parts]
-
-
-def _is_run(slots: np.ndarray) -> bool:
-    return len(slots) == 0 or int(slots[-1]) - int(slots[0]) == len(slots) - 1
-
-
-def _camera_entry(part: pb.Frame, cam: CameraFrameData, with_stats: bool) -> pb.CameraFrame:
-    entry = part.cameras.add(camera=cam.camera, pose_seq=cam.pose_seq, keyframe=cam.keyframe)
-    if with_stats and cam.stats is not None:
-        entry.stats.CopyFrom(pb.CameraStats(**cam.stats))
-    return entry
 
 
 # -- the vertex buffer -----------------------------------------------------------------

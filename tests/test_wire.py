@@ -71,7 +71,7 @@ def test_frame_parts_apply_to_the_same_buffers_whatever_the_split(max_bytes):
                  "pose_age_us": 7}
         cams.append(wire.CameraFrameData(camera=c, pose_seq=9 + c, surfaces=surfaces, stats=stats))
     cams.append(wire.CameraFrameData(camera=2, pose_seq=4))             # an answered pose, nothing changed
-    parts = wire.frame_parts(5, 11, 2, cams, max_bytes=max_bytes)
+    parts = [pb.ServerMessage.FromString(b) for b in wire.frame_parts(5, 11, 2, cams, max_bytes=max_bytes)]
     frames = [p.frame for p in parts]
     assert all(f.frame_seq == 5 and f.pose_seq == 11 for f in frames)
     assert [f.continued for f in frames] == [True] * (len(frames) - 1) + [False]
@@ -101,7 +101,8 @@ def test_a_keyframe_in_parts_replaces_what_the_client_held():
     full = {m: rng.integers(0, 1000, size=(n, 3), dtype=np.uint32) for m, n in enumerate((120, 0, 75))}
     surfaces = [wire.Surface(m, len(t), np.arange(len(t), dtype=np.uint32), t, wire.buffer_crc32(t))
                 for m, t in full.items()]
-    parts = wire.frame_parts(9, 0, 0, [wire.CameraFrameData(0, 3, keyframe=True, surfaces=surfaces)], max_bytes=600)
+    parts = [pb.ServerMessage.FromString(b) for b in
+             wire.frame_parts(9, 0, 0, [wire.CameraFrameData(0, 3, keyframe=True, surfaces=surfaces)], max_bytes=600)]
     assert len(parts) > 3 and all(c.keyframe for p in parts for c in p.frame.cameras)
     assert all(s.slots == b"" for p in parts for c in p.frame.cameras for s in c.surfaces)   # runs: no slot arrays
     buffers = IndexBuffers(1, 3)

@@ -116,7 +116,7 @@ def test_a_keyframe_larger_than_a_part_comes_in_pieces_vertices_first():
         surface = wire.Surface(0, 150, np.arange(150, dtype=np.uint32), tris, wire.buffer_crc32(tris))
         cams.append((wire.CameraFrameData(c, 0, keyframe=True, surfaces=[surface],
                                           vertices=wire.SlotWrites(slots, blocks, sums.value)), tris))
-    parts = wire.frame_parts(1, 0, 0, [cam for cam, _ in cams], max_bytes=2000)
+    parts = [pb.ServerMessage.FromString(b) for b in wire.frame_parts(1, 0, 0, [cam for cam, _ in cams], max_bytes=2000)]
     assert len(parts) > 10
     slot_buffers = [SlotBuffer(n, fmt) for _ in range(2)]
     buffers = IndexBuffers(2, 1)

@@ -218,9 +218,12 @@ class CameraState:
         """Refine incrementally for ``view``; returns the index-buffer delta."""
         if not isinstance(view, View):
             raise InputError(f"update() takes a caveclod.View, got {type(view).__name__}")
+        return self.update_params(view.params())
+
+    def update_params(self, vp: np.ndarray) -> Delta:
+        """:meth:`update` for a view's kernel parameters (:func:`caveclod.refine.view.view_params`)."""
         t0 = time.perf_counter()
-        vp = view.params()
-        if not np.isfinite(vp).all():     # a View built around its own checks
+        if not np.isfinite(vp).all():     # a View built around its own checks, or numbers that overflowed
             raise InputError("the view has NaN or infinite numbers; send a finite pose")
         self._advance_odometer(vp)
         self.counts[:] = 0

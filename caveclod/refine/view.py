@@ -85,25 +85,35 @@ class View:
         cached = self.__dict__.get("_params")
         if cached is not None:
             return cached
-        ex, ey, ez = self.eye
-        f = _unit((self.target[0] - ex, self.target[1] - ey, self.target[2] - ez))
-        r = _unit(_cross(f, self.up))
-        u = _cross(r, f)
-        ty = math.tan(math.radians(self.fov_y) / 2.0)
-        tx = ty * self.width / self.height
-        # Inward normals of the four side planes through the eye, and near.
-        normals = [tuple(a * tx + b for a, b in zip(f, r)), tuple(a * tx - b for a, b in zip(f, r)),
-                   tuple(a * ty + b for a, b in zip(f, u)), tuple(a * ty - b for a, b in zip(f, u)), f]
-        out = [ex, ey, ez]
-        for n in normals:
-            n = _unit(n)
-            out += [n[0], n[1], n[2], -(n[0] * ex + n[1] * ey + n[2] * ez)]
-        out += [self.height / (2.0 * ty), float(self.tolerance_px), 1.0 if self.cull else 0.0,
-                1.0 if self.backface else 0.0]
-        vp = np.array(out)
-        vp.flags.writeable = False
+        vp = view_params(self.eye, self.target, self.up, self.fov_y, self.width, self.height, self.tolerance_px,
+                         self.cull, self.backface)
         object.__setattr__(self, "_params", vp)
         return vp
+
+
+def view_params(eye: tuple, target: tuple, up: tuple, fov_y: float, width: int, height: int,
+                tolerance_px: float, cull: bool, backface: bool) -> np.ndarray:
+    """The (P_SIZE,) float64 vector the refinement kernels read, of a pose
+    already checked (:func:`check_pose`) and options already validated (a
+    :class:`View`'s). A server calls it directly for every update, without
+    the View a library user builds."""
+    ex, ey, ez = eye
+    f = _unit((target[0] - ex, target[1] - ey, target[2] - ez))
+    r = _unit(_cross(f, up))
+    u = _cross(r, f)
+    ty = math.tan(math.radians(fov_y) / 2.0)
+    tx = ty * width / height
+    # Inward normals of the four side planes through the eye, and near.
+    normals = [tuple(a * tx + b for a, b in zip(f, r)), tuple(a * tx - b for a, b in zip(f, r)),
+               tuple(a * ty + b for a, b in zip(f, u)), tuple(a * ty - b for a, b in zip(f, u)), f]
+    out = [ex, ey, ez]
+    for n in normals:
+        n = _unit(n)
+        out += [n[0], n[1], n[2], -(n[0] * ex + n[1] * ey + n[2] * ez)]
+    out += [height / (2.0 * ty), float(tolerance_px), 1.0 if cull else 0.0, 1.0 if backface else 0.0]
+    vp = np.array(out)
+    vp.flags.writeable = False
+    return vp
 
 
 def check_pose(eye, target, up) -> tuple[tuple, tuple, tuple]:
@@ -128,6 +138,9 @@ def check_pose(eye, target, up) -> tuple[tuple, tuple, tuple]:
     forward = (target[0] - eye[0], target[1] - eye[1], target[2] - eye[2])
     if _norm(forward) == 0.0:
         raise InputError("View.eye and View.target are the same point; look somewhere")
+    if not (math.isfinite(_norm(forward)) and math.isfinite(_norm(up))):
+        raise InputError("View.eye and View.target are too far apart, or up too long, for the frustum's "
+                         "arithmetic (it overflows); send coordinates of the mesh's scale")
     if _norm(_cross(forward, up)) <= 1e-12 * _norm(forward) * _norm(up):
         raise InputError("View.up is parallel to the viewing direction (or zero); give an up vector across it")
     return eye, target, up

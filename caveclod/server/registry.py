@@ -7,6 +7,7 @@ seconds: a detached session still holds its cameras' memory.
 
 from __future__ import annotations
 
+import math
 import secrets
 import threading
 import time
@@ -18,6 +19,8 @@ from ..errors import InputError
 from ..v1 import caveclod_pb2 as pb
 from .config import MAX_ACK_WINDOW, ServerConfig
 from .session import End, Refused, Session
+
+MAX_BUDGET = (1 << 63) - 1
 
 DRAINED = End(grpc.StatusCode.UNAVAILABLE,
               "the server is shutting down; open a new session, on another replica if there is one", True)
@@ -97,14 +100,19 @@ class Sessions:
         view = {k: opts[k] if opts[k] is not None else wire.OPTION_DEFAULTS.get(k)
                 for k in ("fov_y", "width", "height", "tolerance_px", "cull", "backface")}
         try:
-            View(**view)
+            finite = math.isfinite(sum(View(**view).params()))
         except InputError as exc:
             raise Refused(grpc.StatusCode.INVALID_ARGUMENT, f"Open.options: {exc}") from None
+        if not finite:        # e.g. a field of view so narrow that pixels per unit overflow
+            raise Refused(grpc.StatusCode.INVALID_ARGUMENT,
+                          f"Open.options: fov_y_deg {view['fov_y']} with a viewport {view['height']} pixels high "
+                          "overflows the screen-space error; use a field of view of a degree or more")
         for key in ("max_ops", "max_faces"):
             if opts[key] is not None and opts[key] < 1:
                 raise Refused(grpc.StatusCode.INVALID_ARGUMENT,
                               f"Open.options.{key} is 0; leave it unset for no budget, or give at least 1")
-        max_ops, max_faces = opts["max_ops"], opts["max_faces"]
+        # Budgets past int64 mean "no budget" in effect: clamp them, the kernels count in int64.
+        max_ops, max_faces = (None if opts[k] is None else min(opts[k], MAX_BUDGET) for k in ("max_ops", "max_faces"))
         if self.config.max_ops is not None:
             max_ops = min(max_ops or self.config.max_ops, self.config.max_ops)
         if self.config.max_faces is not None:

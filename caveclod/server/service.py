@@ -110,7 +110,7 @@ class LodService:
                     parts = await loop.run_in_executor(self.workers, session.make_frame, generation)
                 if parts is None:
                     continue
-                self.metrics.frame_sent(sum(part.ByteSize() for part in parts))   # counted as handed to gRPC
+                self.metrics.frame_sent(sum(len(part) for part in parts))   # counted as handed to gRPC
                 for part in parts:
                     await context.write(part)
         finally:
@@ -122,7 +122,7 @@ class LodService:
             await context.abort(end.code, end.message)
 
     def _start(self, session, opened: pb.Open, resumed: bool):
-        """SessionInfo, then the vertex chunks unless the client holds the buffer."""
+        """SessionInfo, then the vertex chunks unless the client holds the buffer (serialized)."""
         served = session.served
         # In cache mode the client holds slots, never the buffer: no chunks.
         cached = session.cache is None and opened.vertex_buffer_hash == served.mesh.vertex_buffer_hash
@@ -134,12 +134,14 @@ class LodService:
             last_frame_seq=session.frame_seq if resumed else 0,
             last_pose_seq=session.last_pose_seq if resumed else 0, cache=session.cache,
             frame_encoding=session.frame_encoding)
-        self.metrics.bytes_out(info.ByteSize())
-        yield info
+        data = info.SerializeToString()
+        self.metrics.bytes_out(len(data))
+        yield data
         if not cached and session.cache is None:
             for chunk in served.vertex_chunks():
-                self.metrics.bytes_out(chunk.ByteSize())
-                yield chunk
+                data = chunk.SerializeToString()
+                self.metrics.bytes_out(len(data))
+                yield data
 
 
 async def _read(requests, stopped: threading.Event, session, generation: int) -> None:
@@ -181,8 +183,8 @@ def add_to_server(service: LodService, server) -> None:
     """
     handlers = {
         "Session": grpc.stream_stream_rpc_method_handler(
-            service.Session, request_deserializer=wire.parse_client_message,
-            response_serializer=pb.ServerMessage.SerializeToString),
+            # Replies are serialized ServerMessages already (frames by caveclod.frames).
+            service.Session, request_deserializer=wire.parse_client_message, response_serializer=None),
         "ListMeshes": grpc.unary_unary_rpc_method_handler(
             service.ListMeshes, request_deserializer=wire.parse_list_request,
             response_serializer=pb.ListMeshesResponse.SerializeToString),

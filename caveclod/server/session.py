@@ -34,12 +34,12 @@ import numpy as np
 from .. import wire
 from ..checksums import SlotChecksum
 from ..errors import InputError
-from ..refine.view import View
+from ..refine.view import View, view_params
 from .held import HeldBuffers
 from ..v1 import caveclod_pb2 as pb
 
 
-CHEAP_SECONDS = 0.002     # frames quicker than this (recent average) are made on the event loop
+CHEAP_SECONDS = 0.002     # frames using less CPU than this (recent average) are made on the event loop
 
 
 class Refused(Exception):
@@ -284,7 +284,7 @@ class Session:
         ServerMessage parts, or None when nothing is due after all (the
         window filled, or another stream took the session)."""
         with self.writer:
-            started = time.perf_counter()
+            started = time.thread_time()
             with self.cond:
                 now = time.monotonic()
                 if generation != self.generation or self._wait_seconds(now) > 0:
@@ -311,7 +311,8 @@ class Session:
             parts = wire.frame_parts(frame_seq, pose_high, superseded, cameras)
             with self.cond:
                 self.frame_seq = frame_seq
-            self.frame_cpu = 0.8 * self.frame_cpu + 0.2 * (time.perf_counter() - started)
+            # CPU, not wall time: a frame that waited for the GIL is not an expensive one.
+            self.frame_cpu = 0.8 * self.frame_cpu + 0.2 * (time.thread_time() - started)
             return parts
 
     def _refine(self, c: int, pose: _Pose | None, fresh: bool, keyframe: bool) -> wire.CameraFrameData:
@@ -321,11 +322,12 @@ class Session:
         out = wire.CameraFrameData(camera=c, pose_seq=0, keyframe=keyframe)
         touched = range(self.n_materials) if keyframe else ()
         if pose is not None:
-            view = View(eye=pose.eye, target=pose.target, up=pose.up, **self.view_options)
             cpu = time.thread_time()
             if cached is None:
-                delta = cam.update(view)
+                # No View object: the pose was checked on arrival, the options at Open.
+                delta = cam.update_params(view_params(pose.eye, pose.target, pose.up, **self.view_options))
             else:
+                view = View(eye=pose.eye, target=pose.target, up=pose.up, **self.view_options)
                 cd = cached.update(view, relax=fresh)     # a new pose may relax a raised tolerance
                 delta = cd.delta
             cpu = time.thread_time() - cpu          # the CPU refinement really used, not wall time
