@@ -108,12 +108,13 @@ class Server:
         self.proc.wait(30)
 
 
-def loadtest(port: int, sessions: int, duration: float, plot: Path | None = None, rate: float = 30.0) -> dict:
-    """Run ``caveclod loadtest`` in a process of its own; its JSON report plus its CPU."""
+def loadtest(port: int, sessions: int, duration: float, plot: Path | None = None, rate: float = 30.0,
+             processes: int = 1, encoding: str = "ops") -> dict:
+    """Run ``caveclod loadtest`` (in ``processes`` processes); its JSON report plus its CPU."""
     cmd = [sys.executable, "-m", "caveclod.cli", "loadtest", "--target", f"127.0.0.1:{port}", "--sessions",
            str(sessions), "--cameras", "1", "--duration", str(duration), "--rate", str(rate), "--trajectory",
            "flyover", "--tolerance", "1", "--width", "1280", "--height", "720", "--fov", "60", "--json", "--samples",
-           "--cache-dir", str(RESULTS / "vertex-cache")]
+           "--cache-dir", str(RESULTS / "vertex-cache"), "--processes", str(processes), "--frame-encoding", encoding]
     if plot is not None:
         cmd += ["--plot", str(plot)]
     proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.DEVNULL, text=True)
@@ -166,7 +167,8 @@ class Sampler:
         return self.peak
 
 
-def capacity(mesh: Path, sessions: int, duration: float, command: list | None = None) -> dict:
+def capacity(mesh: Path, sessions: int, duration: float, command: list | None = None, processes: int = 1,
+             encoding: str = "ops") -> dict:
     """One load level: server (``caveclod serve``, or ``command``) and load generator, with both processes'
     CPU, and the server's memory: idle (mesh mapped, kernels loaded) and the peak under load."""
     server = Server(mesh, "--max-sessions", str(max(64, sessions)), command=command)
@@ -175,7 +177,7 @@ def capacity(mesh: Path, sessions: int, duration: float, command: list | None = 
         m0, cpu0, busy0, t0 = metrics(server.metrics_port), cpu_seconds(server.proc.pid), machine_busy(), \
             time.perf_counter()
         sampler = Sampler(server)
-        report = loadtest(server.port, sessions, duration)
+        report = loadtest(server.port, sessions, duration, processes=processes, encoding=encoding)
         peak = sampler.stop()
         m1, cpu1, busy1, t1 = metrics(server.metrics_port), cpu_seconds(server.proc.pid), machine_busy(), \
             time.perf_counter()
@@ -195,8 +197,11 @@ def capacity(mesh: Path, sessions: int, duration: float, command: list | None = 
     # Whatever else ran on the machine meanwhile (the loadtest's own start-up included): the noise.
     report["other_cpu_cores"] = round((busy1 - busy0) / wall - report["server_cpu_cores"]
                                       - report["client_cpu_cores"], 2)
-    report["server_refine_cpu_cores"] = round(
-        (m1["caveclod_refine_cpu_seconds_total"] - m0["caveclod_refine_cpu_seconds_total"]) / wall, 2)
+    refine = m1["caveclod_refine_cpu_seconds_total"] - m0["caveclod_refine_cpu_seconds_total"]
+    report["server_refine_cpu_cores"] = round(refine / wall, 2)
+    frames = max(report["frames"], 1)
+    report["server_refine_ms_per_frame"] = round(1e3 * refine / frames, 3)
+    report["server_other_ms_per_frame"] = round(1e3 * (cpu1 - cpu0 - refine) / frames, 3)
     report["wall_s"] = round(wall, 1)
     return report
 
@@ -439,6 +444,12 @@ def main() -> int:
     ap.add_argument("--shared-sessions", type=int, default=8,
                     help="sessions on each of the two servers of the shared-mesh section (default 8)")
     ap.add_argument("--out", default=str(RESULTS / "service.json"), help="the JSON report (default results/service.json)")
+    ap.add_argument("--loadtest-processes", type=int, default=1,
+                    help="processes of caveclod loadtest (its --processes; default 1)")
+    ap.add_argument("--frame-encoding", choices=("ops", "raw"), default="ops", help="the load test's (default ops)")
+    ap.add_argument("--baseline", metavar="DIR",
+                    help="a checkout of an older caveclod (e.g. git worktree add DIR REV): its server is measured "
+                         "right after ours at each load level, as capacity_baseline")
     args = ap.parse_args()
     skip = set(filter(None, args.skip.split(",")))
     mesh = mesh_path(args.size)
@@ -446,20 +457,32 @@ def main() -> int:
     out = json.loads(path.read_text()) if skip and path.exists() else {}     # keep the sections not re-run
     out.update({"mesh": f"default --size {args.size}", "machine_cores": os.cpu_count()})
     if "capacity" not in skip:
-        levels = []
+        levels, baseline = [], []
+        servers = [("this", None, levels)]
+        if args.baseline:          # an older checkout's server, run right after ours at each level
+            servers.append(("baseline", [sys.executable, "-c", "import sys; sys.path.insert(0, sys.argv.pop(1)); "
+                                         "from caveclod.cli import main; sys.exit(main())", args.baseline, "serve"],
+                            baseline))
         for n in (int(x) for x in args.sessions.split(",")):
-            r = capacity(mesh, n, args.duration)
-            levels.append(r)
-            print(f"{n:3d} sessions: p50 {r['latency_ms']['p50']} ms  p99 {r['latency_ms']['p99']} ms  "
-                  f"{r['frames_per_second']} frames/s  {r['bytes_per_frame']} B/frame  "
-                  f"{r['bytes_per_changed_triangle']} B/changed tri  divergences {r['divergences']}  "
-                  f"errors {r['errors']}  cpu: server {r['server_cpu_cores']} (refine "
-                  f"{r['server_refine_cpu_cores']}), loadtest {r['client_cpu_cores']}, others "
-                  f"{r['other_cpu_cores']}", file=sys.stderr)
+            for name, command, into in servers:
+                r = capacity(mesh, n, args.duration, command=command, processes=args.loadtest_processes,
+                             encoding=args.frame_encoding)
+                r["server"] = name
+                into.append(r)
+                print(f"{name} {n:3d} sessions: p50 {r['latency_ms']['p50']} ms  p99 {r['latency_ms']['p99']} ms  "
+                      f"{r['frames_per_second']} frames/s  {r['bytes_per_frame']} B/frame  "
+                      f"{r['bytes_per_changed_triangle']} B/changed tri ({r['bytes_per_changed_triangle_steady']} "
+                      f"steady)  divergences {r['divergences']}  errors {r['errors']}  cpu: server "
+                      f"{r['server_cpu_cores']} (refine {r['server_refine_cpu_cores']}; per frame "
+                      f"{r['server_refine_ms_per_frame']} + {r['server_other_ms_per_frame']} ms), loadtest "
+                      f"{r['client_cpu_cores']} ({r['client_cpu_ms_per_frame']} ms a frame), others "
+                      f"{r['other_cpu_cores']}", file=sys.stderr)
         plot(levels, path.with_name(f"{path.stem}_latency.png"))      # service.json: service_latency.png
-        for r in levels:
+        for r in levels + baseline:
             r.pop("latencies_ms")
         out["capacity"] = levels
+        if baseline:
+            out["capacity_baseline"] = {"checkout": args.baseline, "levels": baseline}
     if "parallel" not in skip:
         out["parallel_refinement"] = parallel_refinement(mesh, args.parallel_seconds)
         print(f"parallel refinement: {out['parallel_refinement']}", file=sys.stderr)

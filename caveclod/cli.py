@@ -146,6 +146,11 @@ def _parser() -> argparse.ArgumentParser:
     t.add_argument("--tls-ca", metavar="F", help="PEM CA certificate: connect with TLS and trust it")
     t.add_argument("--cache-dir", help="vertex buffer cache (default $XDG_CACHE_HOME/caveclod/vertex-buffers)")
     _cache_arguments(t, "; the JSON adds vertices_inserted, vertex_bytes_per_frame and cache_hit_rate")
+    t.add_argument("--processes", type=int, default=1, metavar="N",
+                   help="spread the sessions over N processes (one event loop each; default 1): one Python process "
+                        "drives about a core's worth of sessions")
+    t.add_argument("--shard", help=argparse.SUPPRESS)        # I/N: the sessions of one of N processes
+    t.add_argument("--start-at", type=float, help=argparse.SUPPRESS)   # their shared start (time.perf_counter)
     t.add_argument("--frame-encoding", choices=("ops", "raw"), default="ops",
                    help="how index-buffer writes travel: ops (op streams, the default) or raw (uint32 arrays, "
                         "what caveclod.v1 clients before op streams read)")

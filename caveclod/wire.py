@@ -364,7 +364,8 @@ def session_info(*, token: str, resumed: bool, mesh: pb.MeshInfo, vertex_format:
         session_token=token, resumed=resumed, mesh=mesh, vertex_format=vertex_format,
         vertex_buffer_cached=vertex_buffer_cached, vertex_payload_crc32=vertex_payload_crc32, options=options,
         cameras=cameras, ack_window=ack_window, resume_ttl_s=resume_ttl_s, last_frame_seq=last_frame_seq,
-        last_pose_seq=last_pose_seq, max_chunk_bytes=MAX_CHUNK_BYTES, frame_encoding=frame_encoding)
+        last_pose_seq=last_pose_seq, max_chunk_bytes=MAX_CHUNK_BYTES, frame_encoding=frame_encoding,
+        acks_on_poses=True)
     if cache is not None:
         info.cache_vertices = int(cache["vertices"])
         info.cache_strategy = CACHE_STRATEGIES[cache["strategy"]]

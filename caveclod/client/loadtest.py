@@ -34,6 +34,7 @@ from __future__ import annotations
 import asyncio
 import json
 import os
+import subprocess
 import sys
 import time
 from collections import Counter
@@ -75,11 +76,28 @@ class Tally:
     cache_inserts: int = 0
     cache_tolerance_max: float = 0.0
 
+    def merge(self, other: dict) -> None:
+        """Add another process's tally (:meth:`as_dict`) to this one."""
+        for name, value in other.items():
+            if name == "latencies":
+                self.latencies.extend(value)
+            elif name == "errors":
+                self.errors.update(value)
+            elif name == "cache_tolerance_max":
+                self.cache_tolerance_max = max(self.cache_tolerance_max, value)
+            else:
+                setattr(self, name, getattr(self, name) + value)
+
+    def as_dict(self) -> dict:
+        out = dict(self.__dict__)
+        out["errors"] = dict(self.errors)
+        return out
+
 
 async def _fly(session: AsyncSession, index: int, args, lo, hi, t0: float, tally: Tally) -> None:
     """Send poses at args.rate until args.duration seconds after t0."""
     period = 1.0 / args.rate
-    tick = index / max(args.sessions, 1) * period        # stagger sessions over a period
+    tick = index / max(args.sessions, 1) * period        # stagger the sessions (of every process) over a period
     while tick < args.duration:
         delay = t0 + tick - time.perf_counter()
         if delay > 0:
@@ -177,8 +195,10 @@ async def _progress(tally: Tally, args, t0: float) -> None:
               f"errors {sum(tally.errors.values())}", file=sys.stderr, flush=True)
 
 
-async def run(args) -> dict:
-    """Run the load test of ``args`` (the ``caveclod loadtest`` options); returns the figures."""
+async def fly(args, shard: tuple = (0, 1)) -> tuple:
+    """Fly this process's share of the sessions: those whose index is
+    ``shard[0]`` modulo ``shard[1]``. Returns (tally, mesh name, mesh faces,
+    CPU seconds, wall seconds); ``t0`` is shared through ``args.start_at``."""
     token = args.token or os.environ.get("CAVECLOD_TOKEN")
     client = AsyncClient(args.target, token=token, tls_ca=args.tls_ca, cache_dir=args.cache_dir)
     tally = Tally()
@@ -189,15 +209,56 @@ async def run(args) -> dict:
             raise InputError(f"the server has no mesh {args.mesh!r}; it serves {', '.join(names)}")
         mesh = meshes[names.index(args.mesh)] if args.mesh else meshes[0]
         cpu0, wall0 = time.process_time(), time.perf_counter()
-        t0 = time.perf_counter() + 0.5 + 0.02 * args.sessions         # time to open every session first
-        progress = asyncio.ensure_future(_progress(tally, args, t0))
+        # A start time for every session (of every process), after the time to open them all.
+        t0 = getattr(args, "start_at", None) or time.perf_counter() + 0.5 + 0.02 * args.sessions
+        progress = asyncio.ensure_future(_progress(tally, args, t0)) if shard[0] == 0 else None
         try:
-            await asyncio.gather(*(_one(client, i, args, mesh, tally, t0) for i in range(args.sessions)))
+            await asyncio.gather(*(_one(client, i, args, mesh, tally, t0)
+                                   for i in range(shard[0], args.sessions, shard[1])))
         finally:
-            progress.cancel()
+            if progress is not None:
+                progress.cancel()
         cpu, wall = time.process_time() - cpu0, time.perf_counter() - wall0
     finally:
         await client.close()
+    return tally, mesh.name, mesh.faces, cpu, wall
+
+
+def _fly_shards(args) -> tuple:
+    """Run ``args.processes`` processes of ``caveclod loadtest --shard I/N``; their merged tally."""
+    start_at = time.perf_counter() + 1.5 + 0.02 * args.sessions     # processes start, then open their sessions
+    procs = []
+    for i in range(args.processes):
+        cmd = [sys.executable, "-m", "caveclod.cli", "loadtest", *_argv(args), "--shard", f"{i}/{args.processes}",
+               "--start-at", repr(start_at)]
+        procs.append(subprocess.Popen(cmd, stdout=subprocess.PIPE, text=True))
+    tally, name, faces, cpu, wall = Tally(), None, 0, 0.0, 0.0
+    for proc in procs:
+        out, _ = proc.communicate(timeout=args.duration + 300)
+        if proc.returncode not in (0, 1) or not out.strip():
+            raise InputError(f"a loadtest process ended with status {proc.returncode}; its stderr says why")
+        part = json.loads(out)
+        tally.merge(part["tally"])
+        name, faces = part["mesh"], part["mesh_faces"]
+        cpu += part["cpu_seconds"]
+        wall = max(wall, part["wall_seconds"])
+    return tally, name, faces, cpu, wall
+
+
+def _argv(args) -> list:
+    """The options of ``args`` that a shard process runs with (everything but output and processes)."""
+    out = []
+    for name in ("target", "mesh", "sessions", "cameras", "duration", "warmup", "rate", "trajectory", "tolerance",
+                 "width", "height", "fov", "token", "tls_ca", "cache_dir", "cache_vertices", "cache_strategy",
+                 "cache_pq_fraction", "frame_encoding"):
+        value = getattr(args, name, None)
+        if value is not None:
+            out += ["--" + name.replace("_", "-"), str(value)]
+    return out
+
+
+def report(args, tally: Tally, mesh: str, faces: int, cpu: float, wall: float) -> dict:
+    """The figures of a finished load test."""
     lat = np.asarray(tally.latencies) * 1e3
     pct = {k: round(float(np.percentile(lat, q)), 2) if len(lat) else None
            for k, q in (("p50", 50), ("p95", 95), ("p99", 99))}
@@ -211,10 +272,10 @@ async def run(args) -> dict:
                  "cache_hit_rate": round(tally.cache_hits / activated, 4) if activated else None,
                  "cache_tolerance_px_max": tally.cache_tolerance_max}
     return {
-        "target": args.target, "mesh": mesh.name, "mesh_faces": mesh.faces, "sessions": args.sessions,
+        "target": args.target, "mesh": mesh, "mesh_faces": faces, "sessions": args.sessions,
         "cameras": args.cameras, "duration_s": args.duration, "warmup_s": args.warmup, "rate_hz": args.rate, "trajectory": args.trajectory,
         "viewport": [args.width, args.height], "fov_y": args.fov, "tolerance_px": args.tolerance,
-        "frame_encoding": getattr(args, "frame_encoding", "ops"),
+        "frame_encoding": getattr(args, "frame_encoding", "ops"), "processes": getattr(args, "processes", 1),
         "frames": tally.frames, "frames_per_second": round(tally.frames / args.duration, 1),
         "keyframes": tally.keyframes, "poses_sent": tally.poses_sent, "poses_timed": len(lat),
         "latency_ms": pct,
@@ -227,8 +288,14 @@ async def run(args) -> dict:
         "failovers": tally.failovers,
         "errors": dict(tally.errors), **cache,
         "client_cpu_seconds": round(cpu, 2), "client_cpu_cores": round(cpu / wall, 2),
+        "client_cpu_ms_per_frame": round(1e3 * cpu / tally.frames, 3) if tally.frames else None,
         "latencies_ms": lat.round(3).tolist(),
     }
+
+
+async def run(args) -> dict:
+    """Run the load test of ``args`` (the ``caveclod loadtest`` options) in this process; returns the figures."""
+    return report(args, *await fly(args))
 
 
 def main(args) -> int:
@@ -248,20 +315,34 @@ def main(args) -> int:
         print(f"caveclod: error: --cache-vertices must be at least 1 (slots per camera), got {args.cache_vertices}",
               file=sys.stderr)
         return 2
+    processes = getattr(args, "processes", 1)
+    if processes < 1:
+        print(f"caveclod: error: --processes must be at least 1, got {processes}", file=sys.stderr)
+        return 2
+    shard = getattr(args, "shard", None)
     try:
-        report = asyncio.run(run(args))
+        if shard is not None:         # one process of several: print the raw tally for the parent to merge
+            i, n = (int(v) for v in shard.split("/"))
+            tally, mesh, faces, cpu, wall = asyncio.run(fly(args, (i, n)))
+            print(json.dumps({"tally": tally.as_dict(), "mesh": mesh, "mesh_faces": faces, "cpu_seconds": cpu,
+                              "wall_seconds": wall}))
+            return 0
+        if processes > 1:
+            figures = report(args, *_fly_shards(args))
+        else:
+            figures = asyncio.run(run(args))
     except grpc.RpcError as exc:      # ListMeshes failed: no session could start
         print(f"caveclod: error: {args.target}: {exc.code().name}: {exc.details()}", file=sys.stderr)
         return 1
-    latencies = report["latencies_ms"] if args.samples else report.pop("latencies_ms")
+    latencies = figures["latencies_ms"] if args.samples else figures.pop("latencies_ms")
     if args.plot:
-        plot_latency(latencies, report, args.plot)
+        plot_latency(latencies, figures, args.plot)
     if args.json:
-        print(json.dumps(report))
+        print(json.dumps(figures))
     else:
-        for key, value in report.items():
+        for key, value in figures.items():
             print(f"{key:<28} {value}")
-    return 1 if report["divergences"] or report["errors"] else 0
+    return 1 if figures["divergences"] or figures["errors"] else 0
 
 
 def draw_latency_cdf(ax, latencies_ms) -> None:

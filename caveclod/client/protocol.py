@@ -154,6 +154,7 @@ class SessionProtocol:
         self.buffers: IndexBuffers | None = None
         self.last_applied = 0            # frame_seq of the last frame applied in full
         self.last_acked = 0              # frame_seq of the last Ack sent
+        self._ack_due = 0                # an ack waiting for the next pose to carry it (acks_on_poses)
         self.pose_seq = 0                # last pose_seq sent
         self.divergences = 0             # CRC mismatches found
         self.bad_frames = 0
@@ -205,8 +206,11 @@ class SessionProtocol:
         self.pose_seq += 1
         self._sent[camera][self.pose_seq] = time.perf_counter() if now is None else now
         self._latest[camera] = (eye, target, up)
-        return pb.ClientMessage(pose=pb.CameraPose(camera=camera, pose_seq=self.pose_seq, eye=wire.vec3(eye),
-                                                   target=wire.vec3(target), up=wire.vec3(up)))
+        pose = pb.CameraPose(camera=camera, pose_seq=self.pose_seq, eye=wire.vec3(eye), target=wire.vec3(target),
+                             up=wire.vec3(up))
+        if self._ack_due > self.last_acked:        # the pose carries the ack (SessionInfo.acks_on_poses)
+            pose.ack_frame_seq = self.last_acked = self._ack_due
+        return pb.ClientMessage(pose=pose)
 
     def keyframe_message(self, camera: int | None, reason: int, detail: str = "") -> pb.ClientMessage:
         """A KeyframeRequest for ``camera`` (None: all); remembered so it is not repeated."""
@@ -263,6 +267,7 @@ class SessionProtocol:
                 except wire.WireError as exc:
                     raise ProtocolError(str(exc)) from None
         self.last_acked = self.last_applied   # the server restarts its window at every SessionInfo
+        self._ack_due = 0
         self._frame = None
         self.pose_seq = max(self.pose_seq, info.last_pose_seq)
         out = []
@@ -349,10 +354,16 @@ class SessionProtocol:
         self._check_crcs(update, out)
         self.last_applied = update.frame_seq
         # Ack every half window (every frame for a window of 1): the server
-        # never waits, and the stream carries half as many acks.
-        if update.frame_seq - self.last_acked >= max(1, self.info.ack_window // 2):
-            out.append(pb.ClientMessage(ack=pb.Ack(frame_seq=update.frame_seq)))
-            self.last_acked = update.frame_seq
+        # never waits, and the stream carries half as many acks. A server
+        # that reads acks on poses gets them with the next pose, and a plain
+        # Ack only when one more frame without a pose would fill the window.
+        unacked = update.frame_seq - self.last_acked
+        if unacked >= max(1, self.info.ack_window // 2):
+            if self.info.acks_on_poses and unacked < self.info.ack_window - 1:
+                self._ack_due = update.frame_seq
+            else:
+                out.append(pb.ClientMessage(ack=pb.Ack(frame_seq=update.frame_seq)))
+                self.last_acked = update.frame_seq
         return out, update
 
     def _camera_part(self, cf: pb.CameraFrame, update: FrameUpdate, now: float, out: list) -> None:

@@ -20,6 +20,7 @@ from .view import P_BACKFACE, P_CULL, P_EYE, P_KAPPA, P_PLANES, P_TOL, View
 UNLIMITED = np.iinfo(np.int64).max
 REBASE_TURNS = 100.0        # radians the odometer may turn before expiries are rebased
 REBASE_EXTENTS = 100.0      # mesh diagonals it may travel (float32 expiries keep ~1e-5 of it)
+SLACK_RECORDS = 256         # room per material kept beyond the need (28 bytes a record: 7 KB at most)
 
 
 @dataclass
@@ -106,6 +107,8 @@ class CameraState:
         n, p = mesh.n_nodes, mesh.n_faces
         self._faces_of_material, base_count = mesh.material_face_counts()
         self.n_materials = len(base_count)
+        # Room kept beyond the need (SLACK_RECORDS), less on small meshes, where Equation 1 allows little.
+        self._slack = np.minimum(SLACK_RECORDS, self._faces_of_material // 16)
         self.state = np.zeros(n, np.uint8)
         self.face_rec = np.full(p, -1, np.int32)
         self.cnt = np.zeros(self.n_materials, np.int64)
@@ -157,25 +160,31 @@ class CameraState:
         old["off"], old["dirty"] = self.off, self.dirty
         cap = self.cap.copy()
         # Grow by a quarter: a camera's bytes are what adding a camera costs,
-        # so slack is kept small; re-layout is O(active faces) and rare.
-        cap[material] = cap[material] + max(cap[material] // 4, 8)
+        # so slack is kept small; re-layout is O(active faces) and rare
+        # (at least SLACK_RECORDS, or a small material re-lays out the pool
+        # a few faces at a time).
+        cap[material] = cap[material] + max(cap[material] // 4, self._slack[material], 8)
         self._layout(cap, old)
 
     def _trim(self) -> None:
         """Give back room a pass no longer uses (after a jump to a coarser
-        view): what is more than twice the need goes, so that a camera at
-        rest holds the bytes its active counts call for (Equation 1). Run
-        only after an update that changed nothing: a moving camera's counts
-        swing, and trimming then grows the arrays again a moment later."""
+        view): what is more than twice the need and SLACK_RECORDS goes, so
+        that a camera at rest holds the bytes its active counts call for
+        (Equation 1). Run only after an update that changed nothing: a
+        moving camera's counts swing, and trimming then grows the arrays
+        again a moment later. The absolute slack keeps a camera whose counts
+        wobble by a few faces from re-laying out its records back and forth
+        (a flyover at 30 Hz did so on a fifth of its updates, 0.6 ms each)."""
         n = int(self.n_active[0])
-        if len(self.active) > max(2 * n, 32):
+        if len(self.active) > 2 * n + int(self._slack.sum()):
             size = n + n // 4 + 8
             for name in ("active", "texp", "aexp"):
                 setattr(self, name, getattr(self, name)[:size].copy())
-        if (self.cap > 2 * self.cnt + 4).any():
+        wasted = self.cap > 2 * self.cnt + self._slack + 4
+        if wasted.any():
             old = {k: getattr(self, k) for k in RECORD_ARRAYS}
             old["off"], old["dirty"] = self.off, self.dirty
-            self._layout(np.where(self.cap > 2 * self.cnt + 4, self.cnt + self.cnt // 4 + 4, self.cap), old)
+            self._layout(np.where(wasted, self.cnt + self.cnt // 4 + self._slack // 4 + 4, self.cap), old)
 
     def _grow_list(self) -> None:
         size = max(len(self.active) + len(self.active) // 4, 16)
@@ -362,7 +371,7 @@ class CameraState:
     @property
     def nbytes(self) -> int:
         """Bytes this camera owns (the static mesh is shared, not counted)."""
-        arrays = (self.state, self.face_rec, self.rec_tri, self.rec_nbr, self.rec_face, self.dirty,
+        arrays = (self.state, self.face_rec, self.rec_tri, self.rec_nbr, self.rec_face, self.dirty, self._slack,
                   self.active, self.texp, self.aexp, self.n_active, self.queue,
                   self.off, self.cnt, self.cap, self._sent, self.counts, self._resume, self.odo)
         return int(sum(x.nbytes for x in arrays))

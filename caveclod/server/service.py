@@ -8,7 +8,8 @@ has it made on a worker thread (refinement and encoding; the kernels
 release the GIL, so sessions refine on every core). A frame whose session's
 recent frames each took under ``session.CHEAP_SECONDS`` of CPU is made on
 the loop itself: the hand-off to a worker (a future, two thread switches,
-the GIL changing hands) cost more than such a frame. Why grpc.aio and not
+the GIL changing hands) cost more than such a frame; and by the reader, right
+after the pose that asks for it, without waking the writer (:class:`_Stream`). Why grpc.aio and not
 a thread per stream: see the README's "How the server works".
 """
 
@@ -62,60 +63,20 @@ class LodService:
             await context.abort(r.code, r.message)
         logs.event("session.resumed" if resumed else "session.opened", **session.describe(), peer=context.peer())
 
-        loop = asyncio.get_running_loop()
-        loop_thread = threading.get_ident()
-        wake = asyncio.Event()
-        stopped = threading.Event()
-
-        def waker():
-            # The reader runs on the loop: set the event directly there, and
-            # save the self-pipe write that waking the loop from a thread costs.
-            if threading.get_ident() == loop_thread:
-                wake.set()
-            else:
-                loop.call_soon_threadsafe(wake.set)
-
-        def on_done(_):
-            stopped.set()
-            waker()
-
-        context.add_done_callback(on_done)
+        stream = _Stream(session, generation, context, self.workers, self.metrics)
+        context.add_done_callback(stream.on_done)
         with session.cond:
-            session.wakers.append(waker)
-        reader = asyncio.ensure_future(_read(requests, stopped, session, generation))
+            session.wakers.append(stream.waker)
+        reader = asyncio.ensure_future(_read(requests, stream))
         end = End(grpc.StatusCode.CANCELLED, "the stream broke", False)
         try:
             for msg in self._start(session, first.open, resumed):
                 await context.write(msg)
-            while True:
-                wake.clear()                      # before polling: a change after it sets the event again
-                due = session.poll(generation, stopped.is_set)
-                if isinstance(due, End):
-                    end = due
-                    break
-                if due == float("inf"):
-                    await wake.wait()             # a waker (pose, ack, end) or the done callback
-                    continue
-                if due > 0.0:                     # a convergence update is due then
-                    try:
-                        await asyncio.wait_for(wake.wait(), due)
-                    except asyncio.TimeoutError:
-                        pass
-                    continue
-                if session.cheap:
-                    # Handing a frame to a worker costs more than a converged
-                    # camera's update: make cheap frames here (module doc).
-                    parts = session.make_frame(generation)
-                else:
-                    parts = await loop.run_in_executor(self.workers, session.make_frame, generation)
-                if parts is None:
-                    continue
-                self.metrics.frame_sent(sum(len(part) for part in parts))   # counted as handed to gRPC
-                for part in parts:
-                    await context.write(part)
+            end = await stream.write_frames()
         finally:
             with session.cond:
-                session.wakers.remove(waker)
+                session.wakers.remove(stream.waker)
+            stream.close()
             reader.cancel()
             self.sessions.stream_ended(session, generation, end)
         if end.code not in (grpc.StatusCode.OK, grpc.StatusCode.CANCELLED):
@@ -144,8 +105,123 @@ class LodService:
                 yield data
 
 
-async def _read(requests, stopped: threading.Event, session, generation: int) -> None:
-    """The stream's reader: hands each client message to the session.
+class _Stream:
+    """One Session stream's frame making: who makes the next frame, and when.
+
+    Two coroutines share it. The reader (:func:`_read`) hands each client
+    message to the session and then, when the session's frames are cheap
+    (:attr:`.session.Session.cheap`: a converged or slowly moving camera),
+    makes and writes the frames that are due itself, at once: a pose's
+    frame then costs no wake-up of another task, no future and no thread.
+    The writer (:meth:`write_frames`, the RPC's own coroutine) sleeps until
+    woken by what the reader does not see: a convergence update coming due
+    (a timer), the session ended from elsewhere (drain, a resume on another
+    stream, the RPC's end), or a frame that is not cheap, which it makes on
+    a worker thread while the reader goes on taking poses (latest pose
+    wins). ``busy`` says one of the two is making or writing a frame; the
+    other then only sets ``again``, and the busy one polls once more before
+    it stops. Frames are never written by both at once.
+    """
+
+    def __init__(self, session, generation: int, context, workers, metrics):
+        self.session, self.generation, self.context = session, generation, context
+        self.workers, self.metrics = workers, metrics
+        self.loop = asyncio.get_running_loop()
+        self.loop_thread = threading.get_ident()
+        self.wake = asyncio.Event()
+        self.stopped = threading.Event()
+        self.busy = self.again = False
+        self.timer: asyncio.TimerHandle | None = None
+
+    def waker(self) -> None:
+        """Wake the writer (from any thread: the loop's sets the event directly, saving the self-pipe write)."""
+        if threading.get_ident() == self.loop_thread:
+            self.wake.set()
+        else:
+            self.loop.call_soon_threadsafe(self.wake.set)
+
+    def on_done(self, _context) -> None:
+        self.stopped.set()
+        self.waker()
+
+    def close(self) -> None:
+        if self.timer is not None:
+            self.timer.cancel()
+
+    def _arm(self, seconds: float) -> None:
+        """Wake the writer in ``seconds`` (a convergence update comes due); one timer a stream."""
+        if self.timer is not None:
+            self.timer.cancel()
+        self.timer = self.loop.call_later(seconds, self.wake.set)
+
+    async def _write(self, parts: list) -> None:
+        self.metrics.frame_sent(sum(len(part) for part in parts))   # counted as handed to gRPC
+        for part in parts:
+            await self.context.write(part)
+
+    async def frames_from_reader(self) -> None:
+        """After a client message: make and write the frames now due, if they are cheap."""
+        if self.busy:
+            self.again = True
+            return
+        if not self.session.cheap:
+            self.wake.set()               # the writer makes it on a worker; the reader reads on
+            return
+        self.busy = True
+        try:
+            while True:
+                self.again = False
+                due = self.session.poll(self.generation, self.stopped.is_set)
+                if isinstance(due, End):
+                    self.wake.set()       # the writer ends the stream
+                    return
+                if due > 0.0:
+                    if due != float("inf"):
+                        self._arm(due)
+                    if not self.again:
+                        return
+                    continue
+                if not self.session.cheap:
+                    self.wake.set()
+                    return
+                parts = self.session.make_frame(self.generation)
+                if parts is not None:
+                    await self._write(parts)
+        finally:
+            self.busy = False
+
+    async def write_frames(self) -> End:
+        """The writer: frames the reader leaves (timers, costly frames) until the stream ends; its End."""
+        session = self.session
+        while True:
+            self.wake.clear()             # before polling: a change after it sets the event again
+            if self.busy:                 # the reader is at it: have it look once more when done
+                self.again = True
+                await self.wake.wait()
+                continue
+            due = session.poll(self.generation, self.stopped.is_set)
+            if isinstance(due, End):
+                return due
+            if due > 0.0:
+                if due != float("inf"):
+                    self._arm(due)
+                await self.wake.wait()
+                continue
+            self.busy = True
+            try:
+                if session.cheap:
+                    parts = session.make_frame(self.generation)
+                else:
+                    parts = await self.loop.run_in_executor(self.workers, session.make_frame, self.generation)
+                if parts is not None:
+                    await self._write(parts)
+            finally:
+                self.busy = False
+
+
+async def _read(requests, stream: _Stream) -> None:
+    """The stream's reader: hands each client message to the session, then
+    writes the frames that are due when they are cheap (:class:`_Stream`).
 
     A bad message ends the stream (and the session) with the Refused code;
     a half-close is a Close; a broken stream just stops the loop (the
@@ -153,8 +229,10 @@ async def _read(requests, stopped: threading.Event, session, generation: int) ->
     ``stopped``). The request stream of a broken call may end just as a
     half-closed one does, with the cancellation reported a moment later: a
     half-close is one that no cancellation follows within
-    HALF_CLOSE_SECONDS.
+    HALF_CLOSE_SECONDS. A server bug while making a frame ends the stream
+    with INTERNAL and is logged.
     """
+    session, generation = stream.session, stream.generation
     try:
         async for msg in requests:
             if isinstance(msg, wire.WireError):
@@ -162,17 +240,23 @@ async def _read(requests, stopped: threading.Event, session, generation: int) ->
             if msg.WhichOneof("kind") == "keyframe_request":
                 logs.event("keyframe.requested", **session.describe(),
                            reason=pb.KeyframeReason.Name(msg.keyframe_request.reason)
-                           if msg.keyframe_request.reason in pb.KeyframeReason.values() else msg.keyframe_request.reason,
+                           if msg.keyframe_request.reason in pb.KeyframeReason.values() else "other",
                            detail=msg.keyframe_request.detail[:200])
-            if not session.accept(msg, generation):
+            if not session.accept(msg, generation, wake=False):
                 return
+            await stream.frames_from_reader()
         await asyncio.sleep(HALF_CLOSE_SECONDS)
-        if not stopped.is_set():
+        if not stream.stopped.is_set():
             session.finish(CLOSED, generation)
     except Refused as r:
         session.finish(End(r.code, r.message, True), generation)
     except (grpc.RpcError, asyncio.CancelledError):
         pass                               # the stream broke or was cancelled
+    except Exception as exc:               # noqa: BLE001 - a server bug: say so, end this stream only
+        if not stream.stopped.is_set() and not stream.context.done():
+            logs.event("session.error", **session.describe(), error=repr(exc)[:300])
+            session.finish(End(grpc.StatusCode.INTERNAL, f"server error while making a frame: {exc!r}"[:300], True),
+                           generation)
 
 
 def add_to_server(service: LodService, server) -> None:

@@ -192,11 +192,12 @@ class Session:
             self._notify()
 
     # -- the reader's side ----------------------------------------------------------
-    def accept(self, msg: pb.ClientMessage, generation: int) -> bool:
+    def accept(self, msg: pb.ClientMessage, generation: int, wake: bool = True) -> bool:
         """Take one client message after Open; raises Refused for a bad one.
 
         Returns False (and takes nothing) when the stream of ``generation``
-        is no longer the session's: it was resumed elsewhere.
+        is no longer the session's: it was resumed elsewhere. ``wake=False``:
+        do not call the wakers (the caller makes the frame that is due).
         """
         kind = msg.WhichOneof("kind")
         with self.cond:
@@ -205,11 +206,7 @@ class Session:
             if kind == "pose":
                 self._accept_pose(msg.pose)
             elif kind == "ack":
-                if msg.ack.frame_seq > self.frame_seq:
-                    raise Refused(grpc.StatusCode.INVALID_ARGUMENT,
-                                  f"Ack of frame {msg.ack.frame_seq}, but the last frame sent is {self.frame_seq}; "
-                                  "ack only frames you applied")
-                self.acked = max(self.acked, msg.ack.frame_seq)
+                self._ack(msg.ack.frame_seq, "Ack")
             elif kind == "keyframe_request":
                 req = msg.keyframe_request
                 if req.HasField("camera"):
@@ -225,8 +222,19 @@ class Session:
             else:
                 raise Refused(grpc.StatusCode.INVALID_ARGUMENT,
                               "a ClientMessage with no message set; set one of open, pose, ack, keyframe_request, close")
-            self._notify()
+            if wake:
+                self._notify()
+            else:
+                self.cond.notify_all()
             return True
+
+    def _ack(self, frame_seq: int, what: str) -> None:
+        if frame_seq > self.frame_seq:
+            raise Refused(grpc.StatusCode.INVALID_ARGUMENT,
+                          f"{what} of frame {frame_seq}, but the last frame sent is {self.frame_seq}; "
+                          "ack only frames you applied")
+        if frame_seq > self.acked:
+            self.acked = frame_seq
 
     def _notify(self) -> None:
         """Wake whoever waits for this session's state to change (call under ``cond``)."""
@@ -250,6 +258,8 @@ class Session:
             eye, target, up = check_pose(wire.from_vec3(p.eye), wire.from_vec3(p.target), wire.from_vec3(p.up))
         except InputError as exc:
             raise Refused(grpc.StatusCode.INVALID_ARGUMENT, f"CameraPose {p.pose_seq}: {exc}") from None
+        if p.ack_frame_seq:
+            self._ack(p.ack_frame_seq, "CameraPose.ack_frame_seq")
         if self.pending[p.camera] is not None:
             self.superseded += 1          # latest pose wins
         self.pending[p.camera] = _Pose(p.pose_seq, eye, target, up, time.monotonic())

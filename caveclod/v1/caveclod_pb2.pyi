@@ -132,18 +132,20 @@ class RefineOptions(_message.Message):
     def __init__(self, viewport_width: _Optional[int] = ..., viewport_height: _Optional[int] = ..., fov_y_deg: _Optional[float] = ..., tolerance_px: _Optional[float] = ..., cull: _Optional[bool] = ..., backface: _Optional[bool] = ..., max_ops: _Optional[int] = ..., max_faces: _Optional[int] = ...) -> None: ...
 
 class CameraPose(_message.Message):
-    __slots__ = ("camera", "pose_seq", "eye", "target", "up")
+    __slots__ = ("camera", "pose_seq", "eye", "target", "up", "ack_frame_seq")
     CAMERA_FIELD_NUMBER: _ClassVar[int]
     POSE_SEQ_FIELD_NUMBER: _ClassVar[int]
     EYE_FIELD_NUMBER: _ClassVar[int]
     TARGET_FIELD_NUMBER: _ClassVar[int]
     UP_FIELD_NUMBER: _ClassVar[int]
+    ACK_FRAME_SEQ_FIELD_NUMBER: _ClassVar[int]
     camera: int
     pose_seq: int
     eye: Vec3
     target: Vec3
     up: Vec3
-    def __init__(self, camera: _Optional[int] = ..., pose_seq: _Optional[int] = ..., eye: _Optional[_Union[Vec3, _Mapping]] = ..., target: _Optional[_Union[Vec3, _Mapping]] = ..., up: _Optional[_Union[Vec3, _Mapping]] = ...) -> None: ...
+    ack_frame_seq: int
+    def __init__(self, camera: _Optional[int] = ..., pose_seq: _Optional[int] = ..., eye: _Optional[_Union[Vec3, _Mapping]] = ..., target: _Optional[_Union[Vec3, _Mapping]] = ..., up: _Optional[_Union[Vec3, _Mapping]] = ..., ack_frame_seq: _Optional[int] = ...) -> None: ...
 
 class Ack(_message.Message):
     __slots__ = ("frame_seq",)
@@ -180,7 +182,7 @@ class ServerMessage(_message.Message):
     def __init__(self, session_info: _Optional[_Union[SessionInfo, _Mapping]] = ..., vertex_chunk: _Optional[_Union[VertexChunk, _Mapping]] = ..., frame: _Optional[_Union[Frame, _Mapping]] = ...) -> None: ...
 
 class SessionInfo(_message.Message):
-    __slots__ = ("session_token", "resumed", "mesh", "vertex_format", "vertex_buffer_cached", "vertex_payload_crc32", "options", "cameras", "ack_window", "resume_ttl_s", "last_frame_seq", "last_pose_seq", "max_chunk_bytes", "cache_vertices", "cache_strategy", "cache_pq_fraction", "frame_encoding")
+    __slots__ = ("session_token", "resumed", "mesh", "vertex_format", "vertex_buffer_cached", "vertex_payload_crc32", "options", "cameras", "ack_window", "resume_ttl_s", "last_frame_seq", "last_pose_seq", "max_chunk_bytes", "cache_vertices", "cache_strategy", "cache_pq_fraction", "frame_encoding", "acks_on_poses")
     SESSION_TOKEN_FIELD_NUMBER: _ClassVar[int]
     RESUMED_FIELD_NUMBER: _ClassVar[int]
     MESH_FIELD_NUMBER: _ClassVar[int]
@@ -198,6 +200,7 @@ class SessionInfo(_message.Message):
     CACHE_STRATEGY_FIELD_NUMBER: _ClassVar[int]
     CACHE_PQ_FRACTION_FIELD_NUMBER: _ClassVar[int]
     FRAME_ENCODING_FIELD_NUMBER: _ClassVar[int]
+    ACKS_ON_POSES_FIELD_NUMBER: _ClassVar[int]
     session_token: str
     resumed: bool
     mesh: MeshInfo
@@ -215,7 +218,8 @@ class SessionInfo(_message.Message):
     cache_strategy: CacheStrategy
     cache_pq_fraction: float
     frame_encoding: FrameEncoding
-    def __init__(self, session_token: _Optional[str] = ..., resumed: _Optional[bool] = ..., mesh: _Optional[_Union[MeshInfo, _Mapping]] = ..., vertex_format: _Optional[_Union[VertexFormat, _Mapping]] = ..., vertex_buffer_cached: _Optional[bool] = ..., vertex_payload_crc32: _Optional[int] = ..., options: _Optional[_Union[RefineOptions, _Mapping]] = ..., cameras: _Optional[int] = ..., ack_window: _Optional[int] = ..., resume_ttl_s: _Optional[int] = ..., last_frame_seq: _Optional[int] = ..., last_pose_seq: _Optional[int] = ..., max_chunk_bytes: _Optional[int] = ..., cache_vertices: _Optional[int] = ..., cache_strategy: _Optional[_Union[CacheStrategy, str]] = ..., cache_pq_fraction: _Optional[float] = ..., frame_encoding: _Optional[_Union[FrameEncoding, str]] = ...) -> None: ...
+    acks_on_poses: bool
+    def __init__(self, session_token: _Optional[str] = ..., resumed: _Optional[bool] = ..., mesh: _Optional[_Union[MeshInfo, _Mapping]] = ..., vertex_format: _Optional[_Union[VertexFormat, _Mapping]] = ..., vertex_buffer_cached: _Optional[bool] = ..., vertex_payload_crc32: _Optional[int] = ..., options: _Optional[_Union[RefineOptions, _Mapping]] = ..., cameras: _Optional[int] = ..., ack_window: _Optional[int] = ..., resume_ttl_s: _Optional[int] = ..., last_frame_seq: _Optional[int] = ..., last_pose_seq: _Optional[int] = ..., max_chunk_bytes: _Optional[int] = ..., cache_vertices: _Optional[int] = ..., cache_strategy: _Optional[_Union[CacheStrategy, str]] = ..., cache_pq_fraction: _Optional[float] = ..., frame_encoding: _Optional[_Union[FrameEncoding, str]] = ..., acks_on_poses: _Optional[bool] = ...) -> None: ...
 
 class MeshInfo(_message.Message):
     __slots__ = ("name", "faces", "vertices", "positions", "nodes", "base_faces", "surface_group_ids", "materials", "bounds_min", "bounds_max", "content_hash", "vertex_buffer_hash")
