@@ -206,12 +206,13 @@ def capacity(mesh: Path, sessions: int, duration: float, command: list | None = 
     return report
 
 
-def parallel_refinement(mesh: Path, seconds: float, pose_hz: float = 200.0) -> dict:
+def parallel_refinement(mesh: Path, seconds: float, pose_hz: float = 500.0) -> dict:
     """2 sessions whose camera jumps between far poses: the cores their refinement used.
 
-    Each session's client sends a pose every 1 / pose_hz seconds, alternating
+    Each session's client keeps a new pose always pending: it sends one
+    every 1 / pose_hz seconds (faster than an update takes), alternating
     between two far points of its camera's circle, without waiting for
-    frames: the latest pose wins, so the server always has a pose to refine
+    frames; the latest pose wins, so the server always has a pose to refine
     for and each update is a large one. The clients parse each frame only to
     ack it (an applying client would compete for this machine's two cores
     with the refinement it measures); the server still encodes every frame
@@ -242,9 +243,10 @@ def parallel_refinement(mesh: Path, seconds: float, pose_hz: float = 200.0) -> d
                                     response_deserializer=pb.ServerMessage.FromString)(iter(requests.get, None))
 
             def send_poses() -> None:
-                seq, t = 0, 0.0
+                seq = 0
                 while not stop.wait(1.0 / pose_hz):
-                    seq, t = seq + 1, 30.0 - t            # the far side of the camera's circle
+                    seq += 1
+                    t = 30.0 * (seq % 2)                  # the far side of the camera's circle, then back
                     eye, target, up = flyover(lo, hi, k, t + 0.001 * seq)
                     requests.put(pb.ClientMessage(pose=pb.CameraPose(camera=0, pose_seq=seq, eye=vec(eye),
                                                                      target=vec(target), up=vec(up))))

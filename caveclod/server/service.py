@@ -191,32 +191,45 @@ class _Stream:
             self.busy = False
 
     async def write_frames(self) -> End:
-        """The writer: frames the reader leaves (timers, costly frames) until the stream ends; its End."""
+        """The writer: frames the reader leaves (timers, costly frames) until the stream ends; its End.
+
+        A costly frame's successor, when a pose for it is already waiting,
+        is started on a worker before the frame is written: the session
+        refines its next pose while its previous frame goes out.
+        """
         session = self.session
+        ahead = None                      # the next frame, being made on a worker
         while True:
-            self.wake.clear()             # before polling: a change after it sets the event again
-            if self.busy:                 # the reader is at it: have it look once more when done
-                self.again = True
-                await self.wake.wait()
-                continue
-            due = session.poll(self.generation, self.stopped.is_set)
-            if isinstance(due, End):
-                return due
-            if due > 0.0:
-                if due != float("inf"):
-                    self._arm(due)
-                await self.wake.wait()
-                continue
+            if ahead is None:
+                self.wake.clear()         # before polling: a change after it sets the event again
+                if self.busy:             # the reader is at it: have it look once more when done
+                    self.again = True
+                    await self.wake.wait()
+                    continue
+                due = session.poll(self.generation, self.stopped.is_set)
+                if isinstance(due, End):
+                    return due
+                if due > 0.0:
+                    if due != float("inf"):
+                        self._arm(due)
+                    await self.wake.wait()
+                    continue
             self.busy = True
             try:
-                if session.cheap:
+                if ahead is not None:
+                    parts, ahead = await ahead, None
+                elif session.cheap:
                     parts = session.make_frame(self.generation)
                 else:
                     parts = await self.loop.run_in_executor(self.workers, session.make_frame, self.generation)
+                if parts is not None and not session.cheap \
+                        and session.poll(self.generation, self.stopped.is_set) == 0.0:
+                    ahead = self.loop.run_in_executor(self.workers, session.make_frame, self.generation)
                 if parts is not None:
                     await self._write(parts)
             finally:
-                self.busy = False
+                if ahead is None:
+                    self.busy = False
 
 
 async def _read(requests, stream: _Stream) -> None:

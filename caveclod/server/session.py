@@ -39,7 +39,9 @@ from .held import HeldBuffers
 from ..v1 import caveclod_pb2 as pb
 
 
-CHEAP_SECONDS = 0.002     # frames using less CPU than this (recent average) are made on the event loop
+CHEAP_SECONDS = 0.0003    # frames using less CPU than this (recent average) are made on the event loop:
+                          # about what handing one to a worker costs; anything longer would hold every
+                          # other stream up while the loop made it
 
 
 class Refused(Exception):
