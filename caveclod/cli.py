@@ -108,6 +108,12 @@ def _parser() -> argparse.ArgumentParser:
     s.add_argument("--tls-key", metavar="F", help="PEM private key of --tls-cert")
     s.add_argument("--log-format", choices=("text", "json"), default="text",
                    help="one line per session event on stderr, as text or JSON (default text)")
+    s.add_argument("--processes", type=int, default=1, metavar="N",
+                   help="N server processes on the one port (SO_REUSEPORT), each with its own event loop, under a "
+                        "supervisor that drains them together and sums their metrics (default 1); --max-sessions "
+                        "is per process")
+    s.add_argument("--reuse-port", action="store_true", help=argparse.SUPPRESS)      # a process of --processes
+    s.add_argument("--announce-metrics", action="store_true", help=argparse.SUPPRESS)  # its metrics port on stdout
     s.set_defaults(run=_serve)
 
     h = sub.add_parser("health", help="ask a server's gRPC health service whether it serves (exit 0) or not (1)",
@@ -149,6 +155,9 @@ def _parser() -> argparse.ArgumentParser:
     t.add_argument("--processes", type=int, default=1, metavar="N",
                    help="spread the sessions over N processes (one event loop each; default 1): one Python process "
                         "drives about a core's worth of sessions")
+    t.add_argument("--connections", type=int, metavar="N",
+                   help="gRPC connections the sessions share (default: one per session, as viewers have; a "
+                        "server's --processes spreads connections, not streams)")
     t.add_argument("--shard", help=argparse.SUPPRESS)        # I/N: the sessions of one of N processes
     t.add_argument("--start-at", type=float, help=argparse.SUPPRESS)   # their shared start (time.perf_counter)
     t.add_argument("--frame-encoding", choices=("ops", "raw"), default="ops",

@@ -212,12 +212,21 @@ async def fly(args, shard: tuple = (0, 1)) -> tuple:
         # A start time for every session (of every process), after the time to open them all.
         t0 = getattr(args, "start_at", None) or time.perf_counter() + 0.5 + 0.02 * args.sessions
         progress = asyncio.ensure_future(_progress(tally, args, t0)) if shard[0] == 0 else None
+        mine = range(shard[0], args.sessions, shard[1])
+        # Viewers each have a connection of their own (and a server of several
+        # processes spreads connections, not streams): a channel per session
+        # unless --connections says fewer.
+        connections = max(1, min(getattr(args, "connections", None) or len(mine), len(mine)))
+        clients = [client] + [AsyncClient(args.target, token=token, tls_ca=args.tls_ca, cache_dir=args.cache_dir)
+                              for _ in range(connections - 1)]
         try:
-            await asyncio.gather(*(_one(client, i, args, mesh, tally, t0)
-                                   for i in range(shard[0], args.sessions, shard[1])))
+            await asyncio.gather(*(_one(clients[k % connections], i, args, mesh, tally, t0)
+                                   for k, i in enumerate(mine)))
         finally:
             if progress is not None:
                 progress.cancel()
+            for c in clients[1:]:
+                await c.close()
         cpu, wall = time.process_time() - cpu0, time.perf_counter() - wall0
     finally:
         await client.close()
@@ -248,7 +257,8 @@ def _fly_shards(args) -> tuple:
 def _argv(args) -> list:
     """The options of ``args`` that a shard process runs with (everything but output and processes)."""
     out = []
-    for name in ("target", "mesh", "sessions", "cameras", "duration", "warmup", "rate", "trajectory", "tolerance",
+    for name in ("target", "mesh", "sessions", "connections", "cameras", "duration", "warmup", "rate", "trajectory",
+                 "tolerance",
                  "width", "height", "fov", "token", "tls_ca", "cache_dir", "cache_vertices", "cache_strategy",
                  "cache_pq_fraction", "frame_encoding"):
         value = getattr(args, name, None)
@@ -276,6 +286,7 @@ def report(args, tally: Tally, mesh: str, faces: int, cpu: float, wall: float) -
         "cameras": args.cameras, "duration_s": args.duration, "warmup_s": args.warmup, "rate_hz": args.rate, "trajectory": args.trajectory,
         "viewport": [args.width, args.height], "fov_y": args.fov, "tolerance_px": args.tolerance,
         "frame_encoding": getattr(args, "frame_encoding", "ops"), "processes": getattr(args, "processes", 1),
+        "connections": getattr(args, "connections", None) or args.sessions,
         "frames": tally.frames, "frames_per_second": round(tally.frames / args.duration, 1),
         "keyframes": tally.keyframes, "poses_sent": tally.poses_sent, "poses_timed": len(lat),
         "latency_ms": pct,

@@ -44,6 +44,10 @@ CHANNEL_OPTIONS = [
     ("grpc.http2.max_pings_without_data", 0),
     ("grpc.http2.min_time_between_pings_ms", 20_000),
     ("grpc.max_receive_message_length", 8 << 20),
+    # A connection of its own per Client: gRPC otherwise shares one between
+    # channels to the same target in a process, and a server of several
+    # processes (caveclod serve --processes) spreads connections, not streams.
+    ("grpc.use_local_subchannel_pool", 1),
 ]
 RETRIABLE = (grpc.StatusCode.UNAVAILABLE,)     # a broken connection, a draining or restarting server
 

@@ -201,6 +201,7 @@ def grpc_options(config: ServerConfig) -> list:
         # at 1 MiB of array data, so 4 MiB bounds a part with its framing.
         ("grpc.max_receive_message_length", 64 * 1024),
         ("grpc.max_send_message_length", 4 * MiB),
-        # Fail to bind a port that another process holds, instead of sharing it.
-        ("grpc.so_reuseport", 0),
+        # Fail to bind a port that another process holds, instead of sharing
+        # it, unless we are one of the processes of --processes N.
+        ("grpc.so_reuseport", 1 if config.reuse_port else 0),
     ]

@@ -47,6 +47,8 @@ class ServerConfig:
         keepalive_timeout: ... and drops it when no answer comes in this long.
         settle_seconds: pause before a convergence update (see the proto's
             Lod.Session comment): a camera still moving sends a new pose first.
+        reuse_port: share the port with other processes (SO_REUSEPORT; the
+            processes of ``caveclod serve --processes N``).
     """
 
     meshes: list = field(default_factory=list)
@@ -67,3 +69,4 @@ class ServerConfig:
     keepalive_seconds: float = 20.0
     keepalive_timeout: float = 10.0
     settle_seconds: float = 0.05
+    reuse_port: bool = False

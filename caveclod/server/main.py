@@ -32,7 +32,8 @@ def config_from_args(args) -> ServerConfig:
         max_cameras=args.max_cameras, ack_window=args.ack_window, resume_ttl=args.resume_ttl,
         drain_seconds=args.drain_seconds, max_faces=args.max_faces, max_ops=args.max_ops,
         metrics_port=args.metrics_port, metrics_host=args.metrics_host,
-        tokens=read_tokens(args.token_file) if args.token_file else (), tls_cert=tls[0], tls_key=tls[1])
+        tokens=read_tokens(args.token_file) if args.token_file else (), tls_cert=tls[0], tls_key=tls[1],
+        reuse_port=args.reuse_port)
 
 
 def _read(path, flag: str) -> bytes | None:
@@ -47,8 +48,13 @@ def _read(path, flag: str) -> bytes | None:
 def serve(args) -> int:
     """Run the server of ``args`` (see ``caveclod serve --help``); returns the exit status."""
     from .app import LodServer
-    logs.configure(args.log_format)
+    if args.processes < 1:
+        raise InputError(f"--processes must be at least 1, got {args.processes}")
     config = config_from_args(args)
+    if args.processes > 1:
+        from .processes import supervise
+        return supervise(args)
+    logs.configure(args.log_format)
     # Handlers first: a signal that arrives while the server starts (or just
     # after the listening line, which is when a supervisor may send one)
     # must drain it, not interrupt Python.
@@ -59,6 +65,8 @@ def serve(args) -> int:
     print(f"listening on {config.host}:{server.port}", flush=True)
     if server.metrics_port is not None:
         logs.event("server.metrics", port=server.metrics_port)
+        if args.announce_metrics:         # a --processes supervisor reads it here
+            print(f"metrics on {server.metrics_port}", flush=True)
     frozen = False
     while not stop.wait(0.2):        # a timed wait lets the signal handler run
         if not frozen and server.sessions.ready.is_set():

@@ -16,6 +16,7 @@ a thread per stream: see the README's "How the server works".
 from __future__ import annotations
 
 import asyncio
+import os
 import threading
 
 import grpc
@@ -61,7 +62,8 @@ class LodService:
         except Refused as r:
             logs.event("session.refused", code=r.code.name, message=r.message, peer=context.peer())
             await context.abort(r.code, r.message)
-        logs.event("session.resumed" if resumed else "session.opened", **session.describe(), peer=context.peer())
+        logs.event("session.resumed" if resumed else "session.opened", **session.describe(), peer=context.peer(),
+                   pid=os.getpid())           # which process holds it, under --processes
 
         stream = _Stream(session, generation, context, self.workers, self.metrics)
         context.add_done_callback(stream.on_done)
