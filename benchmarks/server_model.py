@@ -12,6 +12,11 @@ the same refinement, the same encoding), differing only in their I/O:
   worker: it waits for work, refines, encodes and writes; a reader thread
   per stream takes poses and acks. Kept here, not in the package, as the
   model measured against.
+* **floor**: not a server of sessions but what gRPC alone costs for their
+  traffic: a grpc.aio server with one coroutine per stream that answers
+  each pose at once with a pre-serialized frame changing nothing (no
+  refinement, no encoding, no bookkeeping). The aio server's CPU per frame
+  less the floor's is what caveclod's own Python costs.
 
 For each load level, the two run one after the other, ``--repeats`` times
 interleaved (sync, aio, sync, aio, ...), so the drift of this shared machine
@@ -145,9 +150,84 @@ def serve_sync(argv: list) -> int:
     return 0
 
 
+def serve_floor(argv: list) -> int:
+    """gRPC's own cost for the same traffic: a grpc.aio server that answers each pose at once
+    with a pre-serialized frame that changes nothing (no refinement, no encoding, one coroutine
+    per stream); SessionInfo and the vertex buffer as ``caveclod serve`` sends them."""
+    import asyncio
+    import os
+
+    import grpc
+    import grpc.aio
+
+    from caveclod import frames, wire
+    from caveclod.cli import _parser
+    from caveclod.server import logs
+    from caveclod.server.main import config_from_args
+    from caveclod.server.meshes import Catalogue
+    from caveclod.server.metrics import Metrics
+    from caveclod.server.service import SERVICE
+    from caveclod.v1 import caveclod_pb2 as pb
+
+    args = _parser().parse_args(["serve", *argv])
+    logs.configure(args.log_format)
+    config = config_from_args(args)
+    catalogue, metrics = Catalogue(config.meshes), Metrics()
+    served = next(iter(catalogue.meshes.values()))
+    view = {"fov_y": 60.0, "width": 1280, "height": 720, "tolerance_px": 1.0, "cull": True, "backface": False}
+
+    async def session(requests, context):
+        first = await requests.__anext__()
+        cached = first.open.vertex_buffer_hash == served.mesh.vertex_buffer_hash
+        await context.write(wire.session_info(
+            token=os.urandom(8).hex(), resumed=False, mesh=served.info, vertex_format=served.vertex_format,
+            vertex_buffer_cached=cached, vertex_payload_crc32=served.payload_crc32, view_options=view,
+            budgets=(None, None), cameras=1, ack_window=config.ack_window, resume_ttl_s=config.resume_ttl,
+            last_frame_seq=0, last_pose_seq=0, frame_encoding=pb.FRAME_ENCODING_OPS).SerializeToString())
+        if not cached:
+            for chunk in served.vertex_chunks():
+                await context.write(chunk.SerializeToString())
+        seq = 0
+        async for msg in requests:
+            kind = msg.WhichOneof("kind")
+            if kind == "pose":
+                seq += 1
+                part, = frames.frame_parts(seq, msg.pose.pose_seq, 0, [frames.CameraFrameData(0, msg.pose.pose_seq)])
+                metrics.frame_sent(len(part))
+                await context.write(part)
+            elif kind == "close":
+                return
+
+    async def run() -> None:
+        server = grpc.aio.server(options=[("grpc.max_receive_message_length", 64 * 1024)])
+        server.add_generic_rpc_handlers((grpc.method_handlers_generic_handler(SERVICE, {
+            "Session": grpc.stream_stream_rpc_method_handler(
+                session, request_deserializer=pb.ClientMessage.FromString, response_serializer=None),
+            "ListMeshes": grpc.unary_unary_rpc_method_handler(
+                lambda request, context: _listing(catalogue), request_deserializer=pb.ListMeshesRequest.FromString,
+                response_serializer=pb.ListMeshesResponse.SerializeToString)}),))
+        port = server.add_insecure_port(f"{config.host}:{config.port}")
+        await server.start()
+        print(f"listening on {config.host}:{port}", flush=True)
+        if config.metrics_port is not None:
+            logs.event("server.metrics", port=metrics.serve(config.metrics_host, config.metrics_port))
+        served.payload_crc32
+        logs.event("server.ready")
+        await server.wait_for_termination()
+
+    asyncio.run(run())
+    return 0
+
+
+async def _listing(catalogue):
+    return catalogue.listing()
+
+
 def main() -> int:
     if len(sys.argv) > 1 and sys.argv[1] == "--serve-sync":
         return serve_sync(sys.argv[2:])
+    if len(sys.argv) > 1 and sys.argv[1] == "--serve-floor":
+        return serve_floor(sys.argv[2:])
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--size", type=int, default=708)
     ap.add_argument("--sessions", default="24,40", help="load levels, comma-separated")
@@ -156,10 +236,11 @@ def main() -> int:
     args = ap.parse_args()
     mesh = mesh_path(args.size)
     sync = [sys.executable, str(Path(__file__).resolve()), "--serve-sync"]
+    floor = [sys.executable, str(Path(__file__).resolve()), "--serve-floor"]
     runs = []
     for repeat in range(args.repeats):
         for n in (int(x) for x in args.sessions.split(",")):
-            for model, command in (("aio", None), ("sync", sync)):
+            for model, command in (("aio", None), ("sync", sync), ("floor", floor)):
                 r = capacity(mesh, n, args.duration, command=command)
                 r.pop("latencies_ms")
                 r.update(model=model, repeat=repeat)
@@ -170,7 +251,7 @@ def main() -> int:
                       f"(refine {r['server_refine_cpu_cores']})  loadtest cpu {r['client_cpu_cores']}  "
                       f"errors {r['errors']}", file=sys.stderr, flush=True)
     summary = {}
-    for model in ("aio", "sync"):
+    for model in ("aio", "sync", "floor"):
         for n in sorted({r["sessions"] for r in runs}):
             mine = [r for r in runs if r["model"] == model and r["sessions"] == n]
             med = lambda f: round(statistics.median(f(r) for r in mine), 2)      # noqa: E731

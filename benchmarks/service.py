@@ -64,9 +64,30 @@ def mesh_path(size: int) -> Path:
 
 
 def cpu_seconds(pid: int) -> float:
-    """User + system CPU seconds of a process so far (all its threads)."""
-    fields = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()
-    return (int(fields[11]) + int(fields[12])) / TICK
+    """User + system CPU seconds so far of a process (all its threads) and its children (a
+    ``--processes`` supervisor's servers)."""
+    total = 0.0
+    for p in process_tree(pid):
+        try:
+            fields = Path(f"/proc/{p}/stat").read_text().rsplit(")", 1)[1].split()
+        except OSError:
+            continue
+        total += (int(fields[11]) + int(fields[12])) / TICK
+    return total
+
+
+def process_tree(pid: int) -> list:
+    """``pid`` and its descendants' pids."""
+    out, todo = [], [pid]
+    while todo:
+        p = todo.pop()
+        out.append(p)
+        try:
+            for task in Path(f"/proc/{p}/task").iterdir():
+                todo += [int(c) for c in (task / "children").read_text().split()]
+        except OSError:
+            continue
+    return out
 
 
 def machine_busy() -> float:
@@ -94,12 +115,18 @@ class Server:
             self.stop()
             raise RuntimeError(f"server did not start: {line!r} {self.proc.stderr.read()[-2000:]}")
         self.port = int(line.rsplit(":", 1)[1])
-        while True:
+        # Under --processes N: N processes get ready, then the supervisor
+        # logs its (summed) metrics port just before server.processes.
+        processes = int(extra[extra.index("--processes") + 1]) if "--processes" in extra else 1
+        ready = 0
+        while ready < processes or (processes > 1 and not getattr(self, "supervised", False)):
             event = json.loads(self.proc.stderr.readline())
             if event["event"] == "server.metrics":
                 self.metrics_port = event["port"]
-            if event["event"] == "server.ready":
-                break
+            elif event["event"] == "server.ready":
+                ready += 1
+            elif event["event"] == "server.processes":
+                self.supervised = True
         threading.Thread(target=self.proc.stderr.read, daemon=True).start()    # keep the pipe drained
 
     def stop(self) -> None:
@@ -109,12 +136,13 @@ class Server:
 
 
 def loadtest(port: int, sessions: int, duration: float, plot: Path | None = None, rate: float = 30.0,
-             processes: int = 1, encoding: str = "ops") -> dict:
-    """Run ``caveclod loadtest`` (in ``processes`` processes); its JSON report plus its CPU."""
+             processes: int = 1, encoding: str = "ops", connections: int = 4) -> dict:
+    """Run ``caveclod loadtest`` (in ``processes`` processes, over ``connections`` connections); its JSON report."""
     cmd = [sys.executable, "-m", "caveclod.cli", "loadtest", "--target", f"127.0.0.1:{port}", "--sessions",
            str(sessions), "--cameras", "1", "--duration", str(duration), "--rate", str(rate), "--trajectory",
            "flyover", "--tolerance", "1", "--width", "1280", "--height", "720", "--fov", "60", "--json", "--samples",
-           "--cache-dir", str(RESULTS / "vertex-cache"), "--processes", str(processes), "--frame-encoding", encoding]
+           "--cache-dir", str(RESULTS / "vertex-cache"), "--processes", str(processes), "--frame-encoding", encoding,
+           "--connections", str(connections)]
     if plot is not None:
         cmd += ["--plot", str(plot)]
     proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.DEVNULL, text=True)
@@ -128,17 +156,54 @@ def memory(pid: int) -> dict:
     proportional share of them (MeshPss: each page divided among the processes mapping it); and of
     every mapped file, shared libraries included (RssFile)."""
     out = {"MeshRss": 0, "MeshPss": 0}
-    for line in Path(f"/proc/{pid}/status").read_text().splitlines():
-        if line.startswith(("RssAnon:", "RssFile:")):
-            out[line.split(":")[0]] = int(line.split()[1]) * 1024
-    mesh = False
-    for line in Path(f"/proc/{pid}/smaps").read_text().splitlines():
-        head = line.split()
-        if head and "-" in head[0] and not head[0].endswith(":"):       # a mapping's first line
-            mesh = head[-1].endswith(".cvc")
-        elif mesh and head[0] in ("Rss:", "Pss:"):
-            out["MeshRss" if head[0] == "Rss:" else "MeshPss"] += int(head[1]) * 1024
+    for p in process_tree(pid):                # a --processes supervisor: summed over its servers
+        for line in Path(f"/proc/{p}/status").read_text().splitlines():
+            if line.startswith(("RssAnon:", "RssFile:")):
+                key = line.split(":")[0]
+                out[key] = out.get(key, 0) + int(line.split()[1]) * 1024
+        mesh = False
+        for line in Path(f"/proc/{p}/smaps").read_text().splitlines():
+            head = line.split()
+            if head and "-" in head[0] and not head[0].endswith(":"):       # a mapping's first line
+                mesh = head[-1].endswith(".cvc")
+            elif mesh and head[0] in ("Rss:", "Pss:"):
+                out["MeshRss" if head[0] == "Rss:" else "MeshPss"] += int(head[1]) * 1024
     return out
+
+
+class SteadyWindow:
+    """The server's CPU per frame in steady state: CPU and the server's own frame and refinement
+    counters read at ``start`` (time.perf_counter: after the load test's start-up and first
+    second of refining up from the base mesh) and ``seconds`` later, in a thread."""
+
+    def __init__(self, server: "Server", start: float, seconds: float):
+        self.server, self.start, self.seconds = server, start, max(seconds, 1.0)
+        self.samples: list = []
+        self._thread = threading.Thread(target=self._run, daemon=True)
+        self._thread.start()
+
+    def _sample(self) -> tuple:
+        m = metrics(self.server.metrics_port)
+        return (cpu_seconds(self.server.proc.pid), m["caveclod_frames_total"],
+                m["caveclod_refine_cpu_seconds_total"])
+
+    def _run(self) -> None:
+        for at in (self.start, self.start + self.seconds):
+            time.sleep(max(at - time.perf_counter(), 0.0))
+            try:
+                self.samples.append(self._sample())
+            except (OSError, KeyError, ValueError):
+                return
+
+    def result(self) -> dict:
+        self._thread.join(self.seconds + 30)
+        if len(self.samples) < 2 or self.samples[1][1] <= self.samples[0][1]:
+            return {}
+        (c0, f0, r0), (c1, f1, r1) = self.samples
+        frames = f1 - f0
+        return {"steady_server_refine_ms_per_frame": round(1e3 * (r1 - r0) / frames, 3),
+                "steady_server_other_ms_per_frame": round(1e3 * (c1 - c0 - (r1 - r0)) / frames, 3),
+                "steady_frames_per_second": round(frames / self.seconds, 1)}
 
 
 class Sampler:
@@ -168,17 +233,22 @@ class Sampler:
 
 
 def capacity(mesh: Path, sessions: int, duration: float, command: list | None = None, processes: int = 1,
-             encoding: str = "ops") -> dict:
+             encoding: str = "ops", connections: int = 4, server_processes: int = 1) -> dict:
     """One load level: server (``caveclod serve``, or ``command``) and load generator, with both processes'
-    CPU, and the server's memory: idle (mesh mapped, kernels loaded) and the peak under load."""
-    server = Server(mesh, "--max-sessions", str(max(64, sessions)), command=command)
+    CPU, and the server's memory: idle (mesh mapped, kernels loaded) and the peak under load. The
+    server's CPU is its process tree's (a ``--processes`` supervisor and its servers)."""
+    extra = ["--processes", str(server_processes)] if server_processes > 1 else []
+    server = Server(mesh, "--max-sessions", str(max(64, sessions)), *extra, command=command)
     try:
         idle = memory(server.proc.pid)
         m0, cpu0, busy0, t0 = metrics(server.metrics_port), cpu_seconds(server.proc.pid), machine_busy(), \
             time.perf_counter()
         sampler = Sampler(server)
-        report = loadtest(server.port, sessions, duration, processes=processes, encoding=encoding)
+        window = SteadyWindow(server, start=t0 + 3.0 + 0.02 * sessions + 1.0, seconds=duration - 3.0)
+        report = loadtest(server.port, sessions, duration, processes=processes, encoding=encoding,
+                          connections=connections)
         peak = sampler.stop()
+        report.update(window.result())
         m1, cpu1, busy1, t1 = metrics(server.metrics_port), cpu_seconds(server.proc.pid), machine_busy(), \
             time.perf_counter()
     finally:
@@ -405,11 +475,13 @@ def shared_mesh(mesh: Path, sessions: int, duration: float) -> dict:
                          "files_resident_mib": round(m.get("RssFile", 0) / MiB, 1)} for m in during]}
 
 
-def plot(levels: list, path: Path) -> None:
+def plot(levels: list, path: Path, others: dict | None = None) -> None:
+    """Latency CDFs of ``levels`` (this server); p50/p99 and server CPU per frame against sessions
+    for it and for ``others`` ({name: levels}: a baseline checkout, several processes)."""
     import matplotlib
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
-    fig, (ax, bx) = plt.subplots(1, 2, figsize=(11, 4))
+    fig, (ax, bx, cx) = plt.subplots(1, 3, figsize=(15, 4))
     for r in levels:
         lat = np.sort(np.asarray(r["latencies_ms"]))
         if len(lat):
@@ -418,16 +490,30 @@ def plot(levels: list, path: Path) -> None:
     ax.set_xscale("log")
     ax.set_xlabel("pose -> frame latency (ms, log)")
     ax.set_ylabel("fraction of poses")
-    ax.legend(fontsize=8)
+    ax.set_title("this server", fontsize=9)
+    ax.legend(fontsize=7)
     ax.grid(alpha=0.3)
-    n = [r["sessions"] for r in levels]
-    bx.plot(n, [r["latency_ms"]["p50"] for r in levels], "o-", label="p50")
-    bx.plot(n, [r["latency_ms"]["p99"] for r in levels], "o-", label="p99")
+    series = {"this": levels, **(others or {})}
+    for k, (name, rs) in enumerate(series.items()):
+        n = [r["sessions"] for r in rs]
+        colour = f"C{k}"
+        bx.plot(n, [r["latency_ms"]["p99"] for r in rs], "o-", color=colour, label=f"{name} p99")
+        bx.plot(n, [r["latency_ms"]["p50"] for r in rs], "o:", color=colour, label=f"{name} p50")
+        refine = [r.get("steady_server_refine_ms_per_frame", r["server_refine_ms_per_frame"]) for r in rs]
+        other = [r.get("steady_server_other_ms_per_frame", r["server_other_ms_per_frame"]) for r in rs]
+        cx.plot(n, [a + b for a, b in zip(refine, other)], "o-", color=colour, label=f"{name}: all")
+        cx.plot(n, other, "o:", color=colour, label=f"{name}: outside refinement")
     bx.axhline(50, ls="--", color="grey", lw=0.8)
+    bx.set_yscale("log")
     bx.set_xlabel("sessions at 30 Hz (one camera each)")
-    bx.set_ylabel("pose -> frame latency (ms)")
-    bx.legend(fontsize=8)
+    bx.set_ylabel("pose -> frame latency (ms, log)")
+    bx.legend(fontsize=7)
     bx.grid(alpha=0.3)
+    cx.set_xlabel("sessions at 30 Hz (one camera each)")
+    cx.set_ylabel("server CPU per frame, steady state (ms)")
+    cx.set_ylim(bottom=0)
+    cx.legend(fontsize=7)
+    cx.grid(alpha=0.3)
     fig.suptitle("caveclod serve, 1M-triangle terrain, 1280x720, 1 px, flyover; server and load generator "
                  "on one 2-core machine", fontsize=9)
     fig.tight_layout()
@@ -449,6 +535,11 @@ def main() -> int:
     ap.add_argument("--loadtest-processes", type=int, default=1,
                     help="processes of caveclod loadtest (its --processes; default 1)")
     ap.add_argument("--frame-encoding", choices=("ops", "raw"), default="ops", help="the load test's (default ops)")
+    ap.add_argument("--connections", type=int, default=4,
+                    help="connections the load test's sessions share (its --connections; default 4: enough for "
+                         "a server of several processes to spread, cheaper for the generator than one a session)")
+    ap.add_argument("--server-processes", type=int, default=1,
+                    help="also measure the server as N processes (caveclod serve --processes N) at each level")
     ap.add_argument("--baseline", metavar="DIR",
                     help="a checkout of an older caveclod (e.g. git worktree add DIR REV): its server is measured "
                          "right after ours at each load level, as capacity_baseline")
@@ -459,16 +550,18 @@ def main() -> int:
     out = json.loads(path.read_text()) if skip and path.exists() else {}     # keep the sections not re-run
     out.update({"mesh": f"default --size {args.size}", "machine_cores": os.cpu_count()})
     if "capacity" not in skip:
-        levels, baseline = [], []
-        servers = [("this", None, levels)]
+        levels, baseline, multi = [], [], []
+        servers = [("this", None, 1, levels)]
+        if args.server_processes > 1:       # the same server as N processes (caveclod serve --processes N)
+            servers.append((f"processes {args.server_processes}", None, args.server_processes, multi))
         if args.baseline:          # an older checkout's server, run right after ours at each level
             servers.append(("baseline", [sys.executable, "-c", "import sys; sys.path.insert(0, sys.argv.pop(1)); "
                                          "from caveclod.cli import main; sys.exit(main())", args.baseline, "serve"],
-                            baseline))
+                            1, baseline))
         for n in (int(x) for x in args.sessions.split(",")):
-            for name, command, into in servers:
+            for name, command, nproc, into in servers:
                 r = capacity(mesh, n, args.duration, command=command, processes=args.loadtest_processes,
-                             encoding=args.frame_encoding)
+                             encoding=args.frame_encoding, connections=args.connections, server_processes=nproc)
                 r["server"] = name
                 into.append(r)
                 print(f"{name} {n:3d} sessions: p50 {r['latency_ms']['p50']} ms  p99 {r['latency_ms']['p99']} ms  "
@@ -476,13 +569,18 @@ def main() -> int:
                       f"{r['bytes_per_changed_triangle']} B/changed tri ({r['bytes_per_changed_triangle_steady']} "
                       f"steady)  divergences {r['divergences']}  errors {r['errors']}  cpu: server "
                       f"{r['server_cpu_cores']} (refine {r['server_refine_cpu_cores']}; per frame "
-                      f"{r['server_refine_ms_per_frame']} + {r['server_other_ms_per_frame']} ms), loadtest "
+                      f"{r['server_refine_ms_per_frame']} + {r['server_other_ms_per_frame']} ms; steady "
+                      f"{r.get('steady_server_refine_ms_per_frame')} + {r.get('steady_server_other_ms_per_frame')}"
+                      f" ms), loadtest "
                       f"{r['client_cpu_cores']} ({r['client_cpu_ms_per_frame']} ms a frame), others "
                       f"{r['other_cpu_cores']}", file=sys.stderr)
-        plot(levels, path.with_name(f"{path.stem}_latency.png"))      # service.json: service_latency.png
-        for r in levels + baseline:
+        plot(levels, path.with_name(f"{path.stem}_latency.png"),      # service.json: service_latency.png
+             {name: into for name, _, _, into in servers[1:]})
+        for r in levels + baseline + multi:
             r.pop("latencies_ms")
         out["capacity"] = levels
+        if multi:
+            out["capacity_processes"] = {"processes": args.server_processes, "levels": multi}
         if baseline:
             out["capacity_baseline"] = {"checkout": args.baseline, "levels": baseline}
     if "parallel" not in skip:

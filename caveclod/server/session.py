@@ -39,9 +39,12 @@ from .held import HeldBuffers
 from ..v1 import caveclod_pb2 as pb
 
 
-CHEAP_SECONDS = 0.0003    # frames using less CPU than this (recent average) are made on the event loop:
-                          # about what handing one to a worker costs; anything longer would hold every
-                          # other stream up while the loop made it
+# Frames using less CPU than this (recent average) are made on the event loop;
+# longer ones on a worker, where they refine in parallel but their Python
+# contends with the loop for the GIL. Measured at 64 sessions on 2 cores, p99
+# pose -> frame: 0.3 ms, 73 ms (the loop waiting on workers' GIL); 1 ms, 32-35
+# ms; 2 ms, 59 ms (a jump's 1-2 ms updates holding every stream up in turn).
+CHEAP_SECONDS = 0.001
 
 
 class Refused(Exception):
