@@ -91,14 +91,14 @@ def plot(summary: dict, path: Path) -> None:
     import matplotlib.pyplot as plt
     parts = [("update_ms", "refinement (update)"), ("frame_rest_ms", "delta, checksums, op stream, frame bytes"),
              ("parse_accept_poll_ms", "pose parsed, accepted, session polled")]
-    fig, ax = plt.subplots(figsize=(7, 2.4))
+    fig, ax = plt.subplots(figsize=(10, 2.0))
     left = 0.0
     for key, label in parts:
         ax.barh([0], [summary[key]], left=left, label=f"{label}: {summary[key]:.3f} ms")
         left += summary[key]
     ax.set_yticks([])
     ax.set_xlabel("server CPU per frame outside gRPC (ms, median)")
-    ax.legend(fontsize=8, loc="upper center", bbox_to_anchor=(0.5, -0.45), ncol=1)
+    ax.legend(fontsize=8, loc="upper left", bbox_to_anchor=(1.01, 1.0))
     fig.tight_layout()
     fig.savefig(path, dpi=110)
     plt.close(fig)

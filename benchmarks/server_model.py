@@ -198,13 +198,16 @@ def serve_floor(argv: list) -> int:
             elif kind == "close":
                 return
 
+    async def list_meshes(request, context):
+        return catalogue.listing()
+
     async def run() -> None:
         server = grpc.aio.server(options=[("grpc.max_receive_message_length", 64 * 1024)])
         server.add_generic_rpc_handlers((grpc.method_handlers_generic_handler(SERVICE, {
             "Session": grpc.stream_stream_rpc_method_handler(
                 session, request_deserializer=pb.ClientMessage.FromString, response_serializer=None),
             "ListMeshes": grpc.unary_unary_rpc_method_handler(
-                lambda request, context: _listing(catalogue), request_deserializer=pb.ListMeshesRequest.FromString,
+                list_meshes, request_deserializer=pb.ListMeshesRequest.FromString,
                 response_serializer=pb.ListMeshesResponse.SerializeToString)}),))
         port = server.add_insecure_port(f"{config.host}:{config.port}")
         await server.start()
@@ -217,10 +220,6 @@ def serve_floor(argv: list) -> int:
 
     asyncio.run(run())
     return 0
-
-
-async def _listing(catalogue):
-    return catalogue.listing()
 
 
 def main() -> int:

@@ -475,9 +475,36 @@ def shared_mesh(mesh: Path, sessions: int, duration: float) -> dict:
                          "files_resident_mib": round(m.get("RssFile", 0) / MiB, 1)} for m in during]}
 
 
-def plot(levels: list, path: Path, others: dict | None = None) -> None:
-    """Latency CDFs of ``levels`` (this server); p50/p99 and server CPU per frame against sessions
-    for it and for ``others`` ({name: levels}: a baseline checkout, several processes)."""
+MEDIAN_KEYS = ("p50", "p99", "frames_per_second", "steady_server_refine_ms_per_frame",
+               "steady_server_other_ms_per_frame", "client_cpu_ms_per_frame", "bytes_per_frame",
+               "bytes_per_changed_triangle", "bytes_per_changed_triangle_steady", "server_cpu_cores",
+               "client_cpu_cores", "other_cpu_cores", "divergences")
+
+
+def medians(runs: list, rows: bool = False) -> list:
+    """Per load level, the median over repeats of each figure of MEDIAN_KEYS (``rows``: shaped like
+    a run, latency_ms and per-frame keys where :func:`plot` reads them)."""
+    out = []
+    for n in sorted({r["sessions"] for r in runs}):
+        mine = [r for r in runs if r["sessions"] == n]
+        flat = [{**r, **{k: r["latency_ms"][k] for k in ("p50", "p99")}} for r in mine]
+        row = {"sessions": n, "repeats": len(mine)}
+        for k in MEDIAN_KEYS:
+            values = [f[k] for f in flat if f.get(k) is not None]
+            row[k] = round(statistics.median(values), 3) if values else None
+        row["errors"] = sum(sum(r["errors"].values()) for r in mine)
+        if rows:
+            row["latency_ms"] = {"p50": row["p50"], "p99": row["p99"]}
+            row["server_refine_ms_per_frame"] = row["steady_server_refine_ms_per_frame"] or 0.0
+            row["server_other_ms_per_frame"] = row["steady_server_other_ms_per_frame"] or 0.0
+        out.append(row)
+    return out
+
+
+def plot(levels: list, path: Path, others: dict | None = None, summary: list | None = None) -> None:
+    """Latency CDFs of ``levels`` (this server, one repeat); p50/p99 and server CPU per frame against
+    sessions for it (``summary``: medians over repeats, else ``levels``) and for ``others``
+    ({name: rows}: a baseline checkout, several processes)."""
     import matplotlib
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
@@ -493,7 +520,7 @@ def plot(levels: list, path: Path, others: dict | None = None) -> None:
     ax.set_title("this server", fontsize=9)
     ax.legend(fontsize=7)
     ax.grid(alpha=0.3)
-    series = {"this": levels, **(others or {})}
+    series = {"this": summary or levels, **(others or {})}
     for k, (name, rs) in enumerate(series.items()):
         n = [r["sessions"] for r in rs]
         colour = f"C{k}"
@@ -535,6 +562,8 @@ def main() -> int:
     ap.add_argument("--loadtest-processes", type=int, default=1,
                     help="processes of caveclod loadtest (its --processes; default 1)")
     ap.add_argument("--frame-encoding", choices=("ops", "raw"), default="ops", help="the load test's (default ops)")
+    ap.add_argument("--repeats", type=int, default=1,
+                    help="runs of each load level and server, interleaved; the summary holds their medians")
     ap.add_argument("--connections", type=int, default=4,
                     help="connections the load test's sessions share (its --connections; default 4: enough for "
                          "a server of several processes to spread, cheaper for the generator than one a session)")
@@ -558,26 +587,32 @@ def main() -> int:
             servers.append(("baseline", [sys.executable, "-c", "import sys; sys.path.insert(0, sys.argv.pop(1)); "
                                          "from caveclod.cli import main; sys.exit(main())", args.baseline, "serve"],
                             1, baseline))
-        for n in (int(x) for x in args.sessions.split(",")):
-            for name, command, nproc, into in servers:
-                r = capacity(mesh, n, args.duration, command=command, processes=args.loadtest_processes,
-                             encoding=args.frame_encoding, connections=args.connections, server_processes=nproc)
-                r["server"] = name
-                into.append(r)
-                print(f"{name} {n:3d} sessions: p50 {r['latency_ms']['p50']} ms  p99 {r['latency_ms']['p99']} ms  "
-                      f"{r['frames_per_second']} frames/s  {r['bytes_per_frame']} B/frame  "
-                      f"{r['bytes_per_changed_triangle']} B/changed tri ({r['bytes_per_changed_triangle_steady']} "
-                      f"steady)  divergences {r['divergences']}  errors {r['errors']}  cpu: server "
-                      f"{r['server_cpu_cores']} (refine {r['server_refine_cpu_cores']}; per frame "
-                      f"{r['server_refine_ms_per_frame']} + {r['server_other_ms_per_frame']} ms; steady "
-                      f"{r.get('steady_server_refine_ms_per_frame')} + {r.get('steady_server_other_ms_per_frame')}"
-                      f" ms), loadtest "
-                      f"{r['client_cpu_cores']} ({r['client_cpu_ms_per_frame']} ms a frame), others "
-                      f"{r['other_cpu_cores']}", file=sys.stderr)
-        plot(levels, path.with_name(f"{path.stem}_latency.png"),      # service.json: service_latency.png
-             {name: into for name, _, _, into in servers[1:]})
+        for repeat in range(args.repeats):       # interleaved: the machine's drift hits every server alike
+            for n in (int(x) for x in args.sessions.split(",")):
+                for name, command, nproc, into in servers:
+                    r = capacity(mesh, n, args.duration, command=command, processes=args.loadtest_processes,
+                                 encoding=args.frame_encoding, connections=args.connections,
+                                 server_processes=nproc)
+                    r.update(server=name, repeat=repeat)
+                    into.append(r)
+                    print(f"{name} {n:3d} sessions: p50 {r['latency_ms']['p50']} ms  p99 {r['latency_ms']['p99']} ms  "
+                          f"{r['frames_per_second']} frames/s  {r['bytes_per_frame']} B/frame  "
+                          f"{r['bytes_per_changed_triangle']} B/changed tri ({r['bytes_per_changed_triangle_steady']} "
+                          f"steady)  divergences {r['divergences']}  errors {r['errors']}  cpu: server "
+                          f"{r['server_cpu_cores']} (refine {r['server_refine_cpu_cores']}; per frame "
+                          f"{r['server_refine_ms_per_frame']} + {r['server_other_ms_per_frame']} ms; steady "
+                          f"{r.get('steady_server_refine_ms_per_frame')} + {r.get('steady_server_other_ms_per_frame')}"
+                          f" ms), loadtest "
+                          f"{r['client_cpu_cores']} ({r['client_cpu_ms_per_frame']} ms a frame), others "
+                          f"{r['other_cpu_cores']}", file=sys.stderr)
+        out["summary"] = {name: medians(into) for name, _, _, into in servers}
+        plot([r for r in levels if r["repeat"] == 0], path.with_name(f"{path.stem}_latency.png"),
+             {name: medians(into, rows=True) for name, _, _, into in servers[1:]}, medians(levels, rows=True))
+        for name, rows in out["summary"].items():
+            for row in rows:
+                print(f"median {name} {row['sessions']:3d}: {row}", file=sys.stderr)
         for r in levels + baseline + multi:
-            r.pop("latencies_ms")
+            r.pop("latencies_ms", None)
         out["capacity"] = levels
         if multi:
             out["capacity_processes"] = {"processes": args.server_processes, "levels": multi}

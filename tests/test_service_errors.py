@@ -50,6 +50,13 @@ BAD_STREAMS = {
     "eye == target": ([open_message(), pose(eye=TARGET)], INVALID),
     "up parallel to the view": ([open_message(), pose(eye=(0, 0, 10), target=(0, 0, 0), up=(0, 0, 1))], INVALID),
     "zero up": ([open_message(), pose(up=(0, 0, 0))], INVALID),
+    # Numbers that pass as finite but overflow the server's arithmetic (a fuzzer's finds).
+    "eye and target overflowing apart": ([open_message(), pose(eye=(1e308, 0, 1), target=(-1e308, 0, 0))], INVALID),
+    "fov overflowing the pixels per unit": ([open_message(fov_y_deg=5e-324)], INVALID),
+    "an ack on a pose of a frame never sent": (
+        [open_message(), pb.ClientMessage(pose=pb.CameraPose(camera=0, pose_seq=1, eye=pb.Vec3(x=10, y=10, z=500),
+                                                             target=pb.Vec3(x=100, y=100), up=pb.Vec3(z=1),
+                                                             ack_frame_seq=99))], INVALID),
     "ack of a frame never sent": ([open_message(), pb.ClientMessage(ack=pb.Ack(frame_seq=1000))], INVALID),
     "keyframe of a camera out of range": (
         [open_message(cameras=1), pb.ClientMessage(keyframe_request=pb.KeyframeRequest(camera=1))], INVALID),
@@ -149,3 +156,18 @@ def test_bad_inputs_do_not_disturb_a_healthy_session(server, tmp_path):
     assert all(f is not None for f in seen[:-1]), "the healthy session waited over 2 s for a frame"
     assert frames_during > 5
     assert not server.sessions.sessions
+
+
+def test_client_numbers_neither_overflow_nor_grow_the_metrics(server):
+    """A budget past int64 is no budget, not an overflow; KeyframeRequest reasons the server does
+    not know share one metric label, however many a client sends."""
+    code, details, responses = raw_stream(
+        server.port, [open_message(max_ops=2**64 - 1, max_faces=2**64 - 1), pose()], timeout=1.5)
+    assert code == grpc.StatusCode.DEADLINE_EXCEEDED, details        # served until we broke the stream
+    assert any(r.WhichOneof("kind") == "frame" for r in responses)
+    requests = [pb.ClientMessage(keyframe_request=pb.KeyframeRequest(reason=1000 + k)) for k in range(50)]
+    raw_stream(server.port, [open_message(), *requests], timeout=1.5)
+    labels = {s.labels["reason"] for m in server.metrics.keyframe_requests.collect() for s in m.samples
+              if s.name.endswith("_total")}
+    assert labels == {"other"}
+    assert server.metrics.keyframe_requests.labels("other")._value.get() == 50

@@ -71,6 +71,10 @@ class View:
             raise InputError(f"View viewport must be at least 1x1 pixels, got {self.width}x{self.height}")
         if self.tolerance_px < 0:
             raise InputError(f"View.tolerance_px must be >= 0, got {self.tolerance_px}")
+        half = math.tan(math.radians(self.fov_y) / 2.0)
+        if half == 0.0 or not math.isfinite(self.height / (2.0 * half)):
+            raise InputError(f"View.fov_y {self.fov_y} degrees is so narrow that pixels per unit of error overflow "
+                             f"with a viewport of {self.height} pixels; use a field of view of a degree or more")
 
     @classmethod
     def from_pose(cls, pose, **options) -> "View":

@@ -9,14 +9,14 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 
 MAX_ACK_WINDOW = 32          # a client may ask for up to this many frames in flight
-# Measured (README, "Service figures"; benchmarks/server_model.py and
-# benchmarks/service.py): one server process on 2 cores held 16 one-camera
-# sessions at 30 Hz on the 1M-triangle terrain with p99 pose -> frame under
-# 15 ms; 32 with p99 36 to 44 ms on a quiet machine but 85 to 90 ms while
-# other work held a core, so 16 leaves room. The deploy files use the same limit;
-# past it, a replica refuses with RESOURCE_EXHAUSTED and the balancer's
-# next replica takes the session.
-DEFAULT_MAX_SESSIONS = 16
+# Measured (README, "Service figures"; benchmarks/service.py): one server
+# process and the load generator sharing 2 cores held 32 one-camera sessions
+# at 30 Hz on the 1M-triangle terrain with p99 pose -> frame of 6 to 16 ms,
+# and stayed under 50 ms up to 48 in every run (up to 80 in some); 32 leaves
+# room for keyframes, far camera jumps and a busier node. The deploy files
+# use the same limit; past it, a replica refuses with RESOURCE_EXHAUSTED and
+# the balancer's next replica takes the session.
+DEFAULT_MAX_SESSIONS = 32
 
 
 @dataclass

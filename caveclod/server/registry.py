@@ -7,7 +7,6 @@ seconds: a detached session still holds its cameras' memory.
 
 from __future__ import annotations
 
-import math
 import secrets
 import threading
 import time
@@ -100,13 +99,9 @@ class Sessions:
         view = {k: opts[k] if opts[k] is not None else wire.OPTION_DEFAULTS.get(k)
                 for k in ("fov_y", "width", "height", "tolerance_px", "cull", "backface")}
         try:
-            finite = math.isfinite(sum(View(**view).params()))
+            View(**view)
         except InputError as exc:
             raise Refused(grpc.StatusCode.INVALID_ARGUMENT, f"Open.options: {exc}") from None
-        if not finite:        # e.g. a field of view so narrow that pixels per unit overflow
-            raise Refused(grpc.StatusCode.INVALID_ARGUMENT,
-                          f"Open.options: fov_y_deg {view['fov_y']} with a viewport {view['height']} pixels high "
-                          "overflows the screen-space error; use a field of view of a degree or more")
         for key in ("max_ops", "max_faces"):
             if opts[key] is not None and opts[key] < 1:
                 raise Refused(grpc.StatusCode.INVALID_ARGUMENT,
