@@ -75,6 +75,14 @@ class Surface:
         return len(self.slots) * (12 if is_run(self.slots) else 16)
 
 
+def _slot_fields(slots: np.ndarray, array_tag: bytes, first_tag: bytes) -> list:
+    """The slots written, as fields: a run as its first slot (omitted when 0), else the uint32 array."""
+    k = len(slots)
+    if k and int(slots[-1]) - int(slots[0]) == k - 1:
+        return [first_tag, varint(int(slots[0]))] if int(slots[0]) else []
+    return [_len_field(array_tag, np.ascontiguousarray(slots, dtype=U32).tobytes())] if k else []
+
+
 def is_run(slots: np.ndarray) -> bool:
     """Whether ascending unique ``slots`` are consecutive (sent as ``first_slot``)."""
     return len(slots) == 0 or int(slots[-1]) - int(slots[0]) == len(slots) - 1
@@ -88,13 +96,8 @@ def surface_bytes(s: Surface) -> bytes:
     if s.count:
         out += (b"\x10", varint(int(s.count)))
     if s.ops is None:
-        k = len(s.slots)
-        if k and int(s.slots[-1]) - int(s.slots[0]) == k - 1:
-            if int(s.slots[0]):
-                out += (b"\x20", varint(int(s.slots[0])))
-        elif k:
-            out.append(_len_field(b"\x1a", np.ascontiguousarray(s.slots, dtype=U32).tobytes()))
-        if k:
+        out += _slot_fields(s.slots, b"\x1a", b"\x20")
+        if len(s.slots):
             out.append(_len_field(b"\x2a", np.ascontiguousarray(s.tris, dtype=U32).tobytes()))
     if s.crc32 is not None:
         out += (b"\x35", _FIXED32.pack(int(s.crc32)))
@@ -151,13 +154,7 @@ class SlotWrites:
 
 def slot_writes_bytes(w: SlotWrites) -> bytes:
     """A VertexWrites: the k vertices as a PLANAR payload; consecutive slots as ``first_slot``."""
-    out = []
-    k = len(w.slots)
-    if k and int(w.slots[-1]) - int(w.slots[0]) == k - 1:
-        if int(w.slots[0]):
-            out += (b"\x10", varint(int(w.slots[0])))
-    elif k:
-        out.append(_len_field(b"\x0a", np.ascontiguousarray(w.slots, dtype=U32).tobytes()))
+    out = _slot_fields(w.slots, b"\x0a", b"\x10")
     data = b"".join(np.ascontiguousarray(b).reshape(-1).view(np.uint8).tobytes() for b in w.blocks)
     if data:
         out.append(_len_field(b"\x1a", data))

@@ -296,7 +296,7 @@ class Session:
 
     def make_frame(self, generation: int) -> list | None:
         """Refine the cameras that have work and encode the frame: its
-        ServerMessage parts, or None when nothing is due after all (the
+        serialized ServerMessage parts (bytes), or None when nothing is due after all (the
         window filled, or another stream took the session)."""
         with self.writer:
             started = time.thread_time()
