@@ -8,10 +8,8 @@ import os
 import signal
 import subprocess
 import sys
-import time
 import urllib.request
 
-import pytest
 
 from caveclod import cli
 from caveclod.server.processes import sum_metrics
