@@ -73,3 +73,17 @@ def test_loadtest_cache_flags_are_checked(server, capsys):
     out, err = capsys.readouterr()
     assert json.loads(out)["errors"] == {"INVALID_ARGUMENT": 1}
     assert "ask for at least" in err
+
+
+def test_loadtest_in_several_processes_merges_their_figures(server, tmp_path, capsys):
+    status = cli.main(["loadtest", "--target", f"127.0.0.1:{server.port}", "--sessions", "4", "--duration", "2",
+                       "--rate", "20", "--processes", "2", "--connections", "2", "--json", "--samples",
+                       "--cache-dir", str(tmp_path)])
+    report = json.loads(capsys.readouterr().out)
+    assert status == 0, report
+    assert report["processes"] == 2 and report["sessions"] == 4 and report["divergences"] == 0
+    # Every session's frames and poses are counted once, from both processes.
+    assert 0.8 * 4 * 40 <= report["poses_sent"] <= 4 * 40
+    assert report["frames"] >= 4 * 20 and len(report["latencies_ms"]) == report["poses_timed"] > 0
+    assert report["client_cpu_ms_per_frame"] > 0
+    assert server.metrics.total("frames") >= report["frames"]

@@ -258,9 +258,8 @@ def _argv(args) -> list:
     """The options of ``args`` that a shard process runs with (everything but output and processes)."""
     out = []
     for name in ("target", "mesh", "sessions", "connections", "cameras", "duration", "warmup", "rate", "trajectory",
-                 "tolerance",
-                 "width", "height", "fov", "token", "tls_ca", "cache_dir", "cache_vertices", "cache_strategy",
-                 "cache_pq_fraction", "frame_encoding"):
+                 "tolerance", "width", "height", "fov", "token", "tls_ca", "cache_dir", "cache_vertices",
+                 "cache_strategy", "cache_pq_fraction", "frame_encoding"):
         value = getattr(args, name, None)
         if value is not None:
             out += ["--" + name.replace("_", "-"), str(value)]
