@@ -133,7 +133,7 @@ class SessionProtocol:
         cache_mode: ``{vertices, strategy, pq_fraction}`` to ask for cache
             mode (strategy a name, or None for the server's default), or None
             for a resident vertex buffer.
-        frame_encoding: ``"ops"`` (op streams, a quarter of the bytes; the
+        frame_encoding: ``"ops"`` (op streams, under a third of the bytes; the
             default) or ``"raw"`` (uint32 arrays) to ask for in Open.
     """
 

@@ -159,7 +159,7 @@ class Client:
         vertices and the index buffers hold slot numbers.
 
         ``frame_encoding``: ``"ops"`` (the default) asks for op streams, about
-        a quarter of the bytes of ``"raw"`` uint32 writes; a server that does
+        a third of the bytes of ``"raw"`` uint32 writes; a server that does
         not know them answers raw, which the client reads as well.
         """
         protocol = SessionProtocol(mesh, cameras, refine_options(width, height, fov_y, tolerance_px, cull,
