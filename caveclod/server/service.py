@@ -191,6 +191,8 @@ class _Stream:
                     await self._write(parts)
         finally:
             self.busy = False
+            if self.again:                # the writer waited for us (a write failed, or we returned early)
+                self.wake.set()
 
     async def write_frames(self) -> End:
         """The writer: frames the reader leaves (timers, costly frames) until the stream ends; its End.
