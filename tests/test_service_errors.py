@@ -171,3 +171,19 @@ def test_client_numbers_neither_overflow_nor_grow_the_metrics(server):
               if s.name.endswith("_total")}
     assert labels == {"other"}
     assert server.metrics.keyframe_requests.labels("other")._value.get() == 50
+
+
+def test_an_open_abandoned_while_the_server_warms_up_leaves_no_session(make_server):
+    """Issue 17's leak: an Open waiting for the kernels whose client gave up (a deadline) must not
+    hold the server's only session for ever."""
+    server = make_server(max_sessions=1)
+    server.sessions.ready.clear()                     # as if the kernels were still loading
+    try:
+        code, _, _ = raw_stream(server.port, [open_message()], timeout=0.3)
+        assert code == grpc.StatusCode.DEADLINE_EXCEEDED
+    finally:
+        server.sessions.ready.set()
+    assert wait_until(lambda: not server.sessions.sessions, timeout=5), "the abandoned Open kept its session"
+    code, details, responses = raw_stream(server.port, [open_message(), pose()], timeout=1.5)
+    assert code == grpc.StatusCode.DEADLINE_EXCEEDED, details      # served: the limit of 1 is free again
+    assert responses and responses[0].WhichOneof("kind") == "session_info"

@@ -56,9 +56,16 @@ class LodService:
         if first.WhichOneof("kind") != "open":
             await context.abort(grpc.StatusCode.INVALID_ARGUMENT,
                                 f"the first message must be Open, got {first.WhichOneof('kind') or 'an empty message'}")
+        # Off the loop: an Open waits for the kernels while the server warms up.
+        opening = asyncio.ensure_future(asyncio.to_thread(self.sessions.open, first.open))
         try:
-            # Off the loop: an Open waits for the kernels while the server warms up.
-            session, generation, resumed = await asyncio.to_thread(self.sessions.open, first.open)
+            session, generation, resumed = await asyncio.shield(opening)
+        except asyncio.CancelledError:
+            # The client left (a deadline, a cancel) while its Open waited: the
+            # open still finishes in its thread, and must not hold a session
+            # no stream will ever end.
+            opening.add_done_callback(self._abandoned)
+            raise
         except Refused as r:
             logs.event("session.refused", code=r.code.name, message=r.message, peer=context.peer())
             await context.abort(r.code, r.message)
@@ -83,6 +90,16 @@ class LodService:
             self.sessions.stream_ended(session, generation, end)
         if end.code not in (grpc.StatusCode.OK, grpc.StatusCode.CANCELLED):
             await context.abort(end.code, end.message)
+
+    def _abandoned(self, opening: asyncio.Future) -> None:
+        """An Open whose stream was gone before it finished: end what it opened (a new session
+        whose token no client got is dropped; a resumed one stays resumable)."""
+        if opening.cancelled() or opening.exception() is not None:
+            return
+        session, generation, resumed = opening.result()
+        self.sessions.stream_ended(session, generation, End(grpc.StatusCode.CANCELLED,
+                                                            "the client left before its session opened", not resumed))
+        logs.event("session.abandoned", **session.describe(), resumed=resumed)
 
     def _start(self, session, opened: pb.Open, resumed: bool):
         """SessionInfo, then the vertex chunks unless the client holds the buffer (serialized)."""
