@@ -30,6 +30,7 @@ BAD_STREAMS = {
     "empty message after Open": ([open_message(), b""], INVALID),
     "Open twice": ([open_message(), open_message()], INVALID),
     "unknown mesh": ([open_message(mesh="nowhere")], grpc.StatusCode.NOT_FOUND),
+    "unknown mesh of a 30,000-character name": ([open_message(mesh="x" * 30_000)], grpc.StatusCode.NOT_FOUND),
     "no cameras": ([open_message(cameras=0)], INVALID),
     "too many cameras": ([open_message(cameras=5)], INVALID),
     "zero width": ([open_message(viewport_width=0)], INVALID),
@@ -183,7 +184,10 @@ def test_an_open_abandoned_while_the_server_warms_up_leaves_no_session(make_serv
         assert code == grpc.StatusCode.DEADLINE_EXCEEDED
     finally:
         server.sessions.ready.set()
-    assert wait_until(lambda: not server.sessions.sessions, timeout=5), "the abandoned Open kept its session"
+    # The Open goes on in its thread once the kernels are ready, then its session is ended.
+    ended = server.metrics.session_ends.labels("cancelled")
+    assert wait_until(lambda: ended._value.get() == 1, timeout=5), "the abandoned Open kept its session"
+    assert not server.sessions.sessions
     code, details, responses = raw_stream(server.port, [open_message(), pose()], timeout=1.5)
     assert code == grpc.StatusCode.DEADLINE_EXCEEDED, details      # served: the limit of 1 is free again
     assert responses and responses[0].WhichOneof("kind") == "session_info"

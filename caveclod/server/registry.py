@@ -48,7 +48,9 @@ class Sessions:
             raise DRAINED_REFUSAL
         served = self.catalogue.get(msg.mesh)
         if served is None:
-            raise Refused(grpc.StatusCode.NOT_FOUND, f"mesh {msg.mesh!r} is not served here; this server serves "
+            # Echo a bounded name: a status's message travels in the client's metadata (16 KiB at most).
+            name = msg.mesh if len(msg.mesh) <= 80 else msg.mesh[:80] + f"... ({len(msg.mesh)} characters)"
+            raise Refused(grpc.StatusCode.NOT_FOUND, f"mesh {name!r} is not served here; this server serves "
                           f"{', '.join(self.catalogue.names())} (see ListMeshes)")
         view_options, budgets = self._options(msg.options)
         cache = self._cache(msg, served)
