@@ -9,7 +9,6 @@ bounded in count and time.
 
 from __future__ import annotations
 
-import json
 import os
 import re
 import shutil
@@ -22,7 +21,7 @@ import time
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from service import ROOT, readline_within, stop_process, wait_until
+from service import ROOT, log_events, readline_within, stop_process, wait_until
 
 TEMPLATE = Path(ROOT) / "deploy" / "nginx" / "caveclod.conf.template"
 PLACEHOLDERS = ("CAVECLOD_LISTEN", "CAVECLOD_RESOLVER", "CAVECLOD_UPSTREAM_SERVERS")
@@ -68,15 +67,7 @@ class Replica:
             raise
 
     def events(self, name: str) -> list[dict]:
-        out = []
-        for line in self.log.read_text().splitlines():
-            try:
-                event = json.loads(line)
-            except ValueError:
-                continue
-            if event.get("event") == name:
-                out.append(event)
-        return out
+        return log_events(self.log.read_text().splitlines(), name)
 
     def holds(self, token: str) -> bool:
         """Whether this replica opened the session of ``token``."""

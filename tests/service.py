@@ -7,6 +7,7 @@ stopped by its pid in a ``finally``; every wait is bounded.
 
 from __future__ import annotations
 
+import json
 import os
 import selectors
 import signal
@@ -107,6 +108,19 @@ def stop_process(proc, sig=signal.SIGKILL, timeout: float = WAIT) -> int | None:
     except subprocess.TimeoutExpired:
         os.kill(proc.pid, signal.SIGKILL)
         return proc.wait(timeout)
+
+
+def log_events(lines, name: str) -> list[dict]:
+    """The JSON log lines (``--log-format json``) of event ``name``, parsed; other lines skipped."""
+    out = []
+    for line in lines:
+        try:
+            event = json.loads(line)
+        except ValueError:
+            continue
+        if isinstance(event, dict) and event.get("event") == name:
+            out.append(event)
+    return out
 
 
 def wait_until(predicate, timeout: float = WAIT, step: float = 0.02) -> bool:

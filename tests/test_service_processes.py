@@ -14,19 +14,7 @@ import urllib.request
 from caveclod import cli
 from caveclod.server.processes import sum_metrics
 
-from service import ROOT, readline_within, stop_process, wait_until
-
-
-def _events(lines: list, name: str) -> list:
-    out = []
-    for line in lines:
-        try:
-            e = json.loads(line)
-        except ValueError:
-            continue
-        if e.get("event") == name:
-            out.append(e)
-    return out
+from service import ROOT, log_events, readline_within, stop_process, wait_until
 
 
 class Supervisor:
@@ -46,11 +34,11 @@ class Supervisor:
             stop_process(self.proc)
             raise AssertionError(f"the supervisor printed {line!r}; stderr: {''.join(self.lines)[-2000:]}")
         self.port = int(line.rsplit(":", 1)[1])
-        assert wait_until(lambda: _events(self.lines, "server.metrics") and _events(self.lines, "server.processes"))
-        self.metrics_port = _events(self.lines, "server.metrics")[-1]["port"]
+        assert wait_until(lambda: log_events(self.lines, "server.metrics") and log_events(self.lines, "server.processes"))
+        self.metrics_port = log_events(self.lines, "server.metrics")[-1]["port"]
 
     def children(self) -> list:
-        return [e["pid"] for e in _events(self.lines, "server.process_started")]
+        return [e["pid"] for e in log_events(self.lines, "server.process_started")]
 
     def metrics(self) -> dict:
         text = urllib.request.urlopen(f"http://127.0.0.1:{self.metrics_port}/metrics", timeout=10).read().decode()
@@ -83,7 +71,7 @@ def test_processes_share_the_port_drain_together_and_sum_their_metrics(terrain_p
         report = json.loads(capsys.readouterr().out)
         assert status == 0 and report["divergences"] == 0 and report["errors"] == {}
         # Eight connections, spread by the kernel: both processes held sessions.
-        holders = {e["pid"] for e in _events(sup.lines, "session.opened")}
+        holders = {e["pid"] for e in log_events(sup.lines, "session.opened")}
         assert holders == set(children), holders
         m = sup.metrics()
         assert m["caveclod_processes"] == 2
@@ -93,7 +81,7 @@ def test_processes_share_the_port_drain_together_and_sum_their_metrics(terrain_p
         status = stop_process(sup.proc, signal.SIGTERM)
     assert status == 0
     assert wait_until(lambda: not any(_alive(p) for p in children), 10.0)
-    assert _events(sup.lines, "server.stopped")
+    assert log_events(sup.lines, "server.stopped")
 
 
 def test_a_dead_process_is_restarted_and_a_killed_supervisor_takes_its_processes_along(terrain_path):
@@ -102,7 +90,7 @@ def test_a_dead_process_is_restarted_and_a_killed_supervisor_takes_its_processes
         first, second = sup.children()
         os.kill(first, signal.SIGKILL)
         assert wait_until(lambda: len(sup.children()) == 3, 60.0), "the dead process was not restarted"
-        assert _events(sup.lines, "server.process_exited")[0]["pid"] == first
+        assert log_events(sup.lines, "server.process_exited")[0]["pid"] == first
         assert wait_until(lambda: sup.metrics()["caveclod_processes"] == 2, 30.0)
         children = sup.children()[1:]
     finally:
