@@ -259,11 +259,10 @@ def _decode_small(ops: bytes, old: np.ndarray, count: int, n_vertices: int) -> t
             prev = tris[-1]
             tri = [0, 0, 0]
             tri[q], tri[(q + 1) % 3], tri[(q + 2) % 3] = prev[(e + 1) % 3], prev[e], last
-        if kind == NEW or kind >= EDGE0:
-            if not 0 <= last < n_vertices:
-                raise OpStreamError(f"vertex index {last} outside the vertex buffer's {n_vertices} vertices")
-            if kind == NEW and not all(0 <= v < n_vertices for v in tri):
-                bad = min(tri) if min(tri) < 0 else max(tri)
-                raise OpStreamError(f"vertex index {bad} outside the vertex buffer's {n_vertices} vertices")
+        if kind == NEW and not all(0 <= v < n_vertices for v in tri):
+            bad = min(tri) if min(tri) < 0 else max(tri)
+            raise OpStreamError(f"vertex index {bad} outside the vertex buffer's {n_vertices} vertices")
+        if kind >= EDGE0 and not 0 <= last < n_vertices:
+            raise OpStreamError(f"vertex index {last} outside the vertex buffer's {n_vertices} vertices")
         tris.append(tri)
     return np.array(slots, np.uint32), np.array(tris, np.uint32).reshape(-1, 3)

@@ -7,7 +7,11 @@ the generated ``caveclod.v1`` stubs only, so the thin client can use it.
 Arrays travel as little-endian ``bytes`` (see the proto's Conventions):
 
 * a SurfaceDelta carries ``slots`` (k,) and ``tris`` (k, 3) uint32, or, when
-  the k slots are consecutive, ``first_slot`` and no slot array;
+  the k slots are consecutive, ``first_slot`` and no slot array; or, under
+  FRAME_ENCODING_OPS, an op stream (:mod:`caveclod.opstream`) read against
+  the buffer the client holds;
+* frames are written as bytes by :mod:`caveclod.frames`, whose types
+  (Surface, SlotWrites, CameraFrameData) this module re-exports;
 * a frame whose array data exceed ``max_chunk_bytes`` is split into parts
   (:func:`frame_parts`); so is the vertex payload (:func:`vertex_chunks`);
 * the vertex payload is PLANAR: one contiguous block per attribute;

@@ -22,8 +22,8 @@ import numpy as np
 NEW, COPY, CORNER0, EDGE0 = 0, 1, 2, 5   # op kinds; CORNER0 + k re-points corner k (k = 0, 1, 2);
                                          # EDGE0 + 3 e + p: a triangle on edge e of the previous (NEW) one
 KIND_BITS = 4
-MAX_OP_BYTES = 21                     # worst case of one write: a 5-byte header and three 5-byte deltas,
-                                      # with a byte to spare for the zigzag sign of 32-bit deltas
+MAX_OP_BYTES = 21                     # worst case of one write: a 6-byte header (a 32-bit gap and 4 kind
+                                      # bits) and three 5-byte deltas (33-bit zigzag)
 
 
 @nb.njit(cache=True, nogil=True, inline="always")

@@ -27,11 +27,7 @@ class HeldBuffers:
     def encode(self, material: int, count: int, slots: np.ndarray, tris: np.ndarray) -> bytes:
         """The op stream of writing ``tris`` (k, 3) into ``slots`` (k,) with the
         buffer resized to ``count``; the writes are applied to the held buffer."""
-        rows = self.rows[material]
-        if count > len(rows):
-            grown = np.zeros((count + count // 4 + 16, 3), np.uint32)
-            grown[: self.count[material]] = rows[: self.count[material]]
-            self.rows[material] = rows = grown
+        rows = self._room(material, count)
         need = 8 + len(slots) * K.MAX_OP_BYTES
         if len(self._out) < need:
             self._out = np.empty(need + need // 2, np.uint8)
@@ -40,12 +36,19 @@ class HeldBuffers:
         return self._out[:n].tobytes()
 
     def replace(self, material: int, buffer: np.ndarray) -> None:
-        """The client's buffer is now ``buffer`` (k, 3) (a keyframe, or a write sent raw)."""
+        """The client's buffer is now ``buffer`` (k, 3) (a keyframe)."""
         k = len(buffer)
-        if k > len(self.rows[material]):
-            self.rows[material] = np.zeros((k + k // 4 + 16, 3), np.uint32)
-        self.rows[material][:k] = buffer
+        self._room(material, k)[:k] = buffer
         self.count[material] = k
+
+    def _room(self, material: int, count: int) -> np.ndarray:
+        """The material's rows, grown (held rows kept) to hold ``count`` triangles."""
+        rows = self.rows[material]
+        if count > len(rows):
+            grown = np.zeros((count + count // 4 + 16, 3), np.uint32)
+            grown[: self.count[material]] = rows[: self.count[material]]
+            self.rows[material] = rows = grown
+        return rows
 
     def buffer(self, material: int) -> np.ndarray:
         """(count, 3) view of what the client holds for ``material``."""

@@ -1,16 +1,15 @@
 """The caveclod.v1.Lod servicer (grpc.aio): gRPC streams in, Session calls out.
 
 Thin by design: the rules live in :mod:`.session` and :mod:`.registry`, the
-encoding in :mod:`caveclod.wire`. Every stream is two coroutines on the
-server's event loop: a reader that hands each client message to its
-Session, and a writer that waits until the Session says a frame is due and
-has it made on a worker thread (refinement and encoding; the kernels
-release the GIL, so sessions refine on every core). A frame whose session's
-recent frames each took under ``session.CHEAP_SECONDS`` of CPU is made on
-the loop itself: the hand-off to a worker (a future, two thread switches,
-the GIL changing hands) cost more than such a frame; and by the reader, right
-after the pose that asks for it, without waking the writer (:class:`_Stream`). Why grpc.aio and not
-a thread per stream: see the README's "How the server works".
+encoding in :mod:`caveclod.wire` and :mod:`caveclod.frames`. Every stream is
+two coroutines on the server's event loop (:class:`_Stream`): a reader that
+hands each client message to its Session and, when the session's recent
+frames each took under ``session.CHEAP_SECONDS`` of CPU, makes and writes
+the frame that is due right there; and a writer that wakes only for what
+the reader does not see (convergence timers, ends) and for costly frames,
+which it has made on a worker thread (the kernels release the GIL, so
+sessions refine on every core). docs/frame-path.md says why; the README's
+"How the server works" why grpc.aio and not a thread per stream.
 """
 
 from __future__ import annotations
