@@ -10,6 +10,15 @@ import pytest
 def pytest_configure(config):
     # Tests that build full-size meshes; deselect them with -m "not slow".
     config.addinivalue_line("markers", "slow: builds full-size (1024) meshes; deselect with -m 'not slow'")
+    config.addinivalue_line("markers", "requires_tool(name): needs an optional system tool (tests/systemtools.py); "
+                                       "skipped, with the reason, where it is missing")
+
+
+def pytest_runtest_setup(item):
+    from systemtools import skip_reason, system_tool
+    for mark in item.iter_markers("requires_tool"):
+        if system_tool(mark.args[0]) is None:
+            pytest.skip(skip_reason(mark.args[0]))
 
 
 @pytest.fixture(scope="session")

@@ -22,6 +22,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 from service import ROOT, log_events, readline_within, stop_process, wait_until
+from systemtools import system_tool
 
 TEMPLATE = Path(ROOT) / "deploy" / "nginx" / "caveclod.conf.template"
 PLACEHOLDERS = ("CAVECLOD_LISTEN", "CAVECLOD_RESOLVER", "CAVECLOD_UPSTREAM_SERVERS")
@@ -38,7 +39,7 @@ def render_template(**values: str) -> str:
 
 
 def nginx_binary() -> str | None:
-    return shutil.which("nginx") or next((p for p in ("/usr/sbin/nginx",) if os.access(p, os.X_OK)), None)
+    return system_tool("nginx")
 
 
 def free_port() -> int:

@@ -29,8 +29,7 @@ from failover import Balancer, Replica, close_viewers, nginx_binary, open_viewer
 from service import stop_process
 
 NGINX = nginx_binary()
-pytestmark = pytest.mark.skipif(NGINX is None, reason="nginx is not installed (Debian: apt-get install nginx-light; "
-                                                       ".ci/run installs it); the failover tests need a real balancer")
+pytestmark = pytest.mark.requires_tool("nginx")
 
 BEFORE, AFTER = 2.0, 5.0          # seconds of flight before the replica goes, and after
 DRAIN = 1.5                       # --drain-seconds of the replicas

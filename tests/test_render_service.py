@@ -8,7 +8,6 @@ from __future__ import annotations
 
 import json
 import os
-import shutil
 import signal
 import subprocess
 import sys
@@ -215,7 +214,7 @@ def test_view_without_a_display_says_what_to_do(server, tmp_path):
     assert "no display" in r.stderr and "xvfb-run" in r.stderr and "caveclod render" in r.stderr
 
 
-@pytest.mark.skipif(shutil.which("xvfb-run") is None, reason="Debian's xvfb is not installed (.ci/run installs it)")
+@pytest.mark.requires_tool("xvfb-run")
 def test_view_draws_a_window_on_a_virtual_screen(server, tmp_path):
     shot = tmp_path / "view.png"
     r = run_cli("view", "--target", f"127.0.0.1:{server.port}", "--cameras", "2", "--size", "320x180",
@@ -226,7 +225,7 @@ def test_view_draws_a_window_on_a_virtual_screen(server, tmp_path):
     assert not_blank(png(shot), 0.05)
 
 
-@pytest.mark.skipif(shutil.which("xvfb-run") is None, reason="Debian's xvfb is not installed (.ci/run installs it)")
+@pytest.mark.requires_tool("xvfb-run")
 def test_view_in_cache_mode(server, tmp_path):
     shot = tmp_path / "view.png"
     r = run_cli("view", "--target", f"127.0.0.1:{server.port}", "--size", "320x180", "--frames", "20",
