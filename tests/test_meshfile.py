@@ -21,6 +21,7 @@ from caveclod.builder import meshfile
 from caveclod.errors import InputError
 from caveclod.builder.meshfile import load_mesh_file, source_from_trimesh
 from caveclod.builder.source import SourceMesh
+from fuzzsources import build_here as build_cli     # a build as the source fuzzer runs it, in-process
 
 # --------------------------------------------------------------------------
 # fixture makers
@@ -696,3 +697,140 @@ def test_obj_roundtrip_keeps_triangles(tmp_path_factory, mesh):
     assert canonical_triangles(got) == expected
     assert len(src.faces) == len(expected)  # duplicates dropped, nothing else
     assert len(src.positions) == len({tuple(v) for v in tri[proper].reshape(-1, 3).tolist()})
+
+
+# --------------------------------------------------------------------------
+# coordinates float32 cannot hold, and what readers print (issue 17, item 4)
+# --------------------------------------------------------------------------
+
+
+@pytest.mark.parametrize("far", ["1e39", "-1e39", "1e30", "4.7e18"])
+def test_far_vertices_are_refused_with_their_count(tmp_path, far):
+    path = write_text(tmp_path, "far.obj", f"v {far} 0 0\nv 0 1 0\nv 0 0 {far}\nv 1 1 1\nf 1 2 3\nf 2 4 3\n")
+    with pytest.raises(InputError) as excinfo:
+        load_mesh_file(path)
+    message = assert_one_line_error(excinfo, path)
+    assert "2 vertices" in message and "4.6e+18" in message and "float32" in message
+
+
+def test_far_vertices_exit_2_in_one_line_without_warnings(tmp_path, capsys):
+    """OBJ at 1e39 (beyond float32) and at 1e30 (an extent whose squares overflow float32)."""
+    for far in ("1e39", "1e30"):
+        path = write_text(tmp_path, "far.obj", f"v {far} 0 0\nv 0 1 0\nv 0 0 1\nf 1 2 3\n")
+        code, err = build_cli(capsys, path)
+        assert code == 2 and "beyond +-4.6e+18" in err and "Warning" not in err, err
+
+
+def test_vertices_within_the_limit_build(tmp_path, capsys):
+    """Just inside +-2**62 the stored positions and bounds are finite float32."""
+    path = write_text(tmp_path, "near.obj", "v 4e18 0 0\nv 0 4e18 0\nv 0 0 -4e18\nv 1 1 1\nf 1 2 3\nf 2 4 3\n")
+    code, err = build_cli(capsys, path)
+    assert code == 0, err
+
+
+def test_a_mesh_far_from_the_origin_for_its_size_is_refused(tmp_path, capsys):
+    """1 unit of detail 1e9 from the origin: float32 (step 64 there) would
+    store every face as a point; the build says so and what to do."""
+    path = write_text(tmp_path, "offset.obj", (
+        "v 1e9 1e9 1e9\nv 1000000001 1e9 1e9\nv 1e9 1000000001 1e9\nv 1000000001 1000000001 1e9\n"
+        "f 1 2 3\nf 2 4 3\n"))
+    code, err = build_cli(capsys, path)
+    assert code == 2 and "2 of 2 faces" in err and "float32" in err and "--weld" in err, err
+
+
+def test_near_duplicates_float32_merges_are_refused_then_welded(tmp_path, capsys):
+    """Two positions 1e-8 apart near 1: one face collapses in float32; the
+    suggested --weld merges them and the mesh builds."""
+    path = write_text(tmp_path, "dup.obj", "v 0 0 0\nv 1 0 0\nv 1.00000001 0 0\nv 0 1 0\nf 1 2 4\nf 2 3 4\n")
+    code, err = build_cli(capsys, path)
+    assert code == 2 and "1 of 2 faces" in err, err
+    weld = err.split("--weld ")[1].split()[0]
+    code, err = build_cli(capsys, path, f"--weld={weld}")
+    assert code == 0, err
+
+
+@pytest.mark.parametrize("tolerance", ["1e-320", "1e-30"])
+def test_weld_finer_than_float64_resolves_is_refused(tmp_path, capsys, tolerance):
+    path = write_cube_obj(tmp_path)
+    code, err = build_cli(capsys, path, f"--weld={tolerance}")
+    assert code == 2 and "finer than float64" in err, err
+
+
+def test_far_texture_coordinates_are_refused(tmp_path):
+    path = write_text(tmp_path, "uv.obj", "v 0 0 0\nv 1 0 0\nv 0 1 0\nvt 0 0\nvt 1e39 0\nvt 0 1\nf 1/1 2/2 3/3\n")
+    with pytest.raises(InputError) as excinfo:
+        load_mesh_file(path)
+    message = assert_one_line_error(excinfo, path)
+    assert "1 vertices" in message and "texture coordinates" in message and "float32" in message
+
+
+def test_huge_normals_are_renormalised(tmp_path, capsys):
+    """Squaring 1e300 overflows; the directions are still good."""
+    path = write_text(tmp_path, "normals.obj", (
+        "v 0 0 0\nv 1 0 0\nv 0 1 0\nvn 0 0 1e300\nvn 1e300 0 1e300\nvn 0 1e300 1e300\nf 1//1 2//2 3//3\n"))
+    src = load_mesh_file(path)
+    check_contract(src)
+    half = np.sqrt(0.5)
+    np.testing.assert_allclose(src.vertex_normal, [[0, 0, 1], [half, 0, half], [0, half, half]], atol=1e-7)
+    assert "renormalised 3 vertex normals" in " ".join(src.notes)
+    assert build_cli(capsys, path)[0] == 0
+
+
+def test_tiny_normals_count_as_zero_length(tmp_path, capsys):
+    """Squaring 1e-300 underflows to 0: no division by zero, the normals are dropped with a note."""
+    path = write_text(tmp_path, "normals.obj", (
+        "v 0 0 0\nv 1 0 0\nv 0 1 0\nvn 0 0 1e-300\nvn 0 0 1\nvn 0 0 1\nf 1//1 2//2 3//3\n"))
+    src = load_mesh_file(path)
+    assert src.vertex_normal is None and "1 have zero length" in " ".join(src.notes)
+    assert build_cli(capsys, path)[0] == 0
+
+
+def _glb_with_node(tmp_path, **node_fields) -> Path:
+    """A box GLB whose scene node carries ``node_fields`` (a matrix, scale, ...)."""
+    from fuzzsources import _glb, _glb_chunks
+    import json
+    data = trimesh.Scene(box_with_uv()).export(file_type="glb")
+    doc, binary = _glb_chunks(data)
+    doc = json.loads(doc)
+    doc["nodes"][-1].update(node_fields)
+    path = tmp_path / "node.glb"
+    path.write_bytes(_glb(json.dumps(doc).encode(), binary))
+    return path
+
+
+@pytest.mark.parametrize("fields", [{"matrix": [float("nan")] + [0.0] * 15}, {"rotation": [float("nan"), 0, 0, 1]},
+                                    {"matrix": [float("inf")] + [0.0] * 15}])
+def test_a_nonfinite_node_transform_is_refused_by_name(tmp_path, capsys, fields):
+    path = _glb_with_node(tmp_path, **fields)
+    code, err = build_cli(capsys, path)
+    assert code == 2 and "scene node" in err and "transform" in err, err
+
+
+def test_a_huge_node_transform_is_refused_without_warnings(tmp_path, capsys):
+    path = _glb_with_node(tmp_path, matrix=[1e300] * 16)
+    code, err = build_cli(capsys, path)
+    assert code == 2 and "vertices have" in err and "coordinates" in err, err
+
+
+def test_a_singular_node_transform_drops_the_normals(tmp_path):
+    box = trimesh.creation.box()
+    box.vertex_normals                              # cached: the GLB carries them
+    scene = trimesh.Scene()
+    scene.add_geometry(box, transform=np.diag([1.0, 1.0, 0.0, 1.0]))
+    src = source_from_trimesh(scene)
+    assert src.vertex_normal is None
+    assert any("singular" in note for note in src.notes)
+
+
+def test_what_trimesh_logs_while_reading_is_silenced(tmp_path, caplog):
+    """A broken ASCII STL makes trimesh log a traceback ('failed to extract
+    face_normals'); the user gets the one-line error only."""
+    box = trimesh.creation.box()
+    text = trimesh.exchange.stl.export_stl_ascii(box)
+    path = write_text(tmp_path, "broken.stl", text.replace("facet normal", "facet normal 1,5", 1))
+    with caplog.at_level("DEBUG"):
+        try:
+            load_mesh_file(path)
+        except InputError:
+            pass
+    assert not [r for r in caplog.records if r.name.startswith("trimesh")], caplog.text

@@ -13,6 +13,7 @@ from caveclod.errors import InputError
 from caveclod.builder.builtin import LAKE_LEVEL, TERRAIN_EXTENT, default_heights, default_terrain
 from caveclod.builder.landcover import MATERIALS, classify_terrain, coherent_classes
 from caveclod.builder.terrain import TILE_SIZES, heightfield_to_source, load_heightfield, load_material_map
+from fuzzsources import build_here as build_cli     # a build as the source fuzzer runs it, in-process
 
 ROCK = MATERIALS.index("rock")
 WATER = MATERIALS.index("water")
@@ -523,3 +524,125 @@ def test_explicit_nodata_value(tmp_path):
     np.save(tmp_path / "dem.npy", dem)
     assert not np.isnan(terrain.load_heightfield(tmp_path / "dem.npy")).any()
     assert np.isnan(terrain.load_heightfield(tmp_path / "dem.npy", nodata=0.0)).sum() == 3
+
+
+# ---------------------------------------------------------------- what float32 cannot hold (issue 17, item 4)
+
+
+@pytest.mark.parametrize("heights, kwargs, words", [
+    (np.full((3, 3), 3.4e38), {}, "9 heightfield samples"),
+    (np.array([[0.0, 1e300], [0.0, 0.0]]), {"z_scale": 1e10}, "1 heightfield samples"),   # overflows float64
+    (np.ones((3, 3)), {"z_scale": 1e38}, "smaller --z-scale"),
+    (np.zeros((3, 3)), {"cell_size": 1e38}, "smaller --cell-size"),
+    (np.zeros((3, 3)), {"cell_size": 1e-39}, "larger --cell-size"),
+])
+def test_heights_and_grids_float32_cannot_hold_are_refused(heights, kwargs, words):
+    with pytest.raises(InputError) as excinfo:
+        heightfield_to_source(heights, **kwargs)
+    assert_one_line_input_error(excinfo)
+    assert words in str(excinfo.value), str(excinfo.value)
+
+
+def test_heights_within_the_limit_build(tmp_path, capsys):
+    np.save(tmp_path / "high.npy", np.array([[0.0, 4e18], [-4e18, 1.0]]))
+    code, err = build_cli(capsys, tmp_path / "high.npy")
+    assert code == 0, err
+
+
+@pytest.mark.parametrize("grid, options, words", [
+    (np.full((8, 8), 3.4e38, np.float32), [], "64 heightfield samples"),
+    (np.where(np.eye(8) > 0, 3.4e38, 0.0), [], "8 heightfield samples"),
+    (np.random.default_rng(1).random((8, 8)), ["--z-scale=1e38"], "--z-scale"),
+    (np.random.default_rng(1).random((8, 8)), ["--cell-size=1e38"], "--cell-size"),
+    (np.random.default_rng(1).random((8, 8)), ["--cell-size=1e-39"], "--cell-size"),
+    (np.random.default_rng(1).random((8, 8)), ["--cell-size=0"], "--cell-size"),
+    (np.random.default_rng(1).random((8, 8)), ["--cell-size=-1"], "--cell-size"),
+    (np.random.default_rng(1).random((8, 8)), ["--cell-size=nan"], "--cell-size"),
+    (np.random.default_rng(1).random((8, 8)), ["--cell-size=inf"], "--cell-size"),
+    (np.random.default_rng(1).random((8, 8)), ["--z-scale=-inf"], "--z-scale"),
+    (np.random.default_rng(1).random((8, 8)), ["--z-scale=0"], "--z-scale"),
+])
+def test_the_cli_refuses_them_in_one_line_without_warnings(tmp_path, capsys, grid, options, words):
+    np.save(tmp_path / "dem.npy", grid)
+    code, err = build_cli(capsys, tmp_path / "dem.npy", *options)
+    assert code == 2 and words in err, err
+
+
+def test_signalling_nans_are_holes_without_warnings(tmp_path, capsys):
+    """Bit rot can leave signalling NaNs (exponent all ones, top mantissa bit
+    clear); converting them to float64 or computing with them warns."""
+    grid = np.zeros((6, 6), np.float32)
+    grid.view(np.uint32)[2, 2] = 0x7F800001                  # a signalling NaN
+    np.save(tmp_path / "snan32.npy", grid)
+    grid64 = np.zeros((6, 6))
+    grid64.view(np.uint64)[2, 2] = 0x7FF0000000000001
+    np.save(tmp_path / "snan64.npy", grid64)
+    for name in ("snan32.npy", "snan64.npy"):
+        assert np.isnan(load_heightfield(tmp_path / name)).sum() == 1
+        code, err = build_cli(capsys, tmp_path / name)
+        assert code == 0, err
+
+
+def test_heights_beyond_float64_are_refused_without_warnings(tmp_path, capsys):
+    grid = np.zeros((4, 4), np.longdouble)
+    grid[1, 1] = np.finfo(np.longdouble).max
+    np.save(tmp_path / "long.npy", grid)
+    code, err = build_cli(capsys, tmp_path / "long.npy")
+    assert code == 2 and ("infinity" in err or "beyond" in err), err
+
+
+def test_a_png_beyond_pillows_pixel_limit_is_refused(tmp_path, capsys):
+    """A damaged header claiming 10000 x 10000 pixels: Pillow would only warn
+    (a DecompressionBombWarning on stderr); the build refuses it."""
+    import struct
+    import zlib
+    from PIL import Image
+    Image.fromarray(np.zeros((8, 8), np.uint16)).save(tmp_path / "dem.png")
+    data = bytearray((tmp_path / "dem.png").read_bytes())
+    struct.pack_into(">II", data, 16, 10000, 10000)           # IHDR width, height
+    struct.pack_into(">I", data, 29, zlib.crc32(bytes(data[12:29])))
+    (tmp_path / "dem.png").write_bytes(bytes(data))
+    code, err = build_cli(capsys, tmp_path / "dem.png")
+    assert code == 2 and "89,478,485 pixels" in err, err
+
+
+def test_what_tifffile_logs_while_reading_is_silenced(tmp_path, caplog, capsys):
+    """A TIFF whose RowsPerStrip disagrees with its one strip: tifffile logs
+    (and reads it anyway); the user sees nothing."""
+    tifffile = pytest.importorskip("tifffile")
+    tifffile.imwrite(tmp_path / "dem.tif", np.zeros((8, 8), np.float32))
+    with tifffile.TiffFile(tmp_path / "dem.tif") as tif:
+        offset = tif.pages[0].tags["RowsPerStrip"].valueoffset
+    data = bytearray((tmp_path / "dem.tif").read_bytes())
+    data[offset:offset + 4] = (2).to_bytes(4, "little")
+    (tmp_path / "dem.tif").write_bytes(bytes(data))
+    with caplog.at_level("DEBUG"):
+        try:
+            load_heightfield(tmp_path / "dem.tif")
+        except InputError:
+            pass
+    assert not [r for r in caplog.records if r.name.startswith("tifffile")], caplog.text
+    build_cli(capsys, tmp_path / "dem.tif")
+
+
+def test_a_float16_material_map_is_checked_without_warnings(tmp_path, capsys):
+    np.save(tmp_path / "dem.npy", np.zeros((4, 4)))
+    np.save(tmp_path / "classes.npy", np.full((3, 3), 2, np.float16))
+    code, err = build_cli(capsys, tmp_path / "dem.npy", f"--materials={tmp_path / 'classes.npy'}")
+    assert code == 0, err
+
+
+def test_a_tiff_missing_strips_or_tiles_is_refused(tmp_path, capsys):
+    """A tiled TIFF whose ImageLength says 100,000 rows but which holds two
+    tiles: tifffile fills the 12,498 missing ones with zeros, and the build of
+    that plain ran past the fuzzer's 20 s; it is refused as damaged."""
+    tifffile = pytest.importorskip("tifffile")
+    tifffile.imwrite(tmp_path / "dem.tif", np.ones((16, 18), np.float32), tile=(16, 16))
+    with tifffile.TiffFile(tmp_path / "dem.tif") as tif:
+        tag = tif.pages[0].tags["ImageLength"]
+        assert tag.dtype == 4 and tag.count == 1                 # one LONG, stored in the entry
+    data = bytearray((tmp_path / "dem.tif").read_bytes())
+    data[tag.valueoffset:tag.valueoffset + 4] = (100000).to_bytes(4, "little")
+    (tmp_path / "dem.tif").write_bytes(bytes(data))
+    code, err = build_cli(capsys, tmp_path / "dem.tif")
+    assert code == 2 and "damaged" in err and "strips or tiles" in err, err

@@ -37,6 +37,7 @@ def build_static_mesh(source: SourceMesh, crease_angle: float | None = None, pro
     """
     t0 = time.perf_counter()
     source.validate()
+    _refuse_faces_float32_collapses(source)
     stage(f"preparing {len(source.faces):,} triangles: normals, topology, surface groups", progress)
     source, topo = prepare_source(source, crease_angle)
     face_pos = source.face_positions.astype(np.int32)
@@ -232,6 +233,30 @@ def _base_mesh_reasons(hier: Hierarchy, face_pos: np.ndarray, topo: Topology, la
     return {"faces": base, "fraction": round(base / p, 6), "components": components,
             "nonmanifold_positions": pinned, "rigid_positions": rigid, "surface_groups": lay.n_groups,
             "material_border_faces": material_faces, "large": large, "why": why}
+
+
+def _refuse_faces_float32_collapses(source: SourceMesh) -> None:
+    """Refuse a mesh some of whose faces float32 turns into points or lines.
+
+    The .cvc stores positions as float32, whose step near a coordinate x is
+    about x * 1.2e-7 (2**-23). A mesh small for its distance from the origin (1 m of
+    detail 1e8 m out) or with near-duplicate positions from a text file
+    would be stored with faces whose corners coincide: zero-area faces where
+    the input has surface, and positions the build tells apart that the file
+    cannot. Refused whatever their number: the file could not be what the
+    build measured, and only the user knows whether to move or weld the mesh.
+    """
+    corners = np.asarray(source.positions, dtype=np.float32)[source.face_positions]   # (p, 3 corners, 3)
+    same = [(corners[:, i] == corners[:, (i + 1) % 3]).all(axis=1) for i in range(3)]
+    collapsed = same[0] | same[1] | same[2]
+    n = int(np.count_nonzero(collapsed))
+    if n:
+        largest = float(np.abs(source.positions[source.face_positions[collapsed]]).max())
+        step = float(np.spacing(np.float32(largest)))
+        raise InputError(f"{n:,} of {len(collapsed):,} faces collapse to a point or a line when their positions are "
+                         f"rounded to float32, as the .cvc stores them (float32's step near {largest:.3g} is "
+                         f"{step:.3g}); move the mesh near the origin (subtract its centre), or merge positions "
+                         f"that close with --weld {2 * step:.2g}")
 
 
 def prepare_source(source: SourceMesh, crease_angle: float | None = None) -> tuple[SourceMesh, Topology]:

@@ -25,14 +25,14 @@ Everything is vectorised numpy: no Python loop runs per face or per vertex.
 from __future__ import annotations
 
 import os
-import warnings
 from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 
 from ..errors import InputError
-from .source import SourceMesh
+from .quiet import quiet_reading
+from .source import FLOAT32_MAX, MAX_COORDINATE, SourceMesh, out_of_range_rows
 
 __all__ = ["load_mesh_file", "source_from_trimesh"]
 
@@ -171,14 +171,14 @@ def _read_scene(path: Path, file_type: str):
     """Load ``path`` with trimesh into a ``trimesh.Scene``, merging nothing.
 
     Every exception trimesh raises becomes an InputError that names the file
-    and the cause; warnings trimesh or numpy emit while parsing are silenced
-    because they would reach the user as noise with no action to take.
+    and the cause; warnings trimesh or numpy emit while parsing, and what
+    trimesh logs, are silenced because they would reach the user as noise with
+    no action to take (see :mod:`caveclod.builder.quiet`).
     """
     import trimesh
 
     try:
-        with warnings.catch_warnings(), np.errstate(all="ignore"):
-            warnings.simplefilter("ignore")
+        with quiet_reading("trimesh"):
             if hasattr(trimesh, "load_scene"):  # trimesh >= 4.6
                 return trimesh.load_scene(str(path), file_type=file_type, process=False)
             return trimesh.load(str(path), file_type=file_type, process=False, force="scene")
@@ -252,6 +252,7 @@ def _source_from_scene(scene, default_material: str, label: str) -> SourceMesh:
     parts = _collect_parts(scene, default_material, label, notes)
     soup = _concatenate(parts, notes)
     _refuse_nonfinite_positions(soup, label)
+    _refuse_far_positions(soup, label)
     _refuse_nonfinite_uv(soup, label)
     soup.normals = _unit_normals_or_none(soup.normals, notes)
     source = _clean(soup, label, notes)
@@ -268,7 +269,7 @@ def _collect_parts(scene, default_material: str, label: str, notes: list[str]) -
     """
     import trimesh
 
-    nodes = list(scene.graph.nodes_geometry)
+    placed = _placed_geometries(scene, label)
     with_faces = {
         key
         for key, geom in scene.geometry.items()
@@ -278,17 +279,36 @@ def _collect_parts(scene, default_material: str, label: str, notes: list[str]) -
     # geometries would otherwise all get the same default name.
     several = len(with_faces) > 1
     parts: list[_Part] = []
-    for node in nodes:
-        transform, geom_key = scene.graph[node]
+    for transform, geom_key in placed:
         if geom_key not in with_faces:
             continue
         geom = scene.geometry[geom_key]
         material = _material_name(geom, geom_key if several else default_material)
-        parts.append(_part_from_trimesh(geom, np.asarray(transform, dtype=np.float64),
-                                        material, notes))
+        parts.append(_part_from_trimesh(geom, transform, material, notes))
     if not parts:
         _refuse_no_triangles(scene, label)
     return parts
+
+
+def _placed_geometries(scene, label: str) -> list[tuple[np.ndarray, str]]:
+    """(transform (4, 4) float64, geometry key) of every node that places a geometry.
+
+    trimesh multiplies the scene graph's matrices here, with numpy warning
+    about what overflows; a transform that is not finite is refused by name,
+    since the geometry's own vertices may be fine.
+    """
+    with quiet_reading("trimesh"):
+        placed = [(node, *scene.graph[node]) for node in scene.graph.nodes_geometry]
+    out = []
+    for node, transform, geom_key in placed:
+        transform = np.asarray(transform, dtype=np.float64)
+        if not np.isfinite(transform).all():
+            raise InputError(
+                f"{label}: the scene node {str(node)[:60]!r} has a NaN or infinite transform; fix its "
+                f"matrix, translation, rotation or scale and export again"
+            )
+        out.append((transform, geom_key))
+    return out
 
 
 def _refuse_no_triangles(scene, label: str) -> None:
@@ -332,7 +352,7 @@ def _part_from_trimesh(geom, transform: np.ndarray, material: str, notes: list[s
         positions, faces, normals, uv, colors = _expand_face_colors(
             positions, faces, normals, uv, face_colors, notes)
 
-    positions, faces, normals = _apply_transform(transform, positions, faces, normals)
+    positions, faces, normals = _apply_transform(transform, positions, faces, normals, notes)
     return _Part(positions, faces, normals, uv, colors, material)
 
 
@@ -444,22 +464,30 @@ def _expand_face_colors(positions, faces, normals, uv, face_colors, notes):
     )
 
 
-def _apply_transform(transform, positions, faces, normals):
-    """Place a part by its scene-graph transform (4, 4).
+def _apply_transform(transform, positions, faces, normals, notes):
+    """Place a part by its scene-graph transform (4, 4), finite.
 
     Normals go through the inverse transpose so they stay perpendicular under
-    non-uniform scale; a mirroring transform (negative determinant) would
-    turn the surface inside out, so the winding is reversed to keep faces
-    counter-clockwise seen from outside.
+    non-uniform scale (a singular transform, which flattens the part, leaves
+    none: they are dropped, with a note); a mirroring transform (negative
+    determinant) would turn the surface inside out, so the winding is
+    reversed to keep faces counter-clockwise seen from outside.
     """
     if np.array_equal(transform, np.eye(4)):
         return positions, faces, normals
     linear = transform[:3, :3]
-    positions = positions @ linear.T + transform[:3, 3]
-    if normals is not None:
-        # n' = M^-T n for column vectors, i.e. n' = n M^-1 for row vectors.
-        normals = normals @ np.linalg.inv(linear)
-    if np.linalg.det(linear) < 0:
+    # A huge transform makes infinite or far positions, which are refused
+    # later with their count; numpy's overflow warnings would only be noise.
+    with np.errstate(over="ignore", invalid="ignore"):
+        positions = positions @ linear.T + transform[:3, 3]
+        determinant = np.linalg.det(linear)
+        if normals is not None and determinant != 0.0:
+            # n' = M^-T n for column vectors, i.e. n' = n M^-1 for row vectors.
+            normals = normals @ np.linalg.inv(linear)
+        elif normals is not None:
+            notes.append("ignored the vertex normals of a part its transform flattens (singular matrix)")
+            normals = None
+    if determinant < 0:
         faces = faces[:, ::-1].copy()
     return positions, faces, normals
 
@@ -549,17 +577,41 @@ def _refuse_nonfinite_positions(soup: _Soup, label: str) -> None:
         )
 
 
-def _refuse_nonfinite_uv(soup: _Soup, label: str) -> None:
-    """Refuse NaN/inf texture coordinates: no safe value to put instead."""
-    if soup.uv is None:
-        return
-    bad = ~np.isfinite(soup.uv).all(axis=1)
-    bad &= _used_vertex_mask(len(soup.uv), soup.faces)
+def _refuse_far_positions(soup: _Soup, label: str) -> None:
+    """Refuse coordinates beyond +-MAX_COORDINATE on vertices a face uses.
+
+    Such a mesh would be stored with infinite positions (beyond float32's
+    3.4e38) or bounds whose squares overflow float32 (see MAX_COORDINATE);
+    only the user knows which scale was meant. Call after the NaN check.
+    """
+    bad = out_of_range_rows(soup.positions) & _used_vertex_mask(len(soup.positions), soup.faces)
     n_bad = int(bad.sum())
     if n_bad:
+        largest = float(np.abs(soup.positions[bad]).max())
         raise InputError(
-            f"{label}: {n_bad} vertices have NaN or infinite texture coordinates; "
+            f"{label}: {n_bad} vertices have coordinates beyond +-{MAX_COORDINATE:.2g} (the largest is "
+            f"{largest:.3g}), too far for the float32 the .cvc stores positions in; scale the mesh down "
+            f"(export it in larger units) or delete the stray vertices"
+        )
+
+
+def _refuse_nonfinite_uv(soup: _Soup, label: str) -> None:
+    """Refuse NaN/inf texture coordinates, and those beyond float32's range
+    (they would be stored as infinities): no safe value to put instead."""
+    if soup.uv is None:
+        return
+    used = _used_vertex_mask(len(soup.uv), soup.faces)
+    n_nan = int((~np.isfinite(soup.uv).all(axis=1) & used).sum())
+    if n_nan:
+        raise InputError(
+            f"{label}: {n_nan} vertices have NaN or infinite texture coordinates; "
             f"fix the UV map and export again"
+        )
+    n_far = int((out_of_range_rows(soup.uv, FLOAT32_MAX) & used).sum())
+    if n_far:
+        raise InputError(
+            f"{label}: {n_far} vertices have texture coordinates beyond +-{FLOAT32_MAX:.3g}, float32's "
+            f"range; fix the UV map and export again"
         )
 
 
@@ -579,7 +631,14 @@ def _unit_normals_or_none(normals: np.ndarray | None, notes: list[str]) -> np.nd
             f"all normals will be computed"
         )
         return None
-    length = np.sqrt(np.einsum("ij,ij->i", normals, normals))
+    # Squaring 1e200 overflows and squaring 1e-200 underflows: scale each
+    # row by its largest component first, so its length is in [1, sqrt(3)]
+    # (0 for a zero row).
+    largest = np.abs(normals).max(axis=1)
+    scaled = normals / np.where(largest > 0.0, largest, 1.0)[:, None]
+    scaled_length = np.sqrt(np.einsum("ij,ij->i", scaled, scaled))
+    with np.errstate(over="ignore"):  # an infinite length is just "not unit"
+        length = largest * scaled_length
     zero = length < _MIN_NORMAL_LENGTH
     if zero.any():
         notes.append(
@@ -590,7 +649,7 @@ def _unit_normals_or_none(normals: np.ndarray | None, notes: list[str]) -> np.nd
     off_unit = int((np.abs(length - 1.0) > _UNIT_TOLERANCE).sum())
     if off_unit:
         notes.append(f"renormalised {off_unit} vertex normals that were not unit length")
-    return (normals / length[:, None]).astype(np.float32)
+    return (scaled / scaled_length[:, None]).astype(np.float32)
 
 
 # --------------------------------------------------------------------------

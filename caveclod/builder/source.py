@@ -20,6 +20,34 @@ import numpy as np
 
 from ..errors import InputError
 
+FLOAT32_MAX = float(np.finfo(np.float32).max)
+"""Largest finite float32 (about 3.4e38): the .cvc stores positions, texture
+coordinates, bounding spheres and error bounds as float32."""
+
+MAX_COORDINATE = 2.0 ** 62
+"""Largest coordinate magnitude a build accepts (about 4.6e18).
+
+The build itself works in float64, where nothing it forms comes near
+overflow for such coordinates: its largest products are of degree four in
+the coordinates (a quadric entry is a face's area times its squared plane
+offset; the point-triangle distance multiplies two dot products of edges),
+at most (2^63)^4 = 2^252, about 7e75, against float64's 1.8e308. What
+limits the coordinates is float32, in which the .cvc stores the positions
+and the bounding spheres and errors of its nodes, and in which viewers get
+the positions: with every coordinate within +-2^62 a coordinate difference
+is within +-2^63 and the squared distance between any two positions (three
+such squares, at most 3 * 2^126, about 2.6e38) is still a finite float32, so
+a distance, norm or bound a viewer computes from the file's float32 arrays
+stays finite. No real model comes near: 4.6e18 metres is about 490 light
+years, and 4.6e18 millimetres about 31,000 astronomical units."""
+
+
+def out_of_range_rows(values: np.ndarray, limit: float = MAX_COORDINATE) -> np.ndarray:
+    """(n,) bool: rows of the (n, k) ``values`` holding a NaN, an infinity or a
+    magnitude beyond ``limit``."""
+    with np.errstate(invalid="ignore"):
+        return ~(np.abs(values) <= limit).all(axis=1)
+
 
 @dataclass
 class SourceMesh:
@@ -72,6 +100,10 @@ class SourceMesh:
             raise InputError(f"positions must be (e, 3), got {self.positions.shape}")
         if not np.isfinite(self.positions).all():
             raise InputError("positions contain NaN or infinity; fix or remove those vertices")
+        n_far = int(out_of_range_rows(self.positions).sum())
+        if n_far:
+            raise InputError(f"{n_far} positions have coordinates beyond +-{MAX_COORDINATE:.2g}, where float32 "
+                             "(what the .cvc stores) cannot hold squared distances; scale the mesh down")
         if self.faces.ndim != 2 or self.faces.shape[1] != 3:
             raise InputError(f"faces must be (p, 3) triangles, got {self.faces.shape}")
         if self.faces.min() < 0 or self.faces.max() >= v:
@@ -88,8 +120,8 @@ class SourceMesh:
             if arr is not None:
                 if arr.shape != (v, width):
                     raise InputError(f"{name} must be ({v}, {width}), got {arr.shape}")
-                if arr.dtype.kind == "f" and not np.isfinite(arr).all():
-                    raise InputError(f"{name} contains NaN or infinity")
+                if arr.dtype.kind == "f" and out_of_range_rows(arr, FLOAT32_MAX).any():
+                    raise InputError(f"{name} contains NaN, infinity or values beyond float32's range")
         fp = self.face_positions
         if ((fp[:, 0] == fp[:, 1]) | (fp[:, 1] == fp[:, 2]) | (fp[:, 2] == fp[:, 0])).any():
             raise InputError("a face uses the same position twice; the loader must drop degenerate faces")

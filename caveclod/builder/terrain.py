@@ -27,7 +27,13 @@ from collections.abc import Sequence
 import numpy as np
 
 from ..errors import InputError
-from .source import SourceMesh
+from .quiet import quiet_reading
+from .source import MAX_COORDINATE, SourceMesh
+
+FLOAT32_TINY = float(np.finfo(np.float32).tiny)
+"""Smallest normal float32 (about 1.2e-38): the smallest cell size accepted.
+Below it the grid's x and y would be float32 subnormals, with fewer than 24
+bits, or zero, in the .cvc."""
 
 TILE_SIZES = {"water": 50.0, "grass": 20.0, "rock": 8.0, "snow": 32.0}
 """World units one texture repeat covers, per material name. They differ so
@@ -62,23 +68,44 @@ def load_heightfield(path: str | os.PathLike, nodata: float | None = None) -> np
         voids += _tiff_nodata(path)
     if array.dtype == np.int16:
         voids.append(SRTM_VOID)
-    heights = np.asarray(array, dtype=np.float64)
+    heights = _as_float64(array)
     for value in voids:
         heights[heights == value] = np.nan
     return heights
 
 
+def _as_float64(array) -> np.ndarray:
+    """``array`` as float64 with every NaN a quiet NaN (``array`` itself when
+    it already is; never modified).
+
+    A damaged file can hold signalling NaNs (an exponent of all ones with the
+    top mantissa bit clear); converting or computing with one raises numpy's
+    "invalid value" warning. Converting under ``errstate`` quiets them; a
+    float64 input, which is not converted, is quieted in a copy. Long
+    doubles beyond float64's range become infinities, refused later.
+    """
+    with np.errstate(invalid="ignore", over="ignore"):
+        out = np.asarray(array, dtype=np.float64)
+    nan = np.isnan(out)
+    return np.where(nan, np.nan, out) if nan.any() else out
+
+
 def _tiff_nodata(path) -> list[float]:
     """The GDAL_NODATA value of a GeoTIFF, as a one-item list (or empty)."""
     import tifffile
-    with tifffile.TiffFile(path) as tif:
-        tag = tif.pages[0].tags.get("GDAL_NODATA") or tif.pages[0].tags.get(42113)
-        if tag is None:
-            return []
-        try:
-            return [float(str(tag.value).strip().strip("\x00"))]
-        except ValueError:
-            return []
+    try:
+        with quiet_reading("tifffile"), tifffile.TiffFile(path) as tif:
+            tag = tif.pages[0].tags.get("GDAL_NODATA") or tif.pages[0].tags.get(42113)
+            text = None if tag is None else str(tag.value)
+    except Exception as exc:  # imread read the pixels, but the tags may still be damaged
+        raise InputError(f"cannot read the tags of heightfield {path} ({_describe(exc)}); "
+                         "check that the file is intact") from None
+    if text is None:
+        return []
+    try:
+        return [float(text.strip().strip("\x00"))]
+    except ValueError:
+        return []
 
 
 def load_material_map(path: str | os.PathLike) -> np.ndarray:
@@ -102,31 +129,42 @@ def _read_grid(path: str | os.PathLike, what: str, palette: bool = False) -> np.
         raise InputError(f"{what} file {path} does not exist; check the path")
     ext = os.path.splitext(path)[1].lower()
     try:
-        if ext == ".npy":
-            array = np.load(path, allow_pickle=False)
-        elif ext == ".png":
-            array = _read_png(path, what, palette)
-        elif ext in (".tif", ".tiff"):
-            import tifffile
-            # Single-channel TIFFs sometimes carry a length-1 page or sample axis.
-            array = np.squeeze(tifffile.imread(path))
-        else:
-            raise InputError(f"{what} {path}: unknown file type {ext!r}; use .npy, .png, .tif or .tiff")
+        # tifffile logs what it skips in a damaged file; the exception, if
+        # any, is what the user needs (see caveclod.builder.quiet).
+        with quiet_reading("tifffile", "PIL"):
+            if ext == ".npy":
+                array = np.load(path, allow_pickle=False)
+            elif ext == ".png":
+                array = _read_png(path, what, palette)
+            elif ext in (".tif", ".tiff"):
+                array = _read_tiff(path, what)
+            else:
+                raise InputError(f"{what} {path}: unknown file type {ext!r}; use .npy, .png, .tif or .tiff")
     except InputError:
         raise
     except Exception as exc:  # corrupt files surface as many exception types
-        raise InputError(f"cannot read {what} {path} ({type(exc).__name__}: {_one_line(exc)}); "
-                         "check that the file is intact") from exc
+        raise InputError(f"cannot read {what} {path} ({_describe(exc)}); check that the file is intact") from None
     if array.ndim != 2:
         raise InputError(f"{what} {path} has shape {array.shape}; give a single-channel 2-D grid")
     return array
 
 
 def _read_png(path: str, what: str, palette: bool) -> np.ndarray:
-    """Pixels of a greyscale (or palette) PNG as numbers, 16-bit kept intact."""
+    """Pixels of a greyscale (or palette) PNG as numbers, 16-bit kept intact.
+
+    Images beyond Pillow's decompression-bomb limit are refused (Pillow only
+    warns up to twice the limit, a warning the caller silences).
+    """
     from PIL import Image
 
-    with Image.open(path) as image:
+    limit = Image.MAX_IMAGE_PIXELS     # None when an application turned the check off
+    try:
+        image = Image.open(path)
+    except Image.DecompressionBombError:
+        raise _too_many_pixels(what, path, limit) from None
+    with image:
+        if limit and image.width * image.height > limit:
+            raise _too_many_pixels(what, path, limit)
         # "I;16*" is 16-bit greyscale, "I" the 32-bit mode older Pillows use for it.
         modes = ("L", "I", "F", "P") if palette else ("L", "I", "F")
         if image.mode not in modes and not image.mode.startswith("I;16"):
@@ -134,8 +172,44 @@ def _read_png(path: str, what: str, palette: bool) -> np.ndarray:
         return np.array(image)
 
 
+def _read_tiff(path: str, what: str) -> np.ndarray:
+    """Pixels of a TIFF, its length-1 page or sample axes dropped.
+
+    A file listing fewer strips or tiles than its size needs is refused:
+    tifffile would log the fact and fill the missing ones with zeros, reading
+    a damaged file as a plain (and a header claiming 100,000 rows as a grid
+    that takes minutes to build).
+    """
+    import tifffile
+    with tifffile.TiffFile(path) as tif:
+        page = tif.pages[0]
+        needed = int(np.prod(page.chunked))
+        n = min(len(page.dataoffsets), len(page.databytecounts))
+        held = int(np.count_nonzero((np.asarray(page.dataoffsets[:n]) > 0) & (np.asarray(page.databytecounts[:n]) > 0)))
+        if held < needed:
+            raise InputError(f"{what} {path} is damaged: it holds {held} of the {needed} strips or tiles its "
+                             f"{page.imagewidth}x{page.imagelength} pixels need; check that the file is intact")
+        return np.squeeze(tif.asarray())
+
+
+def _too_many_pixels(what: str, path: str, limit: int) -> InputError:
+    return InputError(f"{what} {path} has more than {limit:,} pixels, Pillow's limit against decompression "
+                      "bombs; crop or downsample it (or the file's header is damaged)")
+
+
 def _one_line(exc: Exception) -> str:
     return " ".join(str(exc).split())
+
+
+_MAX_CAUSE_CHARS = 200   # longest message quoted from a reader's exception
+
+
+def _describe(exc: BaseException) -> str:
+    """``Type: message`` of an exception, on one line and at most about 200 characters."""
+    text = _one_line(exc)
+    if len(text) > _MAX_CAUSE_CHARS:
+        text = text[:_MAX_CAUSE_CHARS - 3] + "..."
+    return f"{type(exc).__name__}: {text}" if text else type(exc).__name__
 
 
 def _cell_corners(grid: np.ndarray) -> tuple[np.ndarray, ...]:
@@ -184,6 +258,8 @@ def heightfield_to_source(heights: np.ndarray, cell_size: float = 1.0, z_scale: 
     h = _checked_heights(heights)
     cell_size = _positive_finite("cell_size", cell_size)
     z_scale = _positive_finite("z_scale", z_scale)
+    _refuse_far_grid(h.shape, cell_size)
+    _refuse_far_heights(h, z_scale)
     kept = _cells_with_finite_corners(h)
     if materials is None:
         from .landcover import classify_terrain, coherent_classes
@@ -225,26 +301,59 @@ def heightfield_to_source(heights: np.ndarray, cell_size: float = 1.0, z_scale: 
 def _checked_heights(heights) -> np.ndarray:
     """``heights`` as a (rows, cols) float64 array, rows, cols >= 2, no infinities."""
     try:
-        h = np.asarray(heights, dtype=np.float64)
+        h = _as_float64(heights)
     except (TypeError, ValueError) as exc:
         raise InputError(f"heights must be a 2-D array of numbers ({_one_line(exc)})") from exc
     if h.ndim != 2:
         raise InputError(f"heights must be a 2-D (rows, cols) grid, got shape {h.shape}")
     if h.shape[0] < 2 or h.shape[1] < 2:
         raise InputError(f"heights of shape {h.shape} has no cell; give at least 2x2 samples")
-    if np.isinf(h).any():
-        raise InputError("heights contain infinity; replace those samples with finite values or NaN (a hole)")
+    n_inf = int(np.count_nonzero(np.isinf(h)))
+    if n_inf:
+        raise InputError(f"{n_inf} height samples hold infinity; replace them with finite values or NaN (a hole)")
     return h
 
 
 def _positive_finite(name: str, value) -> float:
+    """``value`` as a float; InputError unless it is finite and > 0.
+
+    ``name`` is the argument's name (``cell_size``); the message names the
+    command line's option (``--cell-size``) too.
+    """
+    option = "--" + name.replace("_", "-")
     try:
         value = float(value)
     except (TypeError, ValueError):
-        raise InputError(f"{name} must be a positive number, got {value!r}") from None
+        raise InputError(f"{name} ({option}) must be a positive number, got {value!r}") from None
     if not np.isfinite(value) or value <= 0.0:
-        raise InputError(f"{name} must be a positive finite number, got {value}")
+        raise InputError(f"{name} ({option}) must be a positive finite number, got {value}")
     return value
+
+
+def _refuse_far_grid(shape: tuple[int, int], cell_size: float) -> None:
+    """Refuse a cell size whose grid of ``shape`` (rows, cols) samples reaches
+    beyond +-MAX_COORDINATE, or whose x and y float32 cannot hold."""
+    span = (max(shape) - 1) * cell_size
+    if span > MAX_COORDINATE:
+        raise InputError(f"the grid spans {span:.3g} ({max(shape)} samples {cell_size:g} apart), beyond "
+                         f"+-{MAX_COORDINATE:.2g}, too far for the float32 the .cvc stores positions in; "
+                         "give a smaller --cell-size")
+    if cell_size < FLOAT32_TINY:
+        raise InputError(f"cell_size (--cell-size) {cell_size:g} is below {FLOAT32_TINY:.3g}, the smallest normal "
+                         "float32: the .cvc could not tell the grid's samples apart; give a larger --cell-size")
+
+
+def _refuse_far_heights(h: np.ndarray, z_scale: float) -> None:
+    """Refuse samples of (rows, cols) ``h`` whose elevation ``h * z_scale`` is
+    beyond +-MAX_COORDINATE (see there). NaN samples (holes) pass."""
+    with np.errstate(over="ignore", invalid="ignore"):   # inf and NaN compare as they should
+        far = np.abs(h) * z_scale > MAX_COORDINATE
+    n_far = int(np.count_nonzero(far))
+    if n_far:
+        largest = float(np.abs(h[far]).max())
+        raise InputError(f"{n_far} heightfield samples give elevations beyond +-{MAX_COORDINATE:.2g} (the largest: "
+                         f"{largest:.3g} x z-scale {z_scale:g}), too far for the float32 the .cvc stores positions "
+                         "in; give a smaller --z-scale or rescale the heights")
 
 
 def _cells_with_finite_corners(h: np.ndarray) -> np.ndarray:
@@ -282,7 +391,9 @@ def _integral_classes(materials, what: str) -> np.ndarray:
             raise InputError(f"{what} holds non-integer values; give whole-number class ids")
     elif m.dtype.kind not in "biu":
         raise InputError(f"{what} holds {m.dtype} values; give integer class ids")
-    if m.size and (m.max() > np.iinfo(np.int32).max or m.min() < np.iinfo(np.int32).min):
+    # Compared as Python numbers: numpy would cast the int32 bounds to a
+    # float16 map's dtype, where they overflow.
+    if m.size and (m.max().item() > np.iinfo(np.int32).max or m.min().item() < np.iinfo(np.int32).min):
         raise InputError(f"{what} has class ids beyond int32; renumber them 0, 1, 2, ...")
     return m.astype(np.int64)
 

@@ -30,6 +30,7 @@ def weld_positions(source: SourceMesh, tolerance: float) -> SourceMesh:
         tol = float("nan")
     if not np.isfinite(tol) or tol <= 0:
         raise InputError(f"--weld must be a positive distance, got {tolerance!r}")
+    _refuse_tolerance_below_resolution(source.positions, tol)
     notes = list(source.notes)
     cells = np.floor(source.positions / tol + 0.5).astype(np.int64)
     _, first, cluster = np.unique(cells, axis=0, return_index=True, return_inverse=True)
@@ -70,6 +71,22 @@ def weld_positions(source: SourceMesh, tolerance: float) -> SourceMesh:
                      crease_angle=source.crease_angle)
     out.validate()
     return out
+
+
+def _refuse_tolerance_below_resolution(positions: np.ndarray, tol: float) -> None:
+    """Refuse a tolerance finer than float64 resolves the (e, 3) ``positions``.
+
+    Grid cells are ``position / tol`` as int64; below ``largest * 2**-52``
+    (float64's step at the largest coordinate) that quotient passes 2**52,
+    where float64 no longer holds whole numbers exactly, and soon int64's
+    range: the cells would mean nothing, and exact welding (no --weld) does
+    all a tolerance that fine could.
+    """
+    largest = float(np.abs(positions).max(initial=0.0))
+    finest = largest * 2.0 ** -52
+    if tol < finest:
+        raise InputError(f"--weld {tol:g} is finer than float64 resolves coordinates up to {largest:.3g}; give at "
+                         f"least {finest:.2g}, or leave --weld out to merge only equal positions")
 
 
 def _merge_identical_vertices(source: SourceMesh, vertex_position: np.ndarray):
