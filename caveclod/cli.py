@@ -28,7 +28,9 @@ def main(argv: list[str] | None = None) -> int:
     parser = _parser()
     args = parser.parse_args(argv)
     try:
-        return args.run(args)
+        code = args.run(args)
+        sys.stdout.flush()           # a reader that left shows here (BrokenPipeError), not at exit
+        return code
     except CaveclodError as exc:
         print(f"caveclod: error: {exc}", file=sys.stderr)
         return EXIT_USAGE
@@ -42,6 +44,22 @@ def main(argv: list[str] | None = None) -> int:
     except KeyboardInterrupt:
         print("caveclod: interrupted", file=sys.stderr)
         return 130
+    except BrokenPipeError:
+        return _stdout_closed()
+
+
+def _stdout_closed() -> int:
+    """The reader of stdout left (``caveclod inspect F | head -2``): exit quietly, as
+    ``cat`` does, with 128 + SIGPIPE. Python would otherwise print a traceback
+    when it flushes stdout at exit: point stdout at /dev/null first."""
+    import os
+    try:
+        devnull = os.open(os.devnull, os.O_WRONLY)
+        os.dup2(devnull, sys.stdout.fileno())
+        os.close(devnull)
+    except (OSError, ValueError):     # no real stdout (a captured one): nothing will be flushed to a pipe
+        pass
+    return 141
 
 
 def _parser() -> argparse.ArgumentParser:
@@ -274,10 +292,10 @@ def _build(args) -> int:
 
 
 def _inspect(args) -> int:
-    from .api import load
-    mesh = load(args.path)
+    from .staticmesh import load
+    mesh = load(args.path)       # parses the header defensively and checks the structure (caveclod.meshcheck)
     if args.verify:
-        mesh.verify()
+        mesh.verify()            # and re-hashes every array
     report = mesh.summary()
     report["classes"] = mesh.class_tally()
     report["path"] = args.path

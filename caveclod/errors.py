@@ -11,3 +11,8 @@ class InputError(CaveclodError, ValueError):
 
 class FileFormatError(CaveclodError, ValueError):
     """A .cvc file is unreadable: truncated, corrupt, or of another version."""
+
+
+class MeshDamagedError(FileFormatError):
+    """A static mesh broke a rule no built mesh breaks while a camera refined it:
+    its file is damaged in a way the checks at load time cannot see."""

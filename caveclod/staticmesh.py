@@ -18,6 +18,7 @@ can open a multi-gigabyte mesh at once and share its pages between processes.
 from __future__ import annotations
 
 import hashlib
+import itertools
 import json
 import os
 import struct
@@ -26,7 +27,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .errors import FileFormatError
+from .errors import FileFormatError, MeshDamagedError
 
 MAGIC = b"CAVECLOD"
 VERSION = 2
@@ -63,7 +64,9 @@ class StaticMesh:
     """A built CAVECLOD hierarchy; see the module docstring for node ids.
 
     Attributes are the arrays of :data:`ARRAYS` (numpy arrays or memmaps)
-    plus ``materials`` (names), ``info`` (build report) and ``path``.
+    plus ``materials`` (names), ``info`` (build report) and ``path``;
+    ``damaged`` is set (what was found, a short phrase) once a camera found
+    the mesh damaged (:meth:`mark_damaged`): no new camera is made of it then.
     """
 
     arrays: dict
@@ -72,6 +75,7 @@ class StaticMesh:
     path: str | None = None
     content_hash: str = ""
     vertex_buffer_hash: str = ""
+    damaged: str = ""
 
     def __post_init__(self):
         missing = set(ARRAYS) - set(self.arrays)
@@ -177,12 +181,12 @@ class StaticMesh:
     def bounds(self) -> tuple[np.ndarray, np.ndarray]:
         """(lo, hi) float64 (3,) corners of the axis-aligned bounding box of the positions.
 
-        Computed once (every new camera asks; a 1M-triangle mesh takes tens
-        of milliseconds), returned as copies."""
+        Computed once (every new camera asks; the structural check at load
+        computes it first), returned as copies."""
         box = self.__dict__.get("_bounds")
         if box is None:
-            pos = np.asarray(self.arrays["vertex_positions"])
-            box = (pos.min(axis=0).astype(np.float64), pos.max(axis=0).astype(np.float64))
+            from .meshcheck import column_ranges
+            box = column_ranges(np.asarray(self.arrays["vertex_positions"]))
             self.__dict__["_bounds"] = box
         return box[0].copy(), box[1].copy()
 
@@ -256,7 +260,16 @@ class StaticMesh:
         (``max_ops``, ``max_faces``, ``expiries``).
         """
         from .refine.camera import CameraState
+        if self.damaged:
+            raise self.mark_damaged(self.damaged)
         return CameraState(self, **options)
+
+    def mark_damaged(self, what: str) -> MeshDamagedError:
+        """Record that a camera found this mesh damaged (``what``: how, a short
+        phrase; the first one found is kept) and return the error to raise: one
+        line naming the file and saying to rebuild it."""
+        self.damaged = self.damaged or what
+        return MeshDamagedError(str(damaged_error(self.path or "the static mesh", what)))
 
     # -- file -------------------------------------------------------------
     def save(self, path: str | os.PathLike) -> None:
@@ -291,9 +304,57 @@ class StaticMesh:
             raise FileFormatError(f"{self.path}: content hash mismatch; the file is corrupt, rebuild it")
 
 
-def load(path: str | os.PathLike) -> StaticMesh:
-    """Open a ``.cvc`` file; arrays are memory-mapped, nothing big is read."""
+def load(path: str | os.PathLike, check: bool = True) -> StaticMesh:
+    """Open a ``.cvc`` file; arrays are memory-mapped.
+
+    The header is parsed defensively: anything malformed (bad JSON, wrong
+    types, missing keys, shapes that disagree with their byte counts, arrays
+    outside the file or overlapping) raises :class:`FileFormatError` with one
+    line saying what is wrong. ``check`` (the default) then runs
+    :func:`caveclod.meshcheck.check_mesh`, the structural check of every id
+    the refinement kernels index with (numba checks no bounds): it reads the
+    index arrays once, about 70 ms per million triangles, but never the
+    vertex attributes beyond the positions. ``check=False`` is for tools
+    that only read the header or re-hash the file.
+    """
     path = Path(path)
+    size, hlen, blob = _read_header(path)
+    header = _parse_header(path, blob)
+    data_start = _aligned(len(MAGIC) + 8 + hlen)
+    table = _array_table(path, header["arrays"], data_start, size)
+    arrays = {}
+    for name, (dtype, _) in ARRAYS.items():
+        shape, start, nbytes = table[name]
+        if nbytes == 0:
+            arrays[name] = np.zeros(shape, dtype)
+            continue
+        try:
+            arrays[name] = np.memmap(path, dtype=dtype, mode="r", offset=start, shape=shape)
+        except (OSError, ValueError) as exc:     # the file changed since its size was read, or mmap failed
+            raise FileFormatError(f"{path}: cannot map array {name}: {exc}; copy the file again") from None
+    mesh = StaticMesh(arrays=arrays, materials=header["materials"], info=header["info"], path=str(path),
+                      content_hash=header["content_hash"], vertex_buffer_hash=header["vertex_buffer_hash"])
+    if check:
+        from .meshcheck import check_mesh
+        check_mesh(mesh)
+    return mesh
+
+
+# Limits of a sane header. A bit flip or an edit can turn any count into
+# something that costs minutes or gigabytes; past these the file is refused.
+MAX_HEADER_BYTES = 64 << 20      # the header JSON (a build's is a few KiB)
+MAX_MATERIALS = 65536            # face_material is uint16: more names could never be used
+MAX_NAME_CHARS = 1024            # characters of one material name
+MAX_INFO_DEPTH = 32              # nesting of the build report (a build's is 3 deep)
+
+
+def damaged_error(path, what: str) -> FileFormatError:
+    """The one-line error of a damaged ``.cvc`` file: what is wrong, and what to do."""
+    return FileFormatError(f"{path}: {what}; the file is damaged: rebuild it with 'caveclod build' or copy it again")
+
+
+def _read_header(path: Path) -> tuple[int, int, bytes]:
+    """(file size, header length, header bytes) after checking the magic and version."""
     try:
         size = path.stat().st_size
         with open(path, "rb") as fh:
@@ -303,33 +364,104 @@ def load(path: str | os.PathLike) -> StaticMesh:
             version, hlen = struct.unpack("<II", head[len(MAGIC):])
             if version != VERSION:
                 raise FileFormatError(f"{path}: .cvc version {version}, this caveclod reads {VERSION}; rebuild the file")
+            if hlen > min(size - len(head), MAX_HEADER_BYTES):
+                raise damaged_error(path, f"the header claims {hlen} bytes, the file has {size}")
             blob = fh.read(hlen)
     except FileNotFoundError:
         raise FileFormatError(f"{path}: no such file; build it with 'caveclod build INPUT -o {path.name}'") from None
     except IsADirectoryError:
         raise FileFormatError(f"{path}: is a directory, not a .cvc file") from None
+    except PermissionError:
+        raise FileFormatError(f"{path}: permission denied; check the file's permissions") from None
+    except OSError as exc:
+        raise FileFormatError(f"{path}: cannot read: {exc.strerror or exc}") from None
+    return size, hlen, blob
+
+
+def _parse_header(path: Path, blob: bytes) -> dict:
+    """The header JSON as a dict whose fields have the right types (defaults filled in)."""
     try:
         header = json.loads(blob)
-        table = header["arrays"]
-    except (ValueError, KeyError):
-        raise FileFormatError(f"{path}: header is truncated or corrupt; rebuild the file") from None
-    data_start = _aligned(len(MAGIC) + 8 + hlen)
-    arrays = {}
-    for name, (dtype, _) in ARRAYS.items():
-        if name not in table:
-            raise FileFormatError(f"{path}: array {name} missing; rebuild the file")
-        t = table[name]
-        shape = tuple(t["shape"])
-        start = data_start + t["offset"]
-        if start + t["nbytes"] > size:
-            raise FileFormatError(f"{path}: file is truncated ({size} bytes, needs {start + t['nbytes']}); rebuild or copy it again")
-        if t["nbytes"] == 0:
-            arrays[name] = np.zeros(shape, dtype)
-        else:
-            arrays[name] = np.memmap(path, dtype=dtype, mode="r", offset=start, shape=shape)
-    return StaticMesh(arrays=arrays, materials=header.get("materials", []), info=header.get("info", {}),
-                      path=str(path), content_hash=header.get("content_hash", ""),
-                      vertex_buffer_hash=header.get("vertex_buffer_hash", ""))
+    except (ValueError, RecursionError):     # bad JSON or UTF-8; RecursionError: nested too deep
+        raise damaged_error(path, "the header is truncated or corrupt (not JSON)") from None
+    if not isinstance(header, dict):
+        raise damaged_error(path, "the header is not a JSON object")
+    if header.get("format", "caveclod-static") != "caveclod-static" or header.get("version", VERSION) != VERSION:
+        raise damaged_error(path, "the header names another format or version than its first bytes")
+    if not isinstance(header.get("arrays"), dict):
+        raise damaged_error(path, "the header has no table of arrays")
+    for key in ("content_hash", "vertex_buffer_hash"):
+        value = header.setdefault(key, "")          # "": StaticMesh computes it (reads every array)
+        if not isinstance(value, str) or value and (len(value) != 32 or value.strip("0123456789abcdef")):
+            raise damaged_error(path, f"the header's {key} is not 32 hex digits")
+    header["materials"] = _checked_materials(path, header.get("materials", []))
+    info = header.setdefault("info", {})
+    if not isinstance(info, dict) or _depth(info) > MAX_INFO_DEPTH:
+        raise damaged_error(path, "the header's build report (info) is not a JSON object of sane depth")
+    return header
+
+
+def _checked_materials(path: Path, names) -> list:
+    if not isinstance(names, list) or not all(isinstance(n, str) for n in names):
+        raise damaged_error(path, "the header's materials are not a list of names")
+    if len(names) > MAX_MATERIALS:
+        raise damaged_error(path, f"the header lists {len(names)} materials, more than the {MAX_MATERIALS} "
+                            "that face_material can index")
+    if any(len(n) > MAX_NAME_CHARS for n in names):
+        raise damaged_error(path, f"a material name is longer than {MAX_NAME_CHARS} characters")
+    return names
+
+
+def _depth(value) -> int:
+    """Nesting depth of a parsed JSON value (iterative: the value may be deep)."""
+    deepest, todo = 0, [(value, 1)]
+    while todo:
+        v, depth = todo.pop()
+        if isinstance(v, (dict, list)):
+            deepest = max(deepest, depth)
+            if depth <= MAX_INFO_DEPTH:
+                todo.extend((c, depth + 1) for c in (v.values() if isinstance(v, dict) else v))
+    return deepest
+
+
+def _array_table(path: Path, table: dict, data_start: int, size: int) -> dict:
+    """{name: (shape, file offset, nbytes)} of every array, checked against :data:`ARRAYS` and the file.
+
+    Each entry must give the declared dtype, a shape of non-negative ints
+    with the declared trailing shape, ``nbytes`` equal to what the shape
+    holds, and an aligned offset that keeps the bytes inside the file; no
+    two arrays may overlap.
+    """
+    out = {}
+    for name, (dtype, trailing) in ARRAYS.items():
+        t = table.get(name)
+        if not isinstance(t, dict):
+            raise damaged_error(path, f"array {name} is missing from the header")
+        shape, offset, nbytes = t.get("shape"), t.get("offset"), t.get("nbytes")
+        if t.get("dtype") != dtype:
+            raise damaged_error(path, f"array {name} has dtype {str(t.get('dtype'))[:20]!r}, not {dtype}")
+        if not (isinstance(shape, list) and len(shape) == 1 + len(trailing) and all(_is_count(s) for s in shape)
+                and tuple(shape[1:]) == trailing):
+            raise damaged_error(path, f"array {name} has shape {str(shape)[:40]}, not (count, *{trailing})")
+        if not (_is_count(offset) and _is_count(nbytes)) or offset % ALIGN:
+            raise damaged_error(path, f"array {name} has a bad offset or byte count")
+        need = int(np.prod(shape, dtype=object)) * np.dtype(dtype).itemsize
+        if nbytes != need:
+            raise damaged_error(path, f"array {name} of shape {tuple(shape)} holds {need} bytes, the header says {nbytes}")
+        if data_start + offset + nbytes > size:
+            raise FileFormatError(f"{path}: file is truncated ({size} bytes, array {name} needs "
+                                  f"{data_start + offset + nbytes}); rebuild or copy it again")
+        out[name] = (tuple(shape), data_start + offset, nbytes)
+    spans = sorted((start, start + nbytes, name) for name, (_, start, nbytes) in out.items() if nbytes)
+    for (_, end, a), (start, _, b) in itertools.pairwise(spans):
+        if start < end:
+            raise damaged_error(path, f"arrays {a} and {b} overlap")
+    return out
+
+
+def _is_count(v) -> bool:
+    """A JSON integer >= 0 (``bool`` is an int in Python, but no count)."""
+    return isinstance(v, int) and not isinstance(v, bool) and v >= 0
 
 
 def _as_declared(name: str, a: np.ndarray) -> np.ndarray:

@@ -57,6 +57,23 @@ detail collapses the pair when the collapse is legal. Two additions:
   push) and the parent still needs detail, the child is marked RECHECK.
   Budgets and changed criteria turn expiries off; back-face answers are
   re-checked every pass.
+
+Guards. numba checks no bounds, so the kernels index only with ids that
+:func:`caveclod.meshcheck.check_mesh` proved in range when the mesh was
+loaded. What that check cannot prove cheaply is guarded here, off the hot
+path (a converged pass's scan is unchanged): a vertex lookup that finds no
+vertex of the face's surface group; a face walk round a position that finds
+no corner there, reaches an inactive face or does not close within as many
+steps as there are records; a forced split whose stack or step count passes
+what an acyclic hierarchy can need (4n + 8 entries, 8n + 64 steps: every
+dependency goes to a higher node id, so a node is pushed at most once while
+unsplit). Each stops the pass with DAMAGED and the node it was working on,
+which the camera raises as :class:`caveclod.errors.MeshDamagedError`. The
+functions that gained early returns for them (:func:`split_node`,
+:func:`_move_wedge`, :func:`_add_face`) are inlined by numba: LLVM stopped
+inlining them, and calls that pass every array as a struct of its own made
+a jump's updates about 10 % slower (inlined: 3 to 7 %; inlining
+``collapse_node`` too would save 2 % more for 5 s more of compiling).
 """
 
 import math
@@ -68,6 +85,10 @@ INACTIVE, ACTIVE, SPLIT = 0, 1, 2
 STATE_MASK, IN_LIST, QUEUED, RECHECK = 3, 4, 8, 16
 
 OK, NEED_RECORDS, NEED_LIST, NEED_QUEUE = 0, 1, 2, 3
+# The static mesh broke a rule no built mesh breaks (a vertex lookup that
+# misses, a face walk that does not close, a forced split that does not end):
+# the file is damaged. See "Guards" in the module doc.
+DAMAGED = 4
 MIXED, SPLITS_ONLY, COLLAPSES_ONLY = 0, 1, 2   # what a pass may do
 
 # View parameter layout (caveclod.refine.view).
@@ -195,7 +216,7 @@ def _mark(r, dirty):
     dirty[r >> 6] |= np.uint64(1) << np.uint64(r & 63)
 
 
-@nb.njit(cache=True, nogil=True)
+@nb.njit(cache=True, nogil=True, inline="always")
 def _move_wedge(fn0, fn2, old, new, fl, fr, fsgid, pos_vstart, vertex_sgid, vpos, face_rec, rec_tri, rec_nbr,
                 dirty):
     """Move the floating child's wedge of faces from position ``old`` to ``new``.
@@ -203,13 +224,19 @@ def _move_wedge(fn0, fn2, old, new, fl, fr, fsgid, pos_vstart, vertex_sgid, vpos
     The wedge runs from ``fn0`` (fl_u) round ``old`` to ``fn2`` (fr_u); if
     fl_u is absent it is walked back from fr_u to the border instead. A split
     moves it from s to u, a collapse back; the walk never enters fl or fr.
+    Returns False when the mesh is damaged (module doc, "Guards").
     """
+    steps = rec_tri.shape[0] + 1           # a walk round one position visits each active face once at most
     if fn0 >= 0:
         f = fn0
         while True:
             r = face_rec[f]
-            k = corner_at(rec_tri, vpos, r, old)
-            rec_tri[r, k] = lookup_vertex(pos_vstart, vertex_sgid, fsgid[f], new)
+            k = corner_at(rec_tri, vpos, r, old) if r >= 0 else -1
+            v = lookup_vertex(pos_vstart, vertex_sgid, fsgid[f], new)
+            steps -= 1
+            if k < 0 or v < 0 or steps < 0:
+                return False
+            rec_tri[r, k] = v
             _mark(r, dirty)
             if f == fn2:
                 break
@@ -220,32 +247,42 @@ def _move_wedge(fn0, fn2, old, new, fl, fr, fsgid, pos_vstart, vertex_sgid, vpos
         f = fn2
         while True:
             r = face_rec[f]
-            k = corner_at(rec_tri, vpos, r, old)
-            rec_tri[r, k] = lookup_vertex(pos_vstart, vertex_sgid, fsgid[f], new)
+            k = corner_at(rec_tri, vpos, r, old) if r >= 0 else -1
+            v = lookup_vertex(pos_vstart, vertex_sgid, fsgid[f], new)
+            steps -= 1
+            if k < 0 or v < 0 or steps < 0:
+                return False
+            rec_tri[r, k] = v
             _mark(r, dirty)
             f = rec_nbr[r, (k + 2) % 3]      # across the incoming edge
             if f < 0 or f == fl:
                 break
+    return True
 
 
-@nb.njit(cache=True, nogil=True)
+@nb.njit(cache=True, nogil=True, inline="always")
 def _add_face(f, a, b, c, n0, n1, n2, rot, mat, fsgid, pos_vstart, vertex_sgid, face_rec, off, cnt,
               rec_tri, rec_nbr, rec_face, dirty):
     """Append face ``f`` on positions (a, b, c) with neighbours (n0, n1, n2)
     across edges a->b, b->c, c->a, its corners starting at corner ``rot``
-    (the source face's order)."""
+    (the source face's order). False (nothing added) when a corner has no
+    vertex of the face's surface group: the mesh is damaged."""
+    g = fsgid[f]
+    va = lookup_vertex(pos_vstart, vertex_sgid, g, a)
+    vb = lookup_vertex(pos_vstart, vertex_sgid, g, b)
+    vc = lookup_vertex(pos_vstart, vertex_sgid, g, c)
+    if va < 0 or vb < 0 or vc < 0:
+        return False
     s = mat[f]
     r = off[s] + cnt[s]
     cnt[s] += 1
     face_rec[f] = r
     rec_face[r] = f
-    g = fsgid[f]
     k0, k1, k2 = rot, (rot + 1) % 3, (rot + 2) % 3
-    rec_tri[r, k0] = lookup_vertex(pos_vstart, vertex_sgid, g, a)
-    rec_tri[r, k1] = lookup_vertex(pos_vstart, vertex_sgid, g, b)
-    rec_tri[r, k2] = lookup_vertex(pos_vstart, vertex_sgid, g, c)
+    rec_tri[r, k0], rec_tri[r, k1], rec_tri[r, k2] = va, vb, vc
     rec_nbr[r, k0], rec_nbr[r, k1], rec_nbr[r, k2] = n0, n1, n2
     _mark(r, dirty)
+    return True
 
 
 @nb.njit(cache=True, nogil=True)
@@ -268,12 +305,14 @@ def _remove_face(f, mat, face_rec, off, cnt, rec_tri, rec_nbr, rec_face, dirty):
 # ---------------------------------------------------------------- split and collapse
 
 
-@nb.njit(cache=True, nogil=True)
+@nb.njit(cache=True, nogil=True, inline="always")
 def split_node(x, e, links, npos, rotation, mat, fsgid, pos_vstart, vertex_sgid, vpos, state, face_rec, off, cnt,
                rec_tri, rec_nbr, rec_face, dirty):
     """Split active node ``x`` whose required faces are all active.
 
-    The caller has checked legality and capacity (two records).
+    The caller has checked legality and capacity (two records). Returns
+    False when the mesh turned out damaged (module doc, "Guards"); the
+    camera's state is then half-changed and must not be used again.
     """
     j = x - e
     t, u = links[j, 0], links[j, 1]
@@ -282,42 +321,72 @@ def split_node(x, e, links, npos, rotation, mat, fsgid, pos_vstart, vertex_sgid,
     px = npos[j]
     pu = node_position(e, npos, u)
     # 1. The floating child's wedge: faces from fl_u round to fr_u move to u.
-    _move_wedge(fn0, fn2, px, pu, fl, fr, fsgid, pos_vstart, vertex_sgid, vpos, face_rec, rec_tri, rec_nbr,
-                dirty)
-    # 2. The two new faces, linked into their neighbours.
+    if not _move_wedge(fn0, fn2, px, pu, fl, fr, fsgid, pos_vstart, vertex_sgid, vpos, face_rec, rec_tri, rec_nbr,
+                       dirty):
+        return False
+    # 2. The two new faces, linked into their neighbours. (The required faces
+    # fn* are active: the caller checked; corner_at's -1 says the wiring is not
+    # that of a built mesh.)
     if fl >= 0:
         if fn0 >= 0:
             r0 = face_rec[fn0]
-            vl = vpos[rec_tri[r0, (corner_at(rec_tri, vpos, r0, pu) + 2) % 3]]
+            k = corner_at(rec_tri, vpos, r0, pu)
+            if k < 0:
+                return False
+            vl = vpos[rec_tri[r0, (k + 2) % 3]]
         else:
             r1 = face_rec[fn1]
-            vl = vpos[rec_tri[r1, (corner_at(rec_tri, vpos, r1, px) + 1) % 3]]
-        _add_face(fl, px, pu, vl, fr, fn0, fn1, rotation[fl], mat, fsgid, pos_vstart, vertex_sgid, face_rec, off, cnt,
-                  rec_tri, rec_nbr, rec_face, dirty)
+            k = corner_at(rec_tri, vpos, r1, px) if fn1 >= 0 else -1
+            if k < 0:
+                return False
+            vl = vpos[rec_tri[r1, (k + 1) % 3]]
+        if not _add_face(fl, px, pu, vl, fr, fn0, fn1, rotation[fl], mat, fsgid, pos_vstart, vertex_sgid, face_rec,
+                         off, cnt, rec_tri, rec_nbr, rec_face, dirty):
+            return False
         if fn0 >= 0:
             r0 = face_rec[fn0]
-            rec_nbr[r0, corner_at(rec_tri, vpos, r0, vl)] = fl      # edge vl -> u
+            k = corner_at(rec_tri, vpos, r0, vl)
+            if k < 0:
+                return False
+            rec_nbr[r0, k] = fl      # edge vl -> u
         if fn1 >= 0:
             r1 = face_rec[fn1]
-            rec_nbr[r1, corner_at(rec_tri, vpos, r1, px)] = fl      # edge t -> vl
+            k = corner_at(rec_tri, vpos, r1, px)
+            if k < 0:
+                return False
+            rec_nbr[r1, k] = fl      # edge t -> vl
     if fr >= 0:
         if fn2 >= 0:
             r2 = face_rec[fn2]
-            vr = vpos[rec_tri[r2, (corner_at(rec_tri, vpos, r2, pu) + 1) % 3]]
+            k = corner_at(rec_tri, vpos, r2, pu)
+            if k < 0:
+                return False
+            vr = vpos[rec_tri[r2, (k + 1) % 3]]
         else:
             r3 = face_rec[fn3]
-            vr = vpos[rec_tri[r3, (corner_at(rec_tri, vpos, r3, px) + 2) % 3]]
-        _add_face(fr, pu, px, vr, fl, fn3, fn2, rotation[fr], mat, fsgid, pos_vstart, vertex_sgid, face_rec, off, cnt,
-                  rec_tri, rec_nbr, rec_face, dirty)
+            k = corner_at(rec_tri, vpos, r3, px) if fn3 >= 0 else -1
+            if k < 0:
+                return False
+            vr = vpos[rec_tri[r3, (k + 2) % 3]]
+        if not _add_face(fr, pu, px, vr, fl, fn3, fn2, rotation[fr], mat, fsgid, pos_vstart, vertex_sgid, face_rec,
+                         off, cnt, rec_tri, rec_nbr, rec_face, dirty):
+            return False
         if fn2 >= 0:
             r2 = face_rec[fn2]
-            rec_nbr[r2, corner_at(rec_tri, vpos, r2, pu)] = fr      # edge u -> vr
+            k = corner_at(rec_tri, vpos, r2, pu)
+            if k < 0:
+                return False
+            rec_nbr[r2, k] = fr      # edge u -> vr
         if fn3 >= 0:
             r3 = face_rec[fn3]
-            rec_nbr[r3, corner_at(rec_tri, vpos, r3, vr)] = fr      # edge vr -> t
+            k = corner_at(rec_tri, vpos, r3, vr)
+            if k < 0:
+                return False
+            rec_nbr[r3, k] = fr      # edge vr -> t
     state[x] = (state[x] & ~STATE_MASK) | SPLIT
     state[t] = (state[t] & ~STATE_MASK) | ACTIVE
     state[u] = (state[u] & ~STATE_MASK) | ACTIVE
+    return True
 
 
 @nb.njit(cache=True, nogil=True)
@@ -343,22 +412,32 @@ def collapse_legal(x, e, links, rotation, state, face_rec, rec_nbr):
 @nb.njit(cache=True, nogil=True)
 def collapse_node(x, e, links, npos, mat, fsgid, pos_vstart, vertex_sgid, vpos, state, face_rec, off, cnt,
                   rec_tri, rec_nbr, rec_face, dirty):
-    """Undo the split of ``x`` (the caller checked :func:`collapse_legal`)."""
+    """Undo the split of ``x`` (the caller checked :func:`collapse_legal`).
+
+    Returns False when the mesh turned out damaged (module doc, "Guards").
+    """
     j = x - e
     t, u = links[j, 0], links[j, 1]
     fl, fr = links[j, 2], links[j, 3]
     fn0, fn1, fn2, fn3 = links[j, 4], links[j, 5], links[j, 6], links[j, 7]
     px = npos[j]
     pu = node_position(e, npos, u)
-    _move_wedge(fn0, fn2, pu, px, fl, fr, fsgid, pos_vstart, vertex_sgid, vpos, face_rec, rec_tri, rec_nbr,
-                dirty)
+    if not _move_wedge(fn0, fn2, pu, px, fl, fr, fsgid, pos_vstart, vertex_sgid, vpos, face_rec, rec_tri, rec_nbr,
+                       dirty):
+        return False
+    # fl's and fr's recorded neighbours are the required faces (collapse_legal),
+    # active in a built mesh: an inactive one (record -1) is damage.
     if fl >= 0:
+        if (fn0 >= 0 and face_rec[fn0] < 0) or (fn1 >= 0 and face_rec[fn1] < 0):
+            return False
         if fn0 >= 0:
             _replace_nbr(rec_nbr, face_rec[fn0], fl, fn1)
         if fn1 >= 0:
             _replace_nbr(rec_nbr, face_rec[fn1], fl, fn0)
         _remove_face(fl, mat, face_rec, off, cnt, rec_tri, rec_nbr, rec_face, dirty)
     if fr >= 0:
+        if (fn2 >= 0 and face_rec[fn2] < 0) or (fn3 >= 0 and face_rec[fn3] < 0):
+            return False
         if fn2 >= 0:
             _replace_nbr(rec_nbr, face_rec[fn2], fr, fn3)
         if fn3 >= 0:
@@ -367,6 +446,7 @@ def collapse_node(x, e, links, npos, mat, fsgid, pos_vstart, vertex_sgid, vpos, 
     state[x] = (state[x] & ~STATE_MASK) | ACTIVE
     state[t] = state[t] & ~STATE_MASK
     state[u] = state[u] & ~STATE_MASK
+    return True
 
 
 @nb.njit(cache=True, nogil=True, inline="always")
@@ -497,7 +577,9 @@ def adapt(e, parent, links, npos, bound, cone, face_creator, rotation, mat, fsgi
     tests of the expiries themselves). ``odo`` (2,) float64 is the camera's
     travelled distance and turned angle.
 
-    Returns (status, material): OK, or NEED_RECORDS for that material /
+    Returns (status, material): OK, DAMAGED with the node being split or
+    collapsed (the mesh is damaged: module doc, "Guards"; the camera is not
+    to be used again), or NEED_RECORDS for that material /
     NEED_LIST / NEED_QUEUE (``queue``, the collapse candidates): grow the
     arrays and call again, and the call *continues the same pass* where this
     one stopped: ``resume`` (4,) int64 holds the read and write positions, a
@@ -520,6 +602,8 @@ def adapt(e, parent, links, npos, bound, cone, face_creator, rotation, mat, fsgi
             e, parent, links, npos, bound, cone, face_creator, rotation, mat, fsgid, pos_vstart, vertex_sgid,
             vpos, state, face_rec, off, cnt, rec_tri, rec_nbr, rec_face, dirty, active, texp, aexp, n, vp,
             max_ops, counts, queue, q, n_faces)
+        if status == DAMAGED:
+            need_mat = queue[q]                  # the candidate it was collapsing
     else:
         # Visit nodes in id order: their static rows are then read front to
         # back instead of at random, which halves the cost of a pass.
@@ -527,6 +611,8 @@ def adapt(e, parent, links, npos, bound, cone, face_creator, rotation, mat, fsgi
         i = 0
         w = 0
     stack = np.empty(256, np.int64)
+    n_nodes = state.shape[0]
+    max_stack, max_steps = 4 * n_nodes + 8, 8 * n_nodes + 64     # what an acyclic hierarchy can need
     while status == OK:
         i, w = _skip_run(active, texp, aexp, state, odo, i, w, n, expire)
         if i >= n:
@@ -548,13 +634,21 @@ def adapt(e, parent, links, npos, bound, cone, face_creator, rotation, mat, fsgi
                 # Force the split of x: Hoppe's stack of unmet preconditions.
                 stack[0] = x
                 sp = 1
+                steps = 0
                 while sp > 0:
                     y = stack[sp - 1]
+                    steps += 1
+                    if steps > max_steps:
+                        status, need_mat = DAMAGED, y
+                        break
                     sy = state[y] & STATE_MASK
                     if sy == SPLIT or y < e:
                         sp -= 1
                         continue
                     if sp + 5 > stack.shape[0]:
+                        if stack.shape[0] > max_stack:
+                            status, need_mat = DAMAGED, y
+                            break
                         bigger = np.empty(2 * stack.shape[0], np.int64)
                         bigger[:sp] = stack[:sp]
                         stack = bigger
@@ -582,8 +676,10 @@ def adapt(e, parent, links, npos, bound, cone, face_creator, rotation, mat, fsgi
                     if n + 2 > active.shape[0]:
                         status = NEED_LIST
                         break
-                    split_node(y, e, links, npos, rotation, mat, fsgid, pos_vstart, vertex_sgid, vpos, state,
-                               face_rec, off, cnt, rec_tri, rec_nbr, rec_face, dirty)
+                    if not split_node(y, e, links, npos, rotation, mat, fsgid, pos_vstart, vertex_sgid, vpos,
+                                      state, face_rec, off, cnt, rec_tri, rec_nbr, rec_face, dirty):
+                        status, need_mat = DAMAGED, y
+                        break
                     counts[0] += 1
                     n_faces += (links[jy, 2] >= 0) + (links[jy, 3] >= 0)
                     n = _append(links[jy, 0], active, texp, aexp, n, state)
@@ -617,8 +713,10 @@ def adapt(e, parent, links, npos, bound, cone, face_creator, rotation, mat, fsgi
                         i -= 1
                         status = NEED_QUEUE
                         break
-                    collapse_node(p, e, links, npos, mat, fsgid, pos_vstart, vertex_sgid, vpos, state,
-                                  face_rec, off, cnt, rec_tri, rec_nbr, rec_face, dirty)
+                    if not collapse_node(p, e, links, npos, mat, fsgid, pos_vstart, vertex_sgid, vpos, state,
+                                         face_rec, off, cnt, rec_tri, rec_nbr, rec_face, dirty):
+                        status, need_mat = DAMAGED, p
+                        break
                     counts[1] += 1
                     n_faces -= (links[p - e, 2] >= 0) + (links[p - e, 3] >= 0)
                     n = _append(p, active, texp, aexp, n, state)
@@ -628,6 +726,8 @@ def adapt(e, parent, links, npos, bound, cone, face_creator, rotation, mat, fsgi
                         e, parent, links, npos, bound, cone, face_creator, rotation, mat, fsgid, pos_vstart,
                         vertex_sgid, vpos, state, face_rec, off, cnt, rec_tri, rec_nbr, rec_face, dirty, active,
                         texp, aexp, n, vp, max_ops, counts, queue, q, n_faces)
+                    if status == DAMAGED:
+                        need_mat = queue[q]      # the candidate it was collapsing
                     if status != OK:
                         break                    # the queue keeps what is left for the resumed pass
                     continue
@@ -638,6 +738,10 @@ def adapt(e, parent, links, npos, bound, cone, face_creator, rotation, mat, fsgi
             te, ae = NEVER, NEVER
         active[w], texp[w], aexp[w] = x, _down32(te), _down32(ae)
         w += 1
+    if status == DAMAGED:
+        # Nothing to resume: the camera is not to be used again.
+        n_active[0] = n
+        return status, need_mat
     if status != OK:
         # Stopped for room: remember where, keep the list as it is.
         resume[0], resume[1], resume[2], resume[3] = i, w, 1, q
@@ -691,8 +795,9 @@ def _collapse_candidates(e, parent, links, npos, bound, cone, face_creator, rota
             return q, n, n_faces, NEED_QUEUE
         q -= 1
         state[c] = state[c] & ~QUEUED & 0xFF
-        collapse_node(c, e, links, npos, mat, fsgid, pos_vstart, vertex_sgid, vpos, state, face_rec, off, cnt,
-                      rec_tri, rec_nbr, rec_face, dirty)
+        if not collapse_node(c, e, links, npos, mat, fsgid, pos_vstart, vertex_sgid, vpos, state, face_rec, off, cnt,
+                             rec_tri, rec_nbr, rec_face, dirty):
+            return q, n, n_faces, DAMAGED
         counts[1] += 1
         n_faces -= (links[j, 2] >= 0) + (links[j, 3] >= 0)
         n = _append(c, active, texp, aexp, n, state)

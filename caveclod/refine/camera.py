@@ -141,7 +141,7 @@ class CameraState:
         }
         dirty = np.zeros((total + 63) // 64, np.uint64)
         if old is not None:
-            for s in range(self.n_materials):
+            for s in map(int, np.flatnonzero(self.cnt)):    # only materials with records: a file may name 65,536
                 c = int(self.cnt[s])
                 src = np.arange(int(old["off"][s]), int(old["off"][s]) + c)
                 dst = np.arange(int(self.off[s]), int(self.off[s]) + c)
@@ -212,7 +212,7 @@ class CameraState:
         pos = self.mesh.node_positions(a["base_face_nodes"].ravel()).reshape(-1, 3)
         mat = a["face_material"][faces]
         tri = self.mesh.lookup_vertices(np.repeat(a["face_sgid"][faces], 3), pos.ravel()).reshape(-1, 3)
-        for s in range(self.n_materials):
+        for s in map(int, np.unique(mat)):        # the materials of base faces (the others start empty)
             pick = np.flatnonzero(mat == s)
             r = int(self.off[s]) + np.arange(len(pick))
             self.cnt[s] = len(pick)
@@ -296,6 +296,8 @@ class CameraState:
                     self._grow_list()
                 elif status == K.NEED_QUEUE:
                     self._grow_queue()
+                elif status == K.DAMAGED:
+                    raise self.mesh.mark_damaged(f"refinement found an impossible hierarchy at node {int(material)}")
                 else:  # pragma: no cover - the kernel has no other status
                     raise CaveclodError(f"refinement kernel returned status {status}")
         finally:
@@ -326,7 +328,7 @@ class CameraState:
         mats, slots, tris = mats[:k], slots[:k], tris[:k]
         delta = Delta()
         bounds = np.searchsorted(mats, np.arange(self.n_materials + 1))
-        for s in range(self.n_materials):
+        for s in map(int, np.union1d(mats, np.flatnonzero(self.cnt != self._sent))):   # not all 65,536 a file may name
             lo, hi = int(bounds[s]), int(bounds[s + 1])
             if hi > lo or self.cnt[s] != self._sent[s]:
                 delta.surfaces[s] = SurfaceDelta(slots[lo:hi], tris[lo:hi], int(self.cnt[s]))

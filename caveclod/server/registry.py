@@ -14,7 +14,7 @@ import time
 import grpc
 
 from .. import wire
-from ..errors import InputError
+from ..errors import InputError, MeshDamagedError
 from ..v1 import caveclod_pb2 as pb
 from .config import MAX_ACK_WINDOW, ServerConfig
 from .session import End, Refused, Session
@@ -43,7 +43,16 @@ class Sessions:
 
     # -- open / resume ---------------------------------------------------------------
     def open(self, msg: pb.Open) -> tuple[Session, int, bool]:
-        """(session, stream generation, resumed) for an Open; raises Refused."""
+        """(session, stream generation, resumed) for an Open; raises Refused.
+
+        A mesh a camera found damaged (its ``damaged`` set: while the server
+        warmed up, or in another session) is refused with DATA_LOSS."""
+        try:
+            return self._open(msg)
+        except MeshDamagedError:            # found damaged while this Open waited (cameras cannot be made of it)
+            raise Refused(grpc.StatusCode.DATA_LOSS, damaged_message(self.catalogue.get(msg.mesh))) from None
+
+    def _open(self, msg: pb.Open) -> tuple[Session, int, bool]:
         if self.draining:
             raise DRAINED_REFUSAL
         served = self.catalogue.get(msg.mesh)
@@ -52,6 +61,9 @@ class Sessions:
             name = msg.mesh if len(msg.mesh) <= 80 else msg.mesh[:80] + f"... ({len(msg.mesh)} characters)"
             raise Refused(grpc.StatusCode.NOT_FOUND, f"mesh {name!r} is not served here; this server serves "
                           f"{', '.join(self.catalogue.names())} (see ListMeshes)")
+        if served.mesh.damaged:
+            # A camera found the file damaged (caveclod.meshcheck's module doc): no new session on it.
+            raise Refused(grpc.StatusCode.DATA_LOSS, damaged_message(served))
         view_options, budgets = self._options(msg.options)
         cache = self._cache(msg, served)
         ops = msg.frame_encoding == pb.FRAME_ENCODING_OPS      # an encoding we do not know: RAW (the proto says so)
@@ -193,6 +205,12 @@ class Sessions:
     def _gauges(self) -> None:
         self.metrics.set_sessions(*self.counts())
 
+
+
+def damaged_message(served) -> str:
+    """The one-line status message of a mesh a camera found damaged (no server path in it)."""
+    return (f"mesh {served.name!r} is damaged ({served.mesh.damaged[:200]}); the server's operator must rebuild it "
+            "with 'caveclod build' or copy it again")
 
 
 def _describe_cache(cache: dict | None) -> str:

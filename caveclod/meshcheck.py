@@ -1,0 +1,236 @@
+"""The structural check of a static mesh: every id the refinement kernels index with.
+
+The kernels (:mod:`caveclod.kernels.refine`) are compiled by numba, which
+checks no bounds: an id read from a damaged ``.cvc`` file is a read or a
+write anywhere in memory, and a hierarchy whose dependencies loop makes a
+forced split spin for ever. :func:`check_mesh` refuses such a file before
+any camera uses it, in vectorised numpy passes over the index arrays
+(about 70 ms per million triangles; the vertex attributes other than the
+positions are not read).
+
+What it proves, with the counts d vertices, e positions (``len(pos_vstart) - 1``),
+p faces, m internal nodes (``len(node_position)``), n = e + m nodes and k base faces:
+
+* every array has the length its counts give, and ``pos_vstart`` runs from 0
+  to d without going back, giving no position more vertices than there are
+  surface groups (the vertices of each position);
+* small enums are in range: ``position_class`` < 3, ``face_rotation`` < 3,
+  materials below the number of names, face surface groups below the
+  vertices' largest;
+* the hierarchy is a forest built bottom-up: a node's parent is a later,
+  internal node or -1; internal node x's children t, u are distinct ids
+  below x whose parent is x, and every non-root is the child of exactly one
+  node; ``node_position`` is t's position;
+* faces and nodes agree: the faces fl, fr of node x have ``face_creator`` x
+  (each face made by one split), the other faces have creator -1 and are
+  exactly ``base_faces``; the faces a split requires (fl_u, fl_t, fr_u,
+  fr_t) are base faces or made by a *later* node;
+* the base mesh: its corner nodes are roots, its neighbours are base faces,
+  and each of its corners has a vertex of the face's surface group;
+* positions and cones are finite; bounding spheres and error bounds are
+  finite and of the scale of the positions.
+
+The last two hierarchy rules make the split dependencies acyclic (a split
+of x needs only its parent and the creators of its required faces, all with
+ids above x), so forced splits end. What cannot be checked cheaply — how
+faces are wired round each position as the camera refines, and that every
+surface group a face takes has a vertex at every position its corners
+reach — the kernels guard themselves: they stop with a DAMAGED status,
+which :class:`caveclod.refine.camera.CameraState` raises as
+:class:`caveclod.errors.MeshDamagedError`.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+N_CLASSES = 3        # FREE, SHARP, RIGID (caveclod.builder.surfaces)
+
+
+def check_mesh(mesh) -> None:
+    """Raise :class:`caveclod.errors.FileFormatError` (one line naming the file,
+    saying to rebuild it) unless ``mesh``'s arrays are consistent (module doc)."""
+    problem = find_problem(mesh)
+    if problem is not None:
+        from .staticmesh import damaged_error
+        raise damaged_error(mesh.path or "the static mesh", problem)
+
+
+def find_problem(mesh) -> str | None:
+    """The first inconsistency of ``mesh`` as a short phrase, or None."""
+    a = {name: np.asarray(v) for name, v in mesh.arrays.items()}
+    problem = _lengths(a)
+    if problem:
+        return problem
+    for check in (_vertex_index, _enums, _parents, _links, _faces, _base, _floats):
+        problem = check(a, mesh)
+        if problem:
+            return problem
+    return None
+
+
+def _lengths(a: dict) -> str | None:
+    """Each array's length against the counts d, e, p, m, n, k (module doc)."""
+    if a["pos_vstart"].ndim != 1 or len(a["pos_vstart"]) < 1:
+        return "pos_vstart is empty"
+    d, e = len(a["vertex_positions"]), len(a["pos_vstart"]) - 1
+    p, m, k = len(a["face_material"]), len(a["node_position"]), len(a["base_faces"])
+    want = {
+        "vertex_positions": (d, 3), "vertex_normals": (d, 3), "vertex_uvs": (d, 2),
+        "vertex_colors": (len(a["vertex_colors"]) and d, 4), "vertex_sgid": (d,), "vertex_surface": (d,),
+        "position_class": (e,), "face_sgid": (p,), "face_creator": (p,), "face_rotation": (p,),
+        "node_parent": (e + m,), "node_links": (m, 8), "node_bound": (m, 5), "node_cone": (m, 4),
+        "base_face_nodes": (k, 3), "base_face_nbrs": (k, 3),
+    }
+    for name, shape in want.items():
+        if a[name].shape != shape:
+            return f"{name} has shape {a[name].shape}, the other arrays ask for {shape}"
+    return None
+
+
+def _vertex_index(a: dict, mesh) -> str | None:
+    """pos_vstart: (e + 1,) CSR from 0 to d, never decreasing."""
+    start = a["pos_vstart"]
+    if start[0] != 0 or start[-1] != len(a["vertex_positions"]):
+        return "pos_vstart does not run from 0 to the vertex count"
+    if not (start[1:] >= start[:-1]).all():      # compared, not subtracted: no int32 overflow
+        return "pos_vstart goes back"
+    # A position holds one vertex per surface group at most: a wider one makes every lookup there slow.
+    groups = int(a["vertex_sgid"].max()) + 1 if len(a["vertex_sgid"]) else 0
+    if len(start) > 1 and int(np.diff(start).max()) > groups:
+        return "a position has more vertices than there are surface groups"
+    return None
+
+
+def _enums(a: dict, mesh) -> str | None:
+    """Small values the kernels and the clients index with."""
+    if (a["position_class"] >= N_CLASSES).any():
+        return "position_class holds a class other than FREE, SHARP, RIGID"
+    if (a["face_rotation"] >= 3).any():
+        return "face_rotation holds a corner other than 0, 1, 2"
+    names = max(len(mesh.materials), 1)
+    if a["face_material"].max(initial=0) >= names or a["vertex_surface"].max(initial=0) >= names:
+        return f"a face or vertex has a material beyond the {len(mesh.materials)} names"
+    groups = int(a["vertex_sgid"].max()) + 1 if len(a["vertex_sgid"]) else 0
+    if len(a["face_sgid"]) and int(a["face_sgid"].max()) >= groups:
+        return "a face has a surface group that no vertex has"
+    return None
+
+
+def _parents(a: dict, mesh) -> str | None:
+    """node_parent: (n,) -1 or a later internal node."""
+    parent, e = a["node_parent"], len(a["pos_vstart"]) - 1
+    ids = np.arange(len(parent), dtype=np.int32)
+    bad = (parent != -1) & ((parent <= ids) | (parent < e) | (parent >= len(parent)))
+    if bad.any():
+        return f"node {int(np.argmax(bad))} has parent {int(parent[np.argmax(bad)])}, not -1 or a later internal node"
+    return None
+
+
+def _links(a: dict, mesh) -> str | None:
+    """node_links' children and node_position: (m, 8) t, u, fl, fr, fl_u, fl_t, fr_u, fr_t; (m,)."""
+    links, parent, npos = a["node_links"], a["node_parent"], a["node_position"]
+    e, m = len(a["pos_vstart"]) - 1, len(npos)
+    if m == 0:
+        return None if not (parent >= 0).any() else "a node has a parent, but the mesh has no internal nodes"
+    x = _internal_ids(e, m)
+    t, u = links[:, 0], links[:, 1]
+    if min(t.min(), u.min()) < 0 or ((t >= x) | (u >= x) | (t == u)).any():
+        return "an internal node's children are not two distinct earlier nodes"
+    if (parent.take(t) != x).any() or (parent.take(u) != x).any():
+        return "a child's node_parent does not point back at its node"
+    if np.count_nonzero(parent >= 0) != 2 * m:
+        return "a node has a parent that does not list it as a child"
+    if npos.min() < 0 or npos.max() >= e:
+        return "node_position holds a position that does not exist"
+    t_pos = np.where(t < e, t, npos.take(np.maximum(t - e, 0)))
+    if (npos != t_pos).any():
+        return "node_position is not the position of the node's stationary child"
+    return None
+
+
+def _faces(a: dict, mesh) -> str | None:
+    """Faces made by splits, and the faces each split requires."""
+    links, creator = a["node_links"], a["face_creator"]
+    e, m, p = len(a["pos_vstart"]) - 1, len(a["node_position"]), len(creator)
+    if m and (links[:, 2:8].min() < -1 or links[:, 2:8].max() >= p):
+        return "node_links names a face that does not exist"
+    if creator.min(initial=-1) < -1:
+        return "face_creator holds an id below -1"
+    if m == 0 or p == 0:                  # no split makes a face: the counts below say whether that is so
+        return None if not (creator >= 0).any() else "face_creator names a node whose split does not make that face"
+    x = _internal_ids(e, m)
+    fl, fr = links[:, 2], links[:, 3]
+    if ((fl == fr) & (fl >= 0)).any():
+        return "a split makes the same face twice"
+    for made in (fl, fr):
+        if ((creator.take(np.maximum(made, 0)) != x) & (made >= 0)).any():
+            return "a face's face_creator is not the node whose split makes it"
+    if np.count_nonzero(creator >= 0) != np.count_nonzero(fl >= 0) + np.count_nonzero(fr >= 0):
+        return "face_creator names a node whose split does not make that face"
+    need = links[:, 4:8]
+    made_by = creator.take(np.maximum(need, 0))
+    if ((made_by <= x[:, None]) & (made_by >= 0) & (need >= 0)).any():
+        return "a split requires a face made by an earlier split (a dependency loop)"
+    return None
+
+
+def _internal_ids(e: int, m: int) -> np.ndarray:
+    """(m,) int32 ids e .. e + m - 1 of the internal nodes (the dtype of the links: no upcast)."""
+    return np.arange(e, e + m, dtype=np.int32)
+
+
+def _base(a: dict, mesh) -> str | None:
+    """base_faces (k,), base_face_nodes (k, 3), base_face_nbrs (k, 3)."""
+    base, nodes, nbrs = a["base_faces"], a["base_face_nodes"], a["base_face_nbrs"]
+    creator, parent = a["face_creator"], a["node_parent"]
+    p, n = len(creator), len(parent)
+    if ((base < 0) | (base >= p)).any() or len(np.unique(base)) != len(base):
+        return "base_faces holds a face twice or one that does not exist"
+    if (creator[base] != -1).any() or np.count_nonzero(creator == -1) != len(base):
+        return "the faces with no creator are not the base faces"
+    if ((nodes < 0) | (nodes >= n)).any() or (parent[nodes] != -1).any():
+        return "a base face's corner is not a root node"
+    if ((nbrs < -1) | (nbrs >= p)).any() or (creator[nbrs[nbrs >= 0]] != -1).any():
+        return "a base face's neighbour is not a base face"
+    positions = mesh.node_positions(nodes.ravel())
+    try:
+        mesh.lookup_vertices(np.repeat(a["face_sgid"][base], 3), positions)
+    except KeyError:
+        return "a base face's corner has no vertex of its surface group"
+    return None
+
+
+def _floats(a: dict, mesh) -> str | None:
+    """Positions and cones finite; node spheres and error bounds finite and of the positions' scale.
+
+    Bounds, view tests, expiries and a cache-mode camera's view from outside
+    every sphere compute with them: a radius of 1e38 (one flipped bit) is
+    finite, but the arithmetic made of it is not. A built mesh's spheres have
+    their centres inside the positions' box and radii and error bounds under
+    1.5 times its diagonal; four times it, plus a margin for rounding, is allowed.
+    Only column minima and maxima are computed (they carry any NaN or infinity).
+    """
+    lo, hi = mesh.bounds()
+    if not (np.isfinite(lo).all() and np.isfinite(hi).all()):
+        return "vertex_positions holds NaN or infinite numbers"
+    if not all(np.isfinite(r).all() for r in column_ranges(a["node_cone"])):
+        return "node_cone holds NaN or infinite numbers"
+    if not len(a["node_bound"]):
+        return None
+    reach = 4.0 * float(np.linalg.norm(hi - lo)) + 1e-3 * (1.0 + float(np.abs(np.r_[lo, hi]).max()))
+    least, most = column_ranges(a["node_bound"])          # centre xyz, radius, error bound
+    ok = (least[:3] >= lo - reach).all() and (most[:3] <= hi + reach).all() and \
+        (least[3:] >= 0.0).all() and (most[3:] <= reach).all()         # NaN compares False
+    return None if ok else "node_bound holds a sphere or error bound far beyond the positions (or NaN)"
+
+
+def column_ranges(x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """((k,), (k,)) float64 minimum and maximum of each column of ``x`` (n, k); NaN where a column holds one.
+
+    One strided pass per column: numpy's ``min(axis=0)`` over narrow rows is
+    fifty times slower (28 ms for a million positions)."""
+    if not len(x):
+        return np.zeros(x.shape[1]), np.zeros(x.shape[1])
+    return (np.array([x[:, j].min() for j in range(x.shape[1])], np.float64),
+            np.array([x[:, j].max() for j in range(x.shape[1])], np.float64))

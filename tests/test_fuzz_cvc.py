@@ -1,0 +1,58 @@
+"""The .cvc fuzzer (tests/fuzzcvc.py): a short clean run, with `caveclod serve` cases, and proof
+that it reports what a reader without the structural check does with damaged files.
+
+The long run is ``.venv/bin/python tests/fuzzcvc.py --seconds 600``.
+"""
+
+from __future__ import annotations
+
+import pytest
+from fuzzcvc import fuzz_cvc, make_base
+from fuzzing import Budget, FuzzReport
+
+SEED = 20240611
+CASES = 150           # about 2 s of files, plus 3 serve cases of about 3 s each
+
+
+@pytest.fixture(scope="module")
+def base(tmp_path_factory):
+    return make_base(tmp_path_factory.mktemp("fuzzcvc"))
+
+
+def test_a_short_run_keeps_the_contract(base, tmp_path):
+    report = fuzz_cvc(base, Budget(cases=CASES, seconds=120), SEED, FuzzReport("cvc"), tmp_path, serve_every=50)
+    report.assert_clean()
+    assert report.units["files"] == CASES and report.units["serves"] == 3, report.as_json()
+    for outcome in ("inspect exit 0", "inspect exit 2", "refine exit 0"):
+        assert report.outcomes.get(outcome, 0) > 0, report.as_json()
+    assert any(k.startswith("serve ") for k in report.outcomes), report.as_json()
+
+
+def skip_the_check() -> None:
+    """Load every file as the reader did before issue 17: no structural check."""
+    import caveclod.meshcheck
+    caveclod.meshcheck.check_mesh = lambda mesh: None
+
+
+def inspect_unchecked(argv: list) -> int:
+    """A worker target: ``caveclod inspect`` without the structural check."""
+    from caveclod.cli import main
+    skip_the_check()
+    return main(argv)
+
+
+def refine_unchecked(path: str) -> int:
+    """A worker target: :func:`fuzzcvc.refine_a_little` without the structural check."""
+    from fuzzcvc import refine_a_little
+    skip_the_check()
+    return refine_a_little(path)
+
+
+def test_without_the_structural_check_the_fuzzer_reports_findings(base, tmp_path):
+    """Damaged index arrays then reach the kernels and numpy: crashes, hangs and tracebacks."""
+    report = fuzz_cvc(base, Budget(cases=120, seconds=120), SEED, FuzzReport("unchecked"), tmp_path, serve_every=0,
+                      targets={"inspect": "test_fuzz_cvc:inspect_unchecked", "refine": "test_fuzz_cvc:refine_unchecked"})
+    counts = report.finding_counts()
+    assert counts["crash"] + counts["hang"] + counts["traceback"] > 0, report.as_json()
+    with pytest.raises(AssertionError, match="broke the contract"):
+        report.assert_clean()
