@@ -191,3 +191,58 @@ def test_an_open_abandoned_while_the_server_warms_up_leaves_no_session(make_serv
     code, details, responses = raw_stream(server.port, [open_message(), pose()], timeout=1.5)
     assert code == grpc.StatusCode.DEADLINE_EXCEEDED, details      # served: the limit of 1 is free again
     assert responses and responses[0].WhichOneof("kind") == "session_info"
+
+
+def _served_until_we_broke_it(port, messages, timeout=1.5):
+    """Frames of a stream that the server served until our deadline; fails on any status of its own."""
+    code, details, responses = raw_stream(port, messages, timeout=timeout)
+    assert code == grpc.StatusCode.DEADLINE_EXCEEDED, f"{code}: {details}"
+    return [r.frame for r in responses if r.WhichOneof("kind") == "frame"]
+
+
+def test_an_up_vector_too_short_to_square_is_a_direction_like_any_other(server):
+    """Issue 17, a protocol fuzzer's find: an up of 5e-324 passed the parallel test (its length
+    squared to 0) and then divided by zero where the frustum is made (UNKNOWN)."""
+    for up in ((0.0, 0.0, 5e-324), (0.0, 0.0, 2.2250738585072014e-308), (0.0, 1e-200, 1e308)):
+        frames = _served_until_we_broke_it(server.port, [open_message(), pose(eye=(1e154, 0.0, 500.0), up=up)])
+        assert frames and any(c.pose_seq == 1 for f in frames for c in f.cameras), up
+
+
+@pytest.mark.parametrize("fov, eye", [(45.0, (6275.3, 5966.5, 1599.2)), (1e-100, EYE)],
+                         ids=["a camera inside bounding spheres", "a field of view of 1e-100 degrees"])
+def test_a_cache_of_the_base_mesh_holds_any_camera(server, fov, eye):
+    """Issue 17, a protocol fuzzer's find: a camera close to the surface keeps the nodes whose
+    bounding sphere holds the eye refined at any tolerance, and a narrow field of view multiplies
+    errors past the highest tolerance, so a cache of the base mesh's vertices (the fewest the proto
+    allows) could not be fitted ("could not be coarsened ...; this is a bug", UNKNOWN). At the
+    highest tolerance the camera shows the base mesh."""
+    base = server.catalogue.get("terrain").base_vertices
+    opened = open_message(viewport_height=1, fov_y_deg=fov)
+    opened.open.cache_vertices = base
+    frames = _served_until_we_broke_it(server.port, [opened, pose(eye=eye, target=(6186.3, 5880.0, 1179.0))])
+    stats = [c.stats for f in frames for c in f.cameras if c.HasField("stats")]
+    assert stats and stats[0].cache_tolerance_px >= 1e30, stats
+
+
+def test_a_bug_while_making_a_frame_is_internal_with_one_line(server, monkeypatch):
+    """Issue 17: an exception in the stream's writer (a costly frame, made on a worker) ended the
+    RPC with grpc.aio's UNKNOWN; it is INTERNAL, one line, and the session is discarded."""
+    from caveclod.server.session import Session
+
+    def broken(self, generation):
+        raise RuntimeError("broken\nframe")
+
+    monkeypatch.setattr(Session, "make_frame", broken)
+    code, details, _ = raw_stream(server.port, [open_message(), pose()])
+    assert code == grpc.StatusCode.INTERNAL and "broken" in details and "\n" not in details, (code, details)
+    assert wait_until(lambda: not server.sessions.sessions, timeout=5)
+
+
+def test_a_bug_while_opening_is_internal(server, monkeypatch):
+    """Issue 17: an exception while opening (not a refusal) was UNKNOWN; it is INTERNAL."""
+    def broken(msg):
+        raise ZeroDivisionError("float division by zero")
+
+    monkeypatch.setattr(server.sessions, "open", broken)
+    code, details, _ = raw_stream(server.port, [open_message()])
+    assert code == grpc.StatusCode.INTERNAL and "ZeroDivisionError" in details, (code, details)

@@ -35,6 +35,7 @@ from ..errors import CaveclodError, InputError
 from .activevertices import ActiveVertices
 from .camera import Delta, SurfaceDelta
 from .vertexcache import DEFAULT_STRATEGY, VertexCache, check_options
+from .view import view_params
 
 RAISE = 1.25               # tolerance factor per fitting step (and per relaxing step)
 RELAX_FILL = 0.8           # a raised tolerance is lowered only while the vertices fill at most this share
@@ -112,6 +113,7 @@ class CachedCamera:
         self.cache = VertexCache(slots, self.mesh.n_vertices, strategy, pq_fraction, keys)
         self.cache.update(self.active.vertices(), np.zeros(0, np.int32))
         self.tolerance: float | None = None      # raised tolerance in use; None: the view's own
+        self._reach: tuple | None = None           # see _outside
         self._wait = 0                            # new poses until the next try at a lower tolerance
 
     @property
@@ -132,7 +134,7 @@ class CachedCamera:
         deltas, events = [], []
         cap = self.mesh.n_nodes + 64            # every fitting update but the last makes an operation
         while True:
-            d = self.camera.update(view if t == base else dataclasses.replace(view, tolerance_px=t))
+            d = self.camera.update_params(self._params(view, t, base))
             deltas.append(d)
             events.append(self.active.apply(d))
             if self.active.count <= self.n_slots:
@@ -165,6 +167,36 @@ class CachedCamera:
             return WILD_PX
         lower = self.tolerance / RAISE
         return base if lower <= max(base, MIN_RAISED_PX) else lower
+
+    def _params(self, view, t: float, base: float) -> np.ndarray:
+        """The kernels' parameters of ``view`` at tolerance ``t``; at the ceiling, of a view in which
+        no node needs detail: the base mesh, which fits.
+
+        A tolerance alone cannot promise that: the kernels refine a node whose bounding sphere
+        holds the eye at any tolerance (a camera close to the surface), and a narrow field of view
+        multiplies errors past any tolerance. A view from outside every node's bounding sphere,
+        turned away from the mesh, with culling on, leaves every node outside its frustum.
+        """
+        if t < CEILING_PX:
+            return (view if t == base else dataclasses.replace(view, tolerance_px=t)).params()
+        centre, reach = self._outside()
+        f = np.subtract(view.target, view.eye)
+        f /= np.abs(f).max()                     # a direction: its norm cannot overflow
+        f /= np.linalg.norm(f)
+        eye = centre - f * (2.0 * reach + 1.0)
+        away = eye - f
+        return view_params(tuple(map(float, eye)), tuple(map(float, away)), view.up, view.fov_y, view.width,
+                           view.height, t, True, False)
+
+    def _outside(self) -> tuple[np.ndarray, float]:
+        """(centre of the mesh's box, R): every node's bounding sphere lies within R of the centre."""
+        if self._reach is None:
+            lo, hi = self.mesh.bounds()
+            centre = 0.5 * (lo + hi)
+            bound = np.asarray(self.mesh.arrays["node_bound"], dtype=np.float64)
+            reach = float((np.linalg.norm(bound[:, :3] - centre, axis=1) + bound[:, 3]).max(initial=0.0))
+            self._reach = (centre, reach)
+        return self._reach
 
     @staticmethod
     def _raise(t: float) -> float:

@@ -139,15 +139,30 @@ def check_pose(eye, target, up) -> tuple[tuple, tuple, tuple]:
             raise InputError(f"View.{name} is not finite ({v!r}); send a pose without NaN or infinity")
         out.append(t)
     eye, target, up = out
+    up = _tamed(up)
     forward = (target[0] - eye[0], target[1] - eye[1], target[2] - eye[2])
     if _norm(forward) == 0.0:
         raise InputError("View.eye and View.target are the same point; look somewhere")
-    if not (math.isfinite(_norm(forward)) and math.isfinite(_norm(up))):
-        raise InputError("View.eye and View.target are too far apart, or up too long, for the frustum's "
+    if not math.isfinite(_norm(forward)):          # (up is tamed: its length is finite)
+        raise InputError("View.eye and View.target are too far apart for the frustum's "
                          "arithmetic (it overflows); send coordinates of the mesh's scale")
     if _norm(_cross(forward, up)) <= 1e-12 * _norm(forward) * _norm(up):
         raise InputError("View.up is parallel to the viewing direction (or zero); give an up vector across it")
     return eye, target, up
+
+
+def _tamed(v: tuple) -> tuple:
+    """``v``, or when its components are so small (or large) that their squares underflow (or
+    overflow), ``v`` scaled by a power of two, exactly, to a largest component in [0.5, 1).
+
+    Only its direction matters (an up vector). A length that underflowed to 0 would pass
+    the parallel test and then divide by zero in :func:`view_params`.
+    """
+    m = max(abs(v[0]), abs(v[1]), abs(v[2]))
+    if m == 0.0 or 2.0 ** -400 < m < 2.0 ** 400:
+        return v
+    e = math.frexp(m)[1]
+    return (math.ldexp(v[0], -e), math.ldexp(v[1], -e), math.ldexp(v[2], -e))
 
 
 def _cross(a, b) -> tuple:

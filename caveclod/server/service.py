@@ -21,8 +21,10 @@ import threading
 import grpc
 
 from .. import wire
+from ..errors import MeshDamagedError
 from ..v1 import caveclod_pb2 as pb
 from . import logs
+from .registry import damaged_message
 from .session import CLOSED, End, Refused
 
 SERVICE = "caveclod.v1.Lod"
@@ -68,6 +70,9 @@ class LodService:
         except Refused as r:
             logs.event("session.refused", code=r.code.name, message=r.message, peer=context.peer())
             await context.abort(r.code, r.message)
+        except Exception as exc:              # noqa: BLE001 - a server bug: INTERNAL, not grpc.aio's UNKNOWN
+            logs.event("session.error", error=repr(exc)[:300], peer=context.peer())
+            await context.abort(grpc.StatusCode.INTERNAL, f"server error while opening the session: {exc!r}"[:300])
         logs.event("session.resumed" if resumed else "session.opened", **session.describe(), peer=context.peer(),
                    pid=os.getpid())           # which process holds it, under --processes
 
@@ -236,15 +241,19 @@ class _Stream:
                     continue
             self.busy = True
             try:
-                if ahead is not None:
-                    parts, ahead = await ahead, None
-                elif session.cheap:
-                    parts = session.make_frame(self.generation)
-                else:
-                    parts = await self.loop.run_in_executor(self.workers, session.make_frame, self.generation)
-                if parts is not None and not session.cheap \
-                        and session.poll(self.generation, self.stopped.is_set) == 0.0:
-                    ahead = self.loop.run_in_executor(self.workers, session.make_frame, self.generation)
+                try:
+                    if ahead is not None:
+                        parts, ahead = await ahead, None
+                    elif session.cheap:
+                        parts = session.make_frame(self.generation)
+                    else:
+                        parts = await self.loop.run_in_executor(self.workers, session.make_frame, self.generation)
+                    if parts is not None and not session.cheap \
+                            and session.poll(self.generation, self.stopped.is_set) == 0.0:
+                        ahead = self.loop.run_in_executor(self.workers, session.make_frame, self.generation)
+                except Exception as exc:           # noqa: BLE001 - a server bug: say so, end this stream only
+                    ahead = None
+                    return server_bug(session, exc)
                 if parts is not None:
                     await self._write(parts)
             finally:
@@ -287,9 +296,21 @@ async def _read(requests, stream: _Stream) -> None:
         pass                               # the stream broke or was cancelled
     except Exception as exc:               # noqa: BLE001 - a server bug: say so, end this stream only
         if not stream.stopped.is_set() and not stream.context.done():
-            logs.event("session.error", **session.describe(), error=repr(exc)[:300])
-            session.finish(End(grpc.StatusCode.INTERNAL, f"server error while making a frame: {exc!r}"[:300], True),
-                           generation)
+            session.finish(server_bug(session, exc), generation)
+
+
+def server_bug(session, exc: Exception) -> End:
+    """The End of a stream whose frame making raised ``exc`` (a server bug): logged, INTERNAL
+    with a one-line message (repr escapes newlines), and the session discarded.
+
+    Without it an exception in the writer left the RPC as grpc.aio ends it:
+    UNKNOWN, which the proto does not document.
+    """
+    if isinstance(exc, MeshDamagedError):       # the mesh file, not the server: DATA_LOSS naming the mesh
+        logs.event("session.mesh_damaged", **session.describe(), error=str(exc)[:300])
+        return End(grpc.StatusCode.DATA_LOSS, damaged_message(session.served), True)
+    logs.event("session.error", **session.describe(), error=repr(exc)[:300])
+    return End(grpc.StatusCode.INTERNAL, f"server error while making a frame: {exc!r}"[:300], True)
 
 
 def add_to_server(service: LodService, server) -> None:
