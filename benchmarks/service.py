@@ -276,14 +276,18 @@ def capacity(mesh: Path, sessions: int, duration: float, command: list | None = 
     return report
 
 
-def parallel_refinement(mesh: Path, seconds: float, pose_hz: float = 500.0) -> dict:
+def parallel_refinement(mesh: Path, seconds: float, pose_hz: float | None = 500.0, tolerance_px: float = 0.5,
+                        size: tuple = (1280, 720)) -> dict:
     """2 sessions whose camera jumps between far poses: the cores their refinement used.
 
-    Each session's client keeps a new pose always pending: it sends one
-    every 1 / pose_hz seconds (faster than an update takes), alternating
-    between two far points of its camera's circle, without waiting for
-    frames; the latest pose wins, so the server always has a pose to refine
-    for and each update is a large one. The clients parse each frame only to
+    Each session's client keeps a new pose always pending, alternating
+    between two far points of its camera's circle, so that the server
+    always has a pose to refine for and each update is a large one. With
+    ``pose_hz`` it sends one every 1 / pose_hz seconds (faster than an
+    update takes) without waiting for frames; the latest pose wins. With
+    ``pose_hz=None`` it sends two poses, then one with each frame it gets
+    (acking the frame on it): one pose is always waiting, and the server
+    parses no pose it will not use. The clients parse each frame only to
     ack it (an applying client would compete for this machine's two cores
     with the refinement it measures); the server still encodes every frame
     in full. The rate of ``caveclod_refine_cpu_seconds_total`` (per-thread
@@ -307,33 +311,45 @@ def parallel_refinement(mesh: Path, seconds: float, pose_hz: float = 500.0) -> d
         requests: queue.Queue = queue.Queue()
         requests.put(pb.ClientMessage(open=pb.Open(
             mesh=mesh.stem, cameras=1, vertex_buffer_hash="", client="benchmark",
-            options=pb.RefineOptions(viewport_width=1280, viewport_height=720, tolerance_px=0.5))))
+            options=pb.RefineOptions(viewport_width=size[0], viewport_height=size[1], tolerance_px=tolerance_px))))
         with grpc.insecure_channel(f"127.0.0.1:{server.port}", [("grpc.max_receive_message_length", 8 << 20)]) as ch:
             call = ch.stream_stream("/caveclod.v1.Lod/Session", request_serializer=pb.ClientMessage.SerializeToString,
                                     response_deserializer=pb.ServerMessage.FromString)(iter(requests.get, None))
 
+            seq = 0
+
+            def pose(ack: int = 0) -> pb.ClientMessage:
+                nonlocal seq
+                seq += 1
+                t = 30.0 * (seq % 2)                      # the far side of the camera's circle, then back
+                eye, target, up = flyover(lo, hi, k, t + 0.001 * seq)
+                return pb.ClientMessage(pose=pb.CameraPose(camera=0, pose_seq=seq, eye=vec(eye), target=vec(target),
+                                                           up=vec(up), ack_frame_seq=ack))
+
             def send_poses() -> None:
-                seq = 0
                 while not stop.wait(1.0 / pose_hz):
-                    seq += 1
-                    t = 30.0 * (seq % 2)                  # the far side of the camera's circle, then back
-                    eye, target, up = flyover(lo, hi, k, t + 0.001 * seq)
-                    requests.put(pb.ClientMessage(pose=pb.CameraPose(camera=0, pose_seq=seq, eye=vec(eye),
-                                                                     target=vec(target), up=vec(up))))
+                    requests.put(pose())
                 requests.put(None)
 
-            sender = threading.Thread(target=send_poses, daemon=True)
-            sender.start()
+            if pose_hz is None:
+                requests.put(pose())
+                requests.put(pose())
+            else:
+                threading.Thread(target=send_poses, daemon=True).start()
             try:
                 for msg in call:
                     if msg.WhichOneof("kind") == "frame" and not msg.frame.continued:
-                        requests.put(pb.ClientMessage(ack=pb.Ack(frame_seq=msg.frame.frame_seq)))
                         frames[k] += 1
+                        if pose_hz is None:
+                            requests.put(pose(ack=msg.frame.frame_seq))
+                        else:
+                            requests.put(pb.ClientMessage(ack=pb.Ack(frame_seq=msg.frame.frame_seq)))
                     if stop.is_set():
                         break
             except grpc.RpcError:
                 pass
             finally:
+                requests.put(None)
                 call.cancel()
 
     threads = [threading.Thread(target=session, args=(k,), daemon=True) for k in range(2)]
@@ -357,7 +373,8 @@ def parallel_refinement(mesh: Path, seconds: float, pose_hz: float = 500.0) -> d
     refine = m1["caveclod_refine_cpu_seconds_total"] - m0["caveclod_refine_cpu_seconds_total"]
     updates = m1["caveclod_refine_seconds_count"] - m0["caveclod_refine_seconds_count"]
     busy = m1["caveclod_refine_seconds_sum"] - m0["caveclod_refine_seconds_sum"]
-    return {"seconds": round(wall, 1), "sessions": 2, "pose_hz": pose_hz, "frames": n1 - n0, "updates": int(updates),
+    return {"seconds": round(wall, 1), "sessions": 2, "pose_hz": pose_hz or "one per frame",
+            "tolerance_px": tolerance_px, "viewport": f"{size[0]}x{size[1]}", "frames": n1 - n0, "updates": int(updates),
             "update_ms_mean": round(1e3 * busy / max(updates, 1), 1),
             "refine_cpu_cores": round(refine / wall, 2), "server_cpu_cores": round((cpu1 - cpu0) / wall, 2),
             "client_cpu_cores": round((me1 - me0) / wall, 2)}
@@ -619,8 +636,15 @@ def main() -> int:
         if baseline:
             out["capacity_baseline"] = {"checkout": args.baseline, "levels": baseline}
     if "parallel" not in skip:
-        out["parallel_refinement"] = parallel_refinement(mesh, args.parallel_seconds)
-        print(f"parallel refinement: {out['parallel_refinement']}", file=sys.stderr)
+        # The timer client of earlier runs, then a client that keeps one pose
+        # waiting, over updates growing with a finer tolerance and a larger view.
+        runs = [parallel_refinement(mesh, args.parallel_seconds)]
+        for tolerance, size in ((0.5, (1280, 720)), (0.25, (1920, 1080)), (0.1, (1920, 1080))):
+            runs.append(parallel_refinement(mesh, args.parallel_seconds, pose_hz=None, tolerance_px=tolerance,
+                                            size=size))
+        out["parallel_refinement"] = runs
+        for r in runs:
+            print(f"parallel refinement: {r}", file=sys.stderr)
         out["kernel_parallelism"] = kernel_parallelism(mesh, args.parallel_seconds)
         print(f"kernels alone: {out['kernel_parallelism']}", file=sys.stderr)
     if "startup" not in skip:
