@@ -77,7 +77,7 @@ class LodService:
                    pid=os.getpid())           # which process holds it, under --processes
 
         stream = _Stream(session, generation, context, self.workers, self.metrics)
-        context.add_done_callback(stream.on_done)
+        context.add_done_callback(stream.done_callback())
         with session.cond:
             session.wakers.append(stream.waker)
         reader = asyncio.ensure_future(_read(requests, stream))
@@ -163,9 +163,20 @@ class _Stream:
         else:
             self.loop.call_soon_threadsafe(self.wake.set)
 
-    def on_done(self, _context) -> None:
-        self.stopped.set()
-        self.waker()
+    def done_callback(self):
+        """The RPC's done callback, holding no reference to this stream: one that did made a
+        cycle (stream -> context -> callback -> stream) that kept an ended session, its camera
+        states and held buffers, until a full garbage collection (benchmarks/chaos.py: RSS
+        +20 MiB per 100 ended sessions)."""
+        stopped, loop, loop_thread, wake = self.stopped, self.loop, self.loop_thread, self.wake
+
+        def done(_context) -> None:
+            stopped.set()
+            if threading.get_ident() == loop_thread:
+                wake.set()
+            else:
+                loop.call_soon_threadsafe(wake.set)
+        return done
 
     def close(self) -> None:
         if self.timer is not None:
