@@ -40,7 +40,7 @@ def _fly_until_failover(s, proxy, other_port, lo, hi, poses_after: int) -> list:
 @pytest.mark.parametrize("poses_after", [0, 5])
 def test_a_resume_that_finds_another_server_goes_on_as_a_fresh_session(make_server, tmp_path, poses_after):
     """The viewer's camera may be still (no pose after the break): the library
-    sends its latest pose to the fresh session, numbered from 1 again, so the
+    sends its latest pose to the fresh session, numbered on from the old one, so the
     picture comes back without the caller doing anything."""
     from caveclod.client import Client
     a, b = make_server(), make_server()
@@ -54,7 +54,9 @@ def test_a_resume_that_finds_another_server_goes_on_as_a_fresh_session(make_serv
             assert s.info.vertex_buffer_cached                  # the buffer it holds is offered by hash
             assert p.token != old_token and list(b.sessions.sessions) == [p.token]
             assert after[0].frame_seq == 1 and after[0].cameras[0].keyframe     # the fresh session's keyframe
-            assert after[-1].cameras[0].pose_seq == 1 == p.pose_seq   # the latest pose again, numbered 1
+            # The latest pose again, numbered on from the old session's (never back: an
+            # asyncio client may have sent poses on the new stream before its SessionInfo).
+            assert after[-1].cameras[0].pose_seq == p.pose_seq > 1
             assert p.divergences == 0 and p.bad_frames == 0
             mirror = b.sessions.sessions[p.token].cams[0].triangles()
             assert sorted(mirror) == sorted(s.triangles(0))
@@ -126,4 +128,4 @@ def test_the_asyncio_client_fails_over_too(make_server, tmp_path):
 
     s, frames = asyncio.run(main())
     assert s.protocol.failovers == 1 and s.info.vertex_buffer_cached and s.protocol.divergences == 0
-    assert frames[-1].cameras[0].pose_seq == 1              # the latest pose, sent again, numbered 1
+    assert frames[-1].cameras[0].pose_seq == s.protocol.pose_seq > 1   # the latest pose, sent again, numbered on

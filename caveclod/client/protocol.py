@@ -253,13 +253,14 @@ class SessionProtocol:
         materials = len(info.mesh.materials)
         if not resumed:
             # A new session (the first, or a failover: the old one expired or its
-            # replica is gone): start from nothing, and number poses from 1 again.
+            # replica is gone): start from nothing. Poses keep numbering upward: an
+            # asyncio client may have sent some on the new stream before this
+            # SessionInfo, and restarting from 1 would go back past them.
             self.buffers = IndexBuffers(self.n_cameras, materials)
             self.epoch += 1
             self.last_applied = 0
             self._asked.clear()
             self._answered = [0] * self.n_cameras
-            self.pose_seq = info.last_pose_seq
             self._sent = [{} for _ in range(self.n_cameras)]
             if info.cache_vertices:
                 try:
