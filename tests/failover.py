@@ -82,7 +82,7 @@ class Balancer:
         self.dir = Path(tempfile.mkdtemp(prefix="caveclod-nginx-"))
         os.chmod(self.dir, 0o755)                 # workers (nobody, when we are root) read temp paths here
         self.port = free_port()
-        servers = " ".join(f"server 127.0.0.1:{r.port} max_fails=1 fail_timeout=10s;" for r in replicas)
+        servers = " ".join(f"server 127.0.0.1:{r.port} max_fails=0;" for r in replicas)
         (self.dir / "caveclod.conf").write_text(render_template(
             CAVECLOD_LISTEN=f"127.0.0.1:{self.port}", CAVECLOD_RESOLVER="", CAVECLOD_UPSTREAM_SERVERS=servers))
         d = self.dir

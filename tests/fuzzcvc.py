@@ -40,7 +40,7 @@ from dataclasses import dataclass, replace
 from pathlib import Path
 
 import numpy as np
-from fuzzing import ROOT, Budget, CallResult, CliWorker, FuzzReport, cli_contract
+from fuzzing import ROOT, Budget, CallResult, CliWorker, FuzzReport, cli_contract, finish, fuzzer_arguments
 
 CASE_TIMEOUT = 5.0          # seconds one call may take: a case takes about 10 ms
 WARMUP_TIMEOUT = 300.0      # a fresh worker's first call imports everything and loads (or compiles) the kernels
@@ -591,23 +591,15 @@ def _warm_up(worker: CliWorker, targets: dict, base_path: Path) -> None:
 
 def main(argv: list[str] | None = None) -> int:
     """Run the fuzzer from the command line; prints the report as JSON."""
-    import argparse
-    p = argparse.ArgumentParser(description="fuzz caveclod's .cvc reader, kernels and server with damaged files")
-    p.add_argument("--seconds", type=float, default=60.0)
-    p.add_argument("--cases", type=int)
-    p.add_argument("--seed", type=int, default=1)
+    p = fuzzer_arguments("fuzz caveclod's .cvc reader, kernels and server with damaged files")
     p.add_argument("--serve-every", type=int, default=50)
     p.add_argument("--workdir", default="/tmp/caveclod-fuzzcvc")
     args = p.parse_args(argv)
     report = FuzzReport("cvc")
     base = make_base(args.workdir)
-    t0 = time.monotonic()
     fuzz_cvc(base, Budget(cases=args.cases, seconds=args.seconds), args.seed, report, args.workdir,
              serve_every=args.serve_every)
-    out = report.as_json()
-    out["files_per_second"] = round(report.units.get("files", 0) / max(time.monotonic() - t0, 1e-9), 2)
-    print(json.dumps(out, indent=1))
-    return 1 if report.findings else 0
+    return finish(report, "files", args.out)
 
 
 if __name__ == "__main__":

@@ -245,3 +245,31 @@ def _worker_loop() -> None:
         out.write(json.dumps({"exit": code, "stdout": so.getvalue()[-4000:], "stderr": se.getvalue()[-4000:],
                               "value": value}) + "\n")
         out.flush()
+
+
+# -- the fuzzers' command lines ------------------------------------------------------
+
+def fuzzer_arguments(description: str):
+    """An argparse parser with what every fuzzer's command line takes:
+    ``--seconds``, ``--cases``, ``--seed`` and ``--out`` (a JSON file)."""
+    import argparse
+    parser = argparse.ArgumentParser(description=description)
+    parser.add_argument("--seconds", type=float, default=60.0, help="how long to fuzz (default 60)")
+    parser.add_argument("--cases", type=int, help="stop after this many cases (default: no limit)")
+    parser.add_argument("--seed", type=int, default=1, help="seed of the cases (a case is reproduced by "
+                                                             "its seed and number)")
+    parser.add_argument("--out", help="also write the report as JSON to this file")
+    return parser
+
+
+def finish(report: FuzzReport, unit: str, out: str | None) -> int:
+    """Print ``report`` as JSON (with ``{unit}_per_second``), write it to ``out`` too,
+    and return the exit status: 1 with findings, else 0."""
+    doc = report.as_json()
+    doc[f"{unit}_per_second"] = round(report.units.get(unit, 0) / max(report.seconds, 1e-9), 2)
+    text = json.dumps(doc, indent=1)
+    print(text)
+    if out:
+        with open(out, "w") as f:
+            f.write(text + "\n")
+    return 1 if report.findings else 0

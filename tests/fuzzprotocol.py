@@ -58,10 +58,8 @@ case again, alone (a resume then finds no earlier session).
 
 from __future__ import annotations
 
-import argparse
 import asyncio
 import collections
-import json
 import math
 import os
 import random
@@ -80,7 +78,7 @@ from google.protobuf.descriptor import FieldDescriptor
 from caveclod.v1 import caveclod_pb2 as pb
 
 sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))     # run as a script: fuzzing, service
-from fuzzing import Budget, FuzzReport
+from fuzzing import Budget, FuzzReport, finish, fuzzer_arguments
 
 Code = grpc.StatusCode
 METHOD = "/caveclod.v1.Lod/Session"
@@ -1193,19 +1191,13 @@ def run_against_serve(mesh_paths, budget: Budget, seed: int, *, resume_ttl: int 
 
 
 def main(argv=None) -> int:
-    parser = argparse.ArgumentParser(description="Fuzz `caveclod serve` with Session streams.")
+    parser = fuzzer_arguments("Fuzz `caveclod serve` with Session streams.")
     parser.add_argument("meshes", nargs="+", help=".cvc files to serve")
-    parser.add_argument("--seconds", type=float, default=60.0)
-    parser.add_argument("--cases", type=int, default=None)
-    parser.add_argument("--seed", type=int, default=1)
     parser.add_argument("--concurrency", type=int, default=CONCURRENCY)
     args = parser.parse_args(argv)
     report = run_against_serve(args.meshes, Budget(cases=args.cases, seconds=args.seconds), args.seed,
                                concurrency=args.concurrency)
-    out = report.as_json()
-    out["messages_per_second"] = round(report.units.get("messages", 0) / max(report.seconds, 1e-9), 1)
-    print(json.dumps(out, indent=1))
-    return 1 if report.findings else 0
+    return finish(report, "messages", args.out)
 
 
 if __name__ == "__main__":

@@ -43,7 +43,7 @@ from pathlib import Path
 
 import numpy as np
 
-from fuzzing import Budget, CallResult, CliWorker, FuzzReport, cli_contract
+from fuzzing import Budget, CallResult, CliWorker, FuzzReport, cli_contract, finish, fuzzer_arguments
 
 CASE_TIMEOUT = 20.0       # seconds a case may take: a tiny build takes well under one
 WARMUP_TIMEOUT = 300.0    # the first call of a fresh worker imports everything and loads the kernels
@@ -1199,21 +1199,14 @@ def _write_case(directory: Path, case: Case) -> Path:
 
 def main(argv: list[str] | None = None) -> int:
     """Run the fuzzer from the command line; prints the report as JSON."""
-    import argparse
-    p = argparse.ArgumentParser(description="fuzz caveclod build with mutated mesh files and heightfields")
-    p.add_argument("--seconds", type=float, default=60.0)
-    p.add_argument("--cases", type=int)
-    p.add_argument("--seed", type=int, default=1)
+    p = fuzzer_arguments("fuzz caveclod build with mutated mesh files and heightfields")
     p.add_argument("--workdir", default="/tmp/caveclod-fuzzsources")
     p.add_argument("--kinds", help="comma-separated seed kinds (default: all)")
     args = p.parse_args(argv)
     report = FuzzReport("sources")
     kinds = tuple(args.kinds.split(",")) if args.kinds else None
     fuzz_sources(Budget(cases=args.cases, seconds=args.seconds), args.seed, report, args.workdir, kinds=kinds)
-    out = report.as_json()
-    out["files_per_second"] = round(report.units.get("files", 0) / max(report.seconds, 1e-9), 2)
-    print(json.dumps(out, indent=1))
-    return 1 if report.findings else 0
+    return finish(report, "files", args.out)
 
 
 if __name__ == "__main__":

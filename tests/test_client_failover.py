@@ -98,6 +98,8 @@ def test_a_stream_reset_by_a_balancer_is_retried_a_server_error_is_not():
     assert retriable(grpc.StatusCode.INTERNAL, "Stream removed (RST_STREAM (Received RST_STREAM with error code 2))")
     assert not retriable(grpc.StatusCode.INTERNAL, "Unexpected <class 'RuntimeError'>: a server bug")
     assert not retriable(grpc.StatusCode.INVALID_ARGUMENT, "RST_STREAM")
+    assert retriable(grpc.StatusCode.INTERNAL, "Internal error from Core")     # grpc.aio's own, see below
+    assert not retriable(grpc.StatusCode.INTERNAL, "Internal error from Core: a server saying so")
     assert not retriable(grpc.StatusCode.RESOURCE_EXHAUSTED, "")
 
 
@@ -129,3 +131,39 @@ def test_the_asyncio_client_fails_over_too(make_server, tmp_path):
     s, frames = asyncio.run(main())
     assert s.protocol.failovers == 1 and s.info.vertex_buffer_cached and s.protocol.divergences == 0
     assert frames[-1].cameras[0].pose_seq == s.protocol.pose_seq > 1   # the latest pose, sent again, numbered on
+
+
+def test_the_asyncio_client_resumes_after_a_write_that_raced_the_streams_end(make_server, tmp_path):
+    """grpc.aio ends a call whose write fails in the core (the stream was reset under it: a replica
+    died or drained) with its own INTERNAL "Internal error from Core", and the server's status is
+    lost. The client resumes with its token: the session and its index buffers go on."""
+    from caveclod.client.aio import AsyncClient
+    from caveclod.paths import circle
+    server = make_server()
+
+    async def main():
+        async with AsyncClient(f"127.0.0.1:{server.port}", cache_dir=tmp_path) as client:
+            s = await client.session("terrain", width=640, height=360)
+            lo, hi = s.vertex_buffer.positions.min(0), s.vertex_buffer.positions.max(0)
+            for i in range(5):
+                s.send_pose(0, *circle(lo, hi, 0, i / 30))
+                assert await s.next_frame(timeout=10) is not None
+            call = s._stream.call
+
+            async def raced_read():        # what grpc.aio's reader sees after such a write
+                call.cancel()
+                raise grpc.aio.AioRpcError(grpc.StatusCode.INTERNAL, grpc.aio.Metadata(), grpc.aio.Metadata(),
+                                           details="Internal error from Core")
+            call.read = raced_read
+            s.send_pose(0, *circle(lo, hi, 0, 5 / 30))
+            for _ in range(20):
+                f = await s.next_frame(timeout=10)
+                assert f is not None
+                if s.protocol.resumes and 0 in f.cameras and f.cameras[0].pose_seq:
+                    break
+            await s.close()
+            return s
+
+    s = asyncio.run(main())
+    assert s.protocol.resumes == 1 and s.protocol.failovers == 0 and s.info.resumed
+    assert s.protocol.divergences == 0 and s.protocol.bad_frames == 0

@@ -137,8 +137,7 @@ def test_a_killed_replica_s_viewers_carry_on_through_the_balancer(terrain_path, 
     run = _run(terrain_path, tmp_path, "kill")
     # Each moved viewer's resume (its key) went to the surviving replica. nginx
     # found the dead one refusing connections and passed the stream on to the
-    # next replica on the ring (its access log lists both), then left the dead
-    # one out (max_fails=1): later resumes went straight to the survivor.
+    # next replica on the ring (its access log lists both).
     dead, alive = (f"127.0.0.1:{r.port}" for r in (run["victim"], run["survivor"]))
     log = [line for line in run["access_log"] if "/caveclod.v1.Lod/Session" in line]
     for v in _moved(run):

@@ -392,3 +392,22 @@ def test_a_zero_tolerance_camera_fits_too(scan):
     for view in walk(scan, 5, "line", tolerance=0.0):
         cd = cc.update(view)
         assert cc.active.count <= n and cd.tolerance_px > 0.0
+
+
+def test_the_ceiling_view_works_at_huge_extents(tmp_path):
+    """At the ceiling a cached camera looks away from the mesh from outside it; its eye
+    and target stay apart where one unit is below the coordinates' precision (1e16 m)."""
+    rng = np.random.default_rng(3)
+    path = tmp_path / "huge.npy"
+    np.save(path, rng.normal(0.0, 1.0, (24, 24)).cumsum(0).cumsum(1))
+    mesh = caveclod.build(str(path), cell_size=1e15, z_scale=1e14)
+    lo, hi = mesh.bounds()
+    assert float(np.abs(np.concatenate([lo, hi])).max()) > 1e16
+    base = len(active_vertices(mesh.new_camera().triangles()))
+    cc = CachedCamera(mesh.new_camera(), base, "lru")
+    centre = (lo + hi) / 2
+    eye = (float(centre[0]), float(centre[1]), float(hi[2]) + 1e14)
+    view = caveclod.View(eye=eye, target=tuple(map(float, centre)), up=(0, 1, 0), width=640, height=360,
+                         tolerance_px=0.01)
+    delta = cc.update(view)
+    assert cc.active.count <= base and delta.tolerance_px > 0.01

@@ -50,6 +50,9 @@ CHANNEL_OPTIONS = [
     ("grpc.use_local_subchannel_pool", 1),
 ]
 RETRIABLE = (grpc.StatusCode.UNAVAILABLE,)     # a broken connection, a draining or restarting server
+# What grpc.aio reports, in place of the server's status, when a write races the stream's end
+# (the connection reset, the replica died or drained): the status the server sent is lost.
+LOCAL_WRITE_RACE = "Internal error from Core"
 
 
 def retriable(code: grpc.StatusCode | None, details: str | None) -> bool:
@@ -59,9 +62,14 @@ def retriable(code: grpc.StatusCode | None, details: str | None) -> bool:
     balancer whose replica dies under a stream resets the stream (nginx:
     RST_STREAM INTERNAL_ERROR), which gRPC reports as INTERNAL "Received
     RST_STREAM": the connection to the balancer is fine, the session's
-    replica is not. An INTERNAL with a server's own message is a bug: not retried.
+    replica is not. grpc.aio's own INTERNAL "Internal error from Core" (a
+    write that raced the stream's end) hides the server's status: retried,
+    and a resume the server refuses then says why. An INTERNAL with a
+    server's own message is a bug: not retried.
     """
-    return code in RETRIABLE or (code == grpc.StatusCode.INTERNAL and "RST_STREAM" in (details or ""))
+    if code in RETRIABLE:
+        return True
+    return code == grpc.StatusCode.INTERNAL and ("RST_STREAM" in (details or "") or details == LOCAL_WRITE_RACE)
 
 
 class SessionEnded(Exception):
@@ -142,7 +150,7 @@ class Client:
     def session(self, mesh: str, cameras: int = 1, *, width: int = 1280, height: int = 720,
                 fov_y: float | None = None, tolerance_px: float | None = None, cull: bool | None = None,
                 backface: bool | None = None, max_ops: int | None = None, max_faces: int | None = None,
-                ack_window: int = 0, retries: int = 6, timeout: float = 30.0, cache_vertices: int | None = None,
+                ack_window: int = 0, retries: int = 12, timeout: float = 30.0, cache_vertices: int | None = None,
                 cache_strategy: str | None = None, cache_pq_fraction: float | None = None,
                 frame_encoding: str = "ops") -> "Session":
         """Open a session and wait for its vertex buffer (from the cache when it holds it).
@@ -157,6 +165,11 @@ class Client:
         ``lru``; ``cache_pq_fraction`` for ``lru_pq``, default 0.1). Nothing
         is downloaded up front; :meth:`Session.slots` holds each camera's
         vertices and the index buffers hold slot numbers.
+
+        ``retries``: how many times a broken stream is opened again (with the
+        session's token, backing off from 0.1 s doubling to 2 s, with jitter)
+        before SessionEnded: the default rides out 9-17 s without a replica,
+        e.g. a restart behind a balancer.
 
         ``frame_encoding``: ``"ops"`` (the default) asks for op streams, about
         a third of the bytes of ``"raw"`` uint32 writes; a server that does

@@ -184,7 +184,7 @@ class CachedCamera:
         f /= np.abs(f).max()                     # a direction: its norm cannot overflow
         f /= np.linalg.norm(f)
         eye = centre - f * (2.0 * reach + 1.0)
-        away = eye - f
+        away = eye - f * (reach + 1.0)          # far enough from the eye to differ at any extent (1 ulp of 1e16 is 2)
         return view_params(tuple(map(float, eye)), tuple(map(float, away)), view.up, view.fov_y, view.width,
                            view.height, t, True, False)
 
