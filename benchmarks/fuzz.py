@@ -123,10 +123,13 @@ def summarize(results: dict, minutes: float, workdir: Path) -> dict:
         else:
             done = report["units"].get(unit, 0)
             findings = sum(report["findings"].values())
-            entry = {"exit": code, "report": report, "target": {unit: target},
-                     "pass": findings == 0 and done >= target and code == 0,
-                     "why": "" if findings == 0 and done >= target else
-                            f"{findings} findings; {done:,} {unit} of {target:,} wanted"}
+            why = [] if findings == 0 else [f"{findings} findings"]
+            if done < target:
+                why.append(f"{done:,} {unit} of {target:,} wanted")
+            if report.get("fuzzer_error"):
+                why.append(f"the fuzzer failed: {report['fuzzer_error']}")
+            entry = {"exit": code, "report": report, "target": {unit: target}, "pass": not why and code == 0,
+                     "why": "; ".join(why)}
         out["fuzzers"][name] = entry
         out["pass"] = out["pass"] and entry["pass"]
     return out

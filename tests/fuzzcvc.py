@@ -40,7 +40,7 @@ from dataclasses import dataclass, replace
 from pathlib import Path
 
 import numpy as np
-from fuzzing import ROOT, Budget, CallResult, CliWorker, FuzzReport, cli_contract, finish, fuzzer_arguments
+from fuzzing import ROOT, Budget, CallResult, CliWorker, FuzzReport, cli_contract, finish, fuzzer_arguments, run_reported
 
 CASE_TIMEOUT = 5.0          # seconds one call may take: a case takes about 10 ms
 WARMUP_TIMEOUT = 300.0      # a fresh worker's first call imports everything and loads (or compiles) the kernels
@@ -194,14 +194,14 @@ def damage_prefix(data, layout, rng):
 def poke_bytes(data, layout, rng):
     """A run of 1 to 8 bytes anywhere set to one value."""
     out = bytearray(data)
-    at, run, value = rng.randrange(len(out)), rng.randint(1, 8), rng.choice((0, 0xFF, 0x7F, 0x80, rng.randrange(256)))
+    at, run, value = rng.randrange(max(len(out), 1)), rng.randint(1, 8), rng.choice((0, 0xFF, 0x7F, 0x80, rng.randrange(256)))
     out[at:at + run] = bytes([value]) * len(out[at:at + run])
     return bytes(out), layout, f"{run} bytes at {at} = {value:#x}"
 
 
 def truncate(data, layout, rng):
     """The file cut short: in the prefix, the header, an array, or by a few bytes."""
-    cut = rng.choice((rng.randrange(PREFIX), rng.randrange(layout.data_start), rng.randrange(len(data)),
+    cut = rng.choice((rng.randrange(PREFIX), rng.randrange(layout.data_start), rng.randrange(max(len(data), 1)),
                       len(data) - rng.randint(1, 200)))
     return data[:max(cut, 0)], layout, f"truncated to {max(cut, 0)} bytes"
 
@@ -597,8 +597,8 @@ def main(argv: list[str] | None = None) -> int:
     args = p.parse_args(argv)
     report = FuzzReport("cvc")
     base = make_base(args.workdir)
-    fuzz_cvc(base, Budget(cases=args.cases, seconds=args.seconds), args.seed, report, args.workdir,
-             serve_every=args.serve_every)
+    run_reported(report, fuzz_cvc, base, Budget(cases=args.cases, seconds=args.seconds), args.seed, report,
+                 args.workdir, serve_every=args.serve_every)
     return finish(report, "files", args.out)
 
 

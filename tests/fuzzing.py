@@ -57,6 +57,7 @@ class FuzzReport:
     outcomes: dict = field(default_factory=dict)
     findings: list = field(default_factory=list)
     seconds: float = 0.0
+    fuzzer_error: str = ""     # the fuzzer's own bug that ended its run early (a traceback's last lines)
 
     def count(self, unit: str, n: int = 1) -> None:
         self.units[unit] = self.units.get(unit, 0) + n
@@ -75,7 +76,7 @@ class FuzzReport:
 
     def as_json(self) -> dict:
         return {"name": self.name, "cases": self.cases, "units": self.units, "outcomes": self.outcomes,
-                "seconds": round(self.seconds, 2), "findings": self.finding_counts(),
+                "seconds": round(self.seconds, 2), "findings": self.finding_counts(), "fuzzer_error": self.fuzzer_error,
                 "examples": [vars(f) for f in self.findings[:20]]}
 
     def assert_clean(self) -> None:
@@ -262,9 +263,21 @@ def fuzzer_arguments(description: str):
     return parser
 
 
+def run_reported(report: FuzzReport, fuzz, *args, **kwargs) -> None:
+    """``fuzz(*args, **kwargs)``; a bug of the fuzzer's own (an exception) ends the run
+    but not its report: the counts so far, and the error in ``report.fuzzer_error``."""
+    t0 = time.monotonic()
+    try:
+        fuzz(*args, **kwargs)
+    except Exception:
+        report.fuzzer_error = " | ".join(traceback.format_exc().strip().splitlines()[-6:])
+        report.seconds = report.seconds or time.monotonic() - t0
+        traceback.print_exc()
+
+
 def finish(report: FuzzReport, unit: str, out: str | None) -> int:
     """Print ``report`` as JSON (with ``{unit}_per_second``), write it to ``out`` too,
-    and return the exit status: 1 with findings, else 0."""
+    and return the exit status: 3 when the fuzzer itself failed, 1 with findings, else 0."""
     doc = report.as_json()
     doc[f"{unit}_per_second"] = round(report.units.get(unit, 0) / max(report.seconds, 1e-9), 2)
     text = json.dumps(doc, indent=1)
@@ -272,4 +285,4 @@ def finish(report: FuzzReport, unit: str, out: str | None) -> int:
     if out:
         with open(out, "w") as f:
             f.write(text + "\n")
-    return 1 if report.findings else 0
+    return 3 if report.fuzzer_error else 1 if report.findings else 0

@@ -78,7 +78,7 @@ from google.protobuf.descriptor import FieldDescriptor
 from caveclod.v1 import caveclod_pb2 as pb
 
 sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))     # run as a script: fuzzing, service
-from fuzzing import Budget, FuzzReport, finish, fuzzer_arguments
+from fuzzing import Budget, FuzzReport, finish, fuzzer_arguments, run_reported
 
 Code = grpc.StatusCode
 METHOD = "/caveclod.v1.Lod/Session"
@@ -1195,8 +1195,9 @@ def main(argv=None) -> int:
     parser.add_argument("meshes", nargs="+", help=".cvc files to serve")
     parser.add_argument("--concurrency", type=int, default=CONCURRENCY)
     args = parser.parse_args(argv)
-    report = run_against_serve(args.meshes, Budget(cases=args.cases, seconds=args.seconds), args.seed,
-                               concurrency=args.concurrency)
+    report = FuzzReport("fuzzprotocol")
+    run_reported(report, run_against_serve, args.meshes, Budget(cases=args.cases, seconds=args.seconds), args.seed,
+                 concurrency=args.concurrency, report=report)
     return finish(report, "messages", args.out)
 
 

@@ -43,7 +43,7 @@ from pathlib import Path
 
 import numpy as np
 
-from fuzzing import Budget, CallResult, CliWorker, FuzzReport, cli_contract, finish, fuzzer_arguments
+from fuzzing import Budget, CallResult, CliWorker, FuzzReport, cli_contract, finish, fuzzer_arguments, run_reported
 
 CASE_TIMEOUT = 20.0       # seconds a case may take: a tiny build takes well under one
 WARMUP_TIMEOUT = 300.0    # the first call of a fresh worker imports everything and loads the kernels
@@ -438,6 +438,8 @@ def replace_index(data, rng):
         return replace_number(data, rng)
     i = rng.choice(rows)
     found = list(re.finditer(rb"-?\d+", lines[i]))
+    if not found:                                    # "f" and no number left (an earlier mutation)
+        return replace_number(data, rng)
     m = rng.choice(found[1:] or found)
     new = rng.choice(INDEX_VALUES).encode()
     lines[i] = lines[i][:m.start()] + new + lines[i][m.end():]
@@ -689,6 +691,7 @@ def png_header(data, rng):
     if what == "size":
         width, height = rng.choice(((0, height), (width, 0), (1, 1), (width + 1, height), (width, height * 3),
                                     (10000, 10000), (65535, 65535), (2 ** 31 - 1, 1), (100000, height)))
+        width, height = (min(v, 2 ** 32 - 1) for v in (width, height))     # an earlier mutation's huge size, grown
         struct.pack_into(">II", ihdr, 0, width, height)
         new = f"{width}x{height}"
     elif what == "depth":
@@ -1205,7 +1208,8 @@ def main(argv: list[str] | None = None) -> int:
     args = p.parse_args(argv)
     report = FuzzReport("sources")
     kinds = tuple(args.kinds.split(",")) if args.kinds else None
-    fuzz_sources(Budget(cases=args.cases, seconds=args.seconds), args.seed, report, args.workdir, kinds=kinds)
+    run_reported(report, fuzz_sources, Budget(cases=args.cases, seconds=args.seconds), args.seed, report,
+                 args.workdir, kinds=kinds)
     return finish(report, "files", args.out)
 
 

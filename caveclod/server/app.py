@@ -169,7 +169,20 @@ class LodServer:
             self._close_loop()
 
     def _close_loop(self) -> None:
-        """Stop the event loop's thread, then close the loop (its selector and wake-up pipe)."""
+        """Cancel the loop's tasks left over (a stream's reader that a client's cancel orphaned
+        just before the stop: destroyed pending, asyncio would log it), stop the event loop's
+        thread, then close the loop (its selector and wake-up pipe)."""
+        async def cancel_the_rest():
+            tasks = [t for t in asyncio.all_tasks() if t is not asyncio.current_task()]
+            for t in tasks:
+                t.cancel()
+            await asyncio.wait(tasks, timeout=2.0) if tasks else None
+
+        if self._loop_thread.is_alive():
+            try:
+                asyncio.run_coroutine_threadsafe(cancel_the_rest(), self._loop).result(timeout=5.0)
+            except (TimeoutError, RuntimeError):
+                pass                      # a loop that cannot take it: stop it all the same
         self._loop.call_soon_threadsafe(self._loop.stop)
         self._loop_thread.join(5.0)
         if not self._loop_thread.is_alive():
