@@ -34,6 +34,7 @@ from __future__ import annotations
 import argparse
 import json
 import os
+import shutil
 import signal
 import subprocess
 import sys
@@ -176,22 +177,24 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--seed", type=int, default=1)
     p.add_argument("--only", default="protocol,cvc,sources", help="comma-separated fuzzers to run")
     p.add_argument("--size", type=int, default=48, help="cells a side of the protocol fuzzer's meshes")
-    p.add_argument("--workdir", help="scratch directory, kept (default: a temporary one, removed)")
+    p.add_argument("--workdir", help="scratch directory, kept (default: a temporary one, removed after a pass)")
     p.add_argument("--out", type=Path, default=RESULTS, help="where fuzz.json and fuzz.png go")
     args = p.parse_args(argv)
     which = [w for w in args.only.split(",") if w]
     unknown = set(which) - set(TARGETS)
     if unknown or not which or not args.minutes > 0:
         p.error(f"--only takes some of {','.join(TARGETS)} and --minutes must be > 0")
-    with tempfile.TemporaryDirectory(prefix="caveclod-fuzz-") as tmp:
-        workdir = Path(args.workdir or tmp)
-        workdir.mkdir(parents=True, exist_ok=True)
-        meshes = build_meshes(workdir, args.size) if "protocol" in which else []
-        seconds = args.minutes * 60.0
-        print(f"fuzzing {', '.join(which)} for {args.minutes:g} min each, at once (seed {args.seed}) ...",
-              flush=True)
-        results = run_all(commands(which, seconds, args.seed, workdir, meshes), seconds, workdir)
-        out = summarize(results, args.minutes, workdir)
+    workdir = Path(args.workdir or tempfile.mkdtemp(prefix="caveclod-fuzz-"))
+    workdir.mkdir(parents=True, exist_ok=True)
+    meshes = build_meshes(workdir, args.size) if "protocol" in which else []
+    seconds = args.minutes * 60.0
+    print(f"fuzzing {', '.join(which)} for {args.minutes:g} min each, at once (seed {args.seed}) ...", flush=True)
+    results = run_all(commands(which, seconds, args.seed, workdir, meshes), seconds, workdir)
+    out = summarize(results, args.minutes, workdir)
+    if out["pass"] and not args.workdir:
+        shutil.rmtree(workdir, ignore_errors=True)
+    else:                                  # the findings' inputs and the fuzzers' logs, to reproduce them
+        print(f"kept {workdir} (findings/ under each fuzzer's directory, NAME.log)")
     out["seed"], out["cores"] = args.seed, os.cpu_count()
     args.out.mkdir(parents=True, exist_ok=True)
     (args.out / "fuzz.json").write_text(json.dumps(out, indent=1) + "\n")

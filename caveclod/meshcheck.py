@@ -234,5 +234,6 @@ def column_ranges(x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     fifty times slower (28 ms for a million positions)."""
     if not len(x):
         return np.zeros(x.shape[1]), np.zeros(x.shape[1])
-    return (np.array([x[:, j].min() for j in range(x.shape[1])], np.float64),
-            np.array([x[:, j].max() for j in range(x.shape[1])], np.float64))
+    with np.errstate(invalid="ignore"):        # a signalling NaN warns when widened (a damaged file's bits)
+        return (np.array([x[:, j].min() for j in range(x.shape[1])], np.float64),
+                np.array([x[:, j].max() for j in range(x.shape[1])], np.float64))

@@ -263,15 +263,16 @@ def fuzzer_arguments(description: str):
     return parser
 
 
-def run_reported(report: FuzzReport, fuzz, *args, **kwargs) -> None:
-    """``fuzz(*args, **kwargs)``; a bug of the fuzzer's own (an exception) ends the run
-    but not its report: the counts so far, and the error in ``report.fuzzer_error``."""
+def run_reported(into: FuzzReport, fuzz, *args, **kwargs) -> None:
+    """``fuzz(*args, **kwargs)``, which adds to the report ``into``; a bug of the fuzzer's
+    own (an exception) ends the run but not its report: the counts so far, and the
+    error in ``into.fuzzer_error``."""
     t0 = time.monotonic()
     try:
         fuzz(*args, **kwargs)
     except Exception:
-        report.fuzzer_error = " | ".join(traceback.format_exc().strip().splitlines()[-6:])
-        report.seconds = report.seconds or time.monotonic() - t0
+        into.fuzzer_error = " | ".join(traceback.format_exc().strip().splitlines()[-6:])
+        into.seconds = into.seconds or time.monotonic() - t0
         traceback.print_exc()
 
 

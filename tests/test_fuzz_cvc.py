@@ -71,3 +71,35 @@ def test_the_mutators_themselves_never_raise(base):
         poke_bytes(b"", layout, rng)
     for _ in range(5_000):
         mutate(data, layout, rng)
+
+
+def test_the_command_line_writes_its_report(tmp_path):
+    import json
+
+    from fuzzcvc import main
+    out = tmp_path / "cvc.json"
+    assert main(["--cases", "20", "--seconds", "60", "--serve-every", "0", "--workdir", str(tmp_path / "w"),
+                 "--out", str(out)]) == 0
+    report = json.loads(out.read_text())
+    assert report["cases"] == 20 and report["units"]["files"] == 20 and report["fuzzer_error"] == ""
+
+
+def test_a_fuzzer_s_own_bug_keeps_its_report(tmp_path, monkeypatch):
+    """A mutator that raises ends the run with exit 3; the counts so far and the error are reported."""
+    import json
+
+    import fuzzcvc
+    calls = []
+
+    def mutate_then_fail(base, layout, rng):
+        calls.append(1)
+        if len(calls) > 5:
+            raise ValueError("a mutator's bug")
+        return base, ["none"]
+
+    monkeypatch.setattr(fuzzcvc, "mutate", mutate_then_fail)
+    out = tmp_path / "cvc.json"
+    assert fuzzcvc.main(["--cases", "50", "--serve-every", "0", "--workdir", str(tmp_path / "w"),
+                         "--out", str(out)]) == 3
+    report = json.loads(out.read_text())
+    assert report["cases"] == 5 and "a mutator's bug" in report["fuzzer_error"]

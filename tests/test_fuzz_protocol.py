@@ -34,3 +34,15 @@ def test_the_fuzzer_finds_a_server_bug(make_server, monkeypatch):
     assert counts["status"] > 0, report.as_json()
     assert report.outcomes.get(grpc.StatusCode.INTERNAL.name, 0) == counts["status"]
     assert counts["leak"] == 0 and counts["hang"] == 0, report.as_json()
+
+
+def test_the_command_line_writes_its_report(terrain_path, tmp_path):
+    """What benchmarks/fuzz.py runs: a few cases, the report as JSON on stdout and in --out."""
+    import json
+
+    from fuzzprotocol import main
+    out = tmp_path / "protocol.json"
+    assert main([str(terrain_path), "--cases", "30", "--seconds", "30", "--seed", "4", "--out", str(out)]) == 0
+    report = json.loads(out.read_text())
+    assert report["cases"] == 30 and report["units"]["messages"] > 0 and report["fuzzer_error"] == ""
+    assert sum(report["findings"].values()) == 0 and report["messages_per_second"] > 0

@@ -90,3 +90,13 @@ def test_the_mutators_themselves_never_raise(tmp_path):
     all_seeds = list(seeds.values())
     for n in range(5_000):
         make_case(all_seeds[n % len(all_seeds)], rng, tmp_path)
+
+
+def test_the_command_line_writes_its_report(tmp_path):
+    import json
+
+    from fuzzsources import main
+    out = tmp_path / "sources.json"
+    assert main(["--cases", "12", "--seconds", "60", "--workdir", str(tmp_path / "w"), "--out", str(out)]) == 0
+    report = json.loads(out.read_text())
+    assert report["cases"] == 12 and report["units"]["files"] == 12 and report["fuzzer_error"] == ""

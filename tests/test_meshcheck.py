@@ -465,3 +465,17 @@ def test_load_names_the_prefix_damage_too(terrain_path, tmp_path):
     path = damaged_copy(terrain_path, tmp_path / "hlen.cvc",
                         lambda data, layout: data[:12] + struct.pack("<I", 2 ** 31) + data[16:])
     refused_in_one_line(path, "header claims")
+
+
+@pytest.mark.parametrize("array,row", [("node_bound", (0, 3)), ("vertex_positions", (0, 1))])
+def test_a_signalling_nan_is_found_without_a_warning(terrain_path, array, row):
+    """A poked byte can make a signalling NaN, which numpy warns about when it widens it to
+    float64 (the .cvc fuzzer's finding: a RuntimeWarning before the one-line error)."""
+    import warnings
+    arrays, materials = arrays_of(terrain_path)
+    arrays[array] = arrays[array].copy()
+    arrays[array].view(np.uint32)[row] = 0x7F8F_FFFF
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        problem = find_problem(StaticMesh(arrays=arrays, materials=materials))
+    assert problem is not None, array
