@@ -136,7 +136,8 @@ def test_the_asyncio_client_fails_over_too(make_server, tmp_path):
 def test_the_asyncio_client_resumes_after_a_write_that_raced_the_streams_end(make_server, tmp_path):
     """grpc.aio ends a call whose write fails in the core (the stream was reset under it: a replica
     died or drained) with its own INTERNAL "Internal error from Core", and the server's status is
-    lost. The client resumes with its token: the session and its index buffers go on."""
+    lost. The client resumes with its token: the session and its index buffers go on, and a
+    frame lost with the old stream is made good by a keyframe, not counted as a bad frame."""
     from caveclod.client.aio import AsyncClient
     from caveclod.paths import circle
     server = make_server()
@@ -156,6 +157,14 @@ def test_the_asyncio_client_resumes_after_a_write_that_raced_the_streams_end(mak
                                            details="Internal error from Core")
             call.read = raced_read
             s.send_pose(0, *circle(lo, hi, 0, 5 / 30))
+            # The frame for that pose goes out on the old stream and is lost with it: the resume
+            # says so (last_frame_seq behind), and the server keyframes, numbered on from its own.
+            session = next(iter(server.sessions.sessions.values()))
+            for _ in range(200):
+                if session.frame_seq > s.protocol.last_applied:
+                    break
+                await asyncio.sleep(0.01)
+            assert session.frame_seq > s.protocol.last_applied
             for _ in range(20):
                 f = await s.next_frame(timeout=10)
                 assert f is not None

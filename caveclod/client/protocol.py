@@ -267,6 +267,10 @@ class SessionProtocol:
                     self.slots = [SlotBuffer(info.cache_vertices, info.vertex_format) for _ in range(self.n_cameras)]
                 except wire.WireError as exc:
                     raise ProtocolError(str(exc)) from None
+        elif info.last_frame_seq > self.last_applied:
+            # Frames went out on the broken stream that never arrived: the server
+            # sends a keyframe of every camera, numbered on from its last frame.
+            self.last_applied = info.last_frame_seq
         self.last_acked = self.last_applied   # the server restarts its window at every SessionInfo
         self._ack_due = 0
         self._frame = None
