@@ -176,7 +176,8 @@ class LodServer:
             tasks = [t for t in asyncio.all_tasks() if t is not asyncio.current_task()]
             for t in tasks:
                 t.cancel()
-            await asyncio.wait(tasks, timeout=2.0) if tasks else None
+            if tasks:
+                await asyncio.wait(tasks, timeout=2.0)
 
         if self._loop_thread.is_alive():
             try:
