@@ -141,6 +141,7 @@ def plot(out: dict, path: Path) -> None:
     import matplotlib
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
+    import matplotlib.ticker
     names = list(out["fuzzers"])
     fig, axes = plt.subplots(1, 1 + len(names), figsize=(4.2 * (1 + len(names)), 4.2))
     ax = axes[0]
@@ -161,9 +162,16 @@ def plot(out: dict, path: Path) -> None:
     ax.legend()
     for ax, name in zip(axes[1:], names):
         outcomes = (out["fuzzers"][name]["report"] or {}).get("outcomes", {})
+        if name == "sources":              # "{input kind} exit N": summed over the kinds
+            summed: dict = {}
+            for label, n in outcomes.items():
+                ending = label.split(" ", 1)[-1]
+                summed[ending] = summed.get(ending, 0) + n
+            outcomes = summed
         top = sorted(outcomes.items(), key=lambda kv: -kv[1])[:12]
         ax.barh([k for k, _ in top][::-1], [v for _, v in top][::-1], color="tab:blue")
         ax.set_xscale("log")
+        ax.xaxis.set_minor_formatter(matplotlib.ticker.NullFormatter())
         ax.set_title(f"{name}: how cases ended")
         ax.tick_params(axis="y", labelsize=7)
     fig.tight_layout()
