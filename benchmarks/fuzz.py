@@ -145,13 +145,12 @@ def plot(out: dict, path: Path) -> None:
     names = list(out["fuzzers"])
     fig, axes = plt.subplots(1, 1 + len(names), figsize=(4.2 * (1 + len(names)), 4.2))
     ax = axes[0]
-    done, wanted, labels = [], [], []
+    done, labels = [], []
     for name in names:
         entry = out["fuzzers"][name]
         unit, target = next(iter(entry["target"].items()))
         units = (entry["report"] or {}).get("units", {})
         done.append(units.get(unit, 0) / max(target, 1))
-        wanted.append(1.0)
         findings = sum((entry["report"] or {}).get("findings", {}).values()) if entry["report"] else "?"
         labels.append(f"{name}\n{units.get(unit, 0):,} {unit}\n{findings} findings")
     ax.tick_params(axis="x", labelsize=8)

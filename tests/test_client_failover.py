@@ -93,29 +93,35 @@ def test_the_affinity_key_stays_with_the_session_across_streams(make_server, tmp
 
 
 def test_a_stream_reset_by_a_balancer_is_retried_a_server_error_is_not():
-    from caveclod.client.session import retriable
+    from caveclod.client.session import LOCAL_WRITE_RACE, retriable
     assert retriable(grpc.StatusCode.UNAVAILABLE, "failed to connect")
     assert retriable(grpc.StatusCode.INTERNAL, "Stream removed (RST_STREAM (Received RST_STREAM with error code 2))")
     assert not retriable(grpc.StatusCode.INTERNAL, "Unexpected <class 'RuntimeError'>: a server bug")
     assert not retriable(grpc.StatusCode.INVALID_ARGUMENT, "RST_STREAM")
-    assert retriable(grpc.StatusCode.INTERNAL, "Internal error from Core")     # grpc.aio's own, see below
-    assert not retriable(grpc.StatusCode.INTERNAL, "Internal error from Core: a server saying so")
+    assert retriable(grpc.StatusCode.INTERNAL, LOCAL_WRITE_RACE)     # grpc.aio's own, see below
+    assert not retriable(grpc.StatusCode.INTERNAL, LOCAL_WRITE_RACE + ": a server saying so")
     assert not retriable(grpc.StatusCode.RESOURCE_EXHAUSTED, "")
+
+
+async def _open_and_fly(client, frames: int):
+    """An asyncio session on the test terrain, ``frames`` poses along a circle flown, each answered."""
+    from caveclod.paths import circle
+    s = await client.session("terrain", width=640, height=360)
+    lo, hi = s.vertex_buffer.positions.min(0), s.vertex_buffer.positions.max(0)
+    for i in range(frames):
+        s.send_pose(0, *circle(lo, hi, 0, i / 30))
+        assert await s.next_frame(timeout=10) is not None
+    return s
 
 
 def test_the_asyncio_client_fails_over_too(make_server, tmp_path):
     from caveclod.client.aio import AsyncClient
-    from caveclod.paths import circle
     a, b = make_server(), make_server()
 
     async def main():
         with proxy_to(a.port) as proxy:
             async with AsyncClient(f"127.0.0.1:{proxy.port}", cache_dir=tmp_path) as client:
-                s = await client.session("terrain", width=640, height=360)
-                lo, hi = s.vertex_buffer.positions.min(0), s.vertex_buffer.positions.max(0)
-                for i in range(10):
-                    s.send_pose(0, *circle(lo, hi, 0, i / 30))
-                    assert await s.next_frame(timeout=10) is not None
+                s = await _open_and_fly(client, 10)
                 proxy.target = b.port
                 proxy.cut()
                 frames = []
@@ -139,22 +145,20 @@ def test_the_asyncio_client_resumes_after_a_write_that_raced_the_streams_end(mak
     lost. The client resumes with its token: the session and its index buffers go on, and a
     frame lost with the old stream is made good by a keyframe, not counted as a bad frame."""
     from caveclod.client.aio import AsyncClient
+    from caveclod.client.session import LOCAL_WRITE_RACE
     from caveclod.paths import circle
     server = make_server()
 
     async def main():
         async with AsyncClient(f"127.0.0.1:{server.port}", cache_dir=tmp_path) as client:
-            s = await client.session("terrain", width=640, height=360)
+            s = await _open_and_fly(client, 5)
             lo, hi = s.vertex_buffer.positions.min(0), s.vertex_buffer.positions.max(0)
-            for i in range(5):
-                s.send_pose(0, *circle(lo, hi, 0, i / 30))
-                assert await s.next_frame(timeout=10) is not None
             call = s._stream.call
 
             async def raced_read():        # what grpc.aio's reader sees after such a write
                 call.cancel()
                 raise grpc.aio.AioRpcError(grpc.StatusCode.INTERNAL, grpc.aio.Metadata(), grpc.aio.Metadata(),
-                                           details="Internal error from Core")
+                                           details=LOCAL_WRITE_RACE)
             call.read = raced_read
             s.send_pose(0, *circle(lo, hi, 0, 5 / 30))
             # The frame for that pose goes out on the old stream and is lost with it: the resume
