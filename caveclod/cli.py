@@ -120,6 +120,11 @@ def _parser() -> argparse.ArgumentParser:
     s.add_argument("--metrics-port", type=int, default=None, metavar="P",
                    help="serve Prometheus metrics on http://METRICS-HOST:P/metrics (default: off)")
     s.add_argument("--metrics-host", default="0.0.0.0", help="address of the metrics exporter (default 0.0.0.0)")
+    s.add_argument("--web-port", type=int, default=None, metavar="P",
+                   help="also serve the browser viewer at http://WEB-HOST:P/ and sessions over WebSocket at "
+                        "/v1/session (default: off; 0 picks a free port)")
+    s.add_argument("--web-host", default=None,
+                   help="address of the viewer (default: --host)")
     s.add_argument("--token-file", metavar="F",
                    help="require 'authorization: Bearer <token>' with a token from F (one per line)")
     s.add_argument("--tls-cert", metavar="F", help="PEM certificate chain; with --tls-key, serve TLS only")

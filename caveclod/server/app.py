@@ -66,6 +66,8 @@ class LodServer:
         self._loop_thread.start()
         self._stop = threading.Event()
         self.metrics_port = None
+        self.web_port = None
+        self.web = None
         try:
             self.port = self._call(self._bind())
         except BaseException:
@@ -81,7 +83,8 @@ class LodServer:
         self.grpc = grpc.aio.server(
             interceptors=[BearerTokenInterceptor(config.tokens)] if config.tokens else [],
             options=grpc_options(config))
-        add_to_server(LodService(self.sessions, self.catalogue, self.metrics, self.workers), self.grpc)
+        service = LodService(self.sessions, self.catalogue, self.metrics, self.workers)
+        add_to_server(service, self.grpc)
         self.health = health.aio.HealthServicer()
         health_pb2_grpc.add_HealthServicer_to_server(self.health, self.grpc)
         reflection.enable_server_reflection(
@@ -99,6 +102,15 @@ class LodServer:
         if not port:
             raise CaveclodError(f"cannot listen on {address}: the address is in use or not this machine's; "
                                 "choose another --host/--port (--port 0 picks a free port)")
+        if config.web_port is not None:
+            from .web import WebFront           # aiohttp only where the viewer is asked for
+            self.web = WebFront(service, config)
+            try:
+                self.web_port = await self.web.start(config.web_host, config.web_port, config.reuse_port)
+            except OSError as exc:
+                raise CaveclodError(f"cannot listen on {config.web_host}:{config.web_port} for the viewer: "
+                                    f"{exc.strerror}; choose another --web-host/--web-port (0 picks a free "
+                                    "port)") from None
         return port
 
     def start(self) -> "LodServer":
@@ -108,7 +120,7 @@ class LodServer:
             self.metrics_port = self.metrics.serve(self.config.metrics_host, self.config.metrics_port)
         threading.Thread(target=self._warm_up, daemon=True, name="caveclod-warm-up").start()
         threading.Thread(target=self._reap, daemon=True, name="caveclod-reaper").start()
-        logs.event("server.started", port=self.port, meshes=",".join(self.catalogue.names()),
+        logs.event("server.started", port=self.port, web_port=self.web_port, meshes=",".join(self.catalogue.names()),
                    max_sessions=self.config.max_sessions, tls=self.config.tls_cert is not None,
                    auth=bool(self.config.tokens))
         return self
@@ -162,6 +174,8 @@ class LodServer:
         self._stop.set()
         self.sessions.end_all()
         try:
+            if self.web is not None:
+                self._call(self.web.stop())
             self._call(self.grpc.stop(grace))
         finally:
             self.metrics.stop()

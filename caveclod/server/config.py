@@ -49,6 +49,9 @@ class ServerConfig:
             Lod.Session comment): a camera still moving sends a new pose first.
         reuse_port: share the port with other processes (SO_REUSEPORT; the
             processes of ``caveclod serve --processes N``).
+        web_port: serve the browser viewer and WebSocket sessions on this
+            HTTP port (:mod:`.web`), or None for none; 0 picks a free port.
+        web_host: address the viewer listens on.
     """
 
     meshes: list = field(default_factory=list)
@@ -70,3 +73,5 @@ class ServerConfig:
     keepalive_timeout: float = 10.0
     settle_seconds: float = 0.05
     reuse_port: bool = False
+    web_port: int | None = None
+    web_host: str = "0.0.0.0"

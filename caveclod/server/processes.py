@@ -61,6 +61,8 @@ def supervise(args) -> int:
         if reserved is not None:
             reserved.close()
     print(f"listening on {args.host}:{port}", flush=True)
+    if args.web_port is not None:
+        print(f"viewer on http://{args.host if args.web_host is None else args.web_host}:{args.web_port}/", flush=True)
     exporter = None
     if args.metrics_port is not None:
         exporter = _serve_metrics(args.metrics_host, args.metrics_port, group)
@@ -86,7 +88,7 @@ class _Group:
         cmd = [sys.executable, "-m", "caveclod.cli", "serve", *a.meshes, "--host", a.host, "--port", str(self.port),
                "--reuse-port", "--log-format", a.log_format]
         for name in ("max_sessions", "max_cameras", "ack_window", "resume_ttl", "drain_seconds", "max_faces",
-                     "max_ops", "token_file", "tls_cert", "tls_key"):
+                     "max_ops", "token_file", "tls_cert", "tls_key", "web_port", "web_host"):
             value = getattr(a, name)
             if value is not None:
                 cmd += ["--" + name.replace("_", "-"), str(value)]
@@ -101,6 +103,8 @@ class _Group:
             proc.kill()
             proc.wait()
             raise RuntimeError(f"server process {i} did not start (it printed {line.strip()!r}); its errors are above")
+        if self.args.web_port is not None:
+            proc.stdout.readline()                  # its "viewer on" line: the supervisor prints one
         if self.args.metrics_port is not None:
             self.metrics_ports[i] = int(proc.stdout.readline().split()[-1])
         threading.Thread(target=proc.stdout.read, daemon=True).start()       # keep the pipe drained

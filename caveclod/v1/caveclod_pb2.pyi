@@ -172,14 +172,24 @@ class Close(_message.Message):
     def __init__(self, reason: _Optional[str] = ...) -> None: ...
 
 class ServerMessage(_message.Message):
-    __slots__ = ("session_info", "vertex_chunk", "frame")
+    __slots__ = ("session_info", "vertex_chunk", "frame", "status")
     SESSION_INFO_FIELD_NUMBER: _ClassVar[int]
     VERTEX_CHUNK_FIELD_NUMBER: _ClassVar[int]
     FRAME_FIELD_NUMBER: _ClassVar[int]
+    STATUS_FIELD_NUMBER: _ClassVar[int]
     session_info: SessionInfo
     vertex_chunk: VertexChunk
     frame: Frame
-    def __init__(self, session_info: _Optional[_Union[SessionInfo, _Mapping]] = ..., vertex_chunk: _Optional[_Union[VertexChunk, _Mapping]] = ..., frame: _Optional[_Union[Frame, _Mapping]] = ...) -> None: ...
+    status: Status
+    def __init__(self, session_info: _Optional[_Union[SessionInfo, _Mapping]] = ..., vertex_chunk: _Optional[_Union[VertexChunk, _Mapping]] = ..., frame: _Optional[_Union[Frame, _Mapping]] = ..., status: _Optional[_Union[Status, _Mapping]] = ...) -> None: ...
+
+class Status(_message.Message):
+    __slots__ = ("code", "message")
+    CODE_FIELD_NUMBER: _ClassVar[int]
+    MESSAGE_FIELD_NUMBER: _ClassVar[int]
+    code: int
+    message: str
+    def __init__(self, code: _Optional[int] = ..., message: _Optional[str] = ...) -> None: ...
 
 class SessionInfo(_message.Message):
     __slots__ = ("session_token", "resumed", "mesh", "vertex_format", "vertex_buffer_cached", "vertex_payload_crc32", "options", "cameras", "ack_window", "resume_ttl_s", "last_frame_seq", "last_pose_seq", "max_chunk_bytes", "cache_vertices", "cache_strategy", "cache_pq_fraction", "frame_encoding", "acks_on_poses")

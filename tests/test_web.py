@@ -1,0 +1,243 @@
+"""The web front (``--web-port``) from Python: the page and its files, ListMeshes
+over HTTP, and caveclod.v1 sessions over WebSocket through the same session
+machinery as gRPC (mirror equality, tokens, statuses, drain, resume, limits).
+
+The browser itself is tested in tests/test_web_chromium.py.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import logging
+
+import aiohttp
+import numpy as np
+import pytest
+
+from caveclod import paths
+from caveclod.client import SessionProtocol
+from caveclod.server import web
+from caveclod.v1 import caveclod_pb2 as pb
+
+from service import WAIT, wait_until
+
+OPTIONS = {"width": 640, "height": 360, "fov_y": None, "tolerance_px": 1.0, "cull": None, "backface": None,
+           "max_ops": None, "max_faces": None}
+
+
+def _url(server, path="/v1/session", scheme="ws"):
+    return f"{scheme}://127.0.0.1:{server.web_port}{path}"
+
+
+def _run(coroutine):
+    return asyncio.run(asyncio.wait_for(coroutine, WAIT))
+
+
+class WsClient:
+    """A SessionProtocol over an aiohttp WebSocket: what the browser page does, in Python."""
+
+    def __init__(self, ws, protocol: SessionProtocol):
+        self.ws, self.protocol = ws, protocol
+        self.status: pb.Status | None = None
+
+    async def send(self, msg: pb.ClientMessage) -> None:
+        await self.ws.send_bytes(msg.SerializeToString())
+
+    async def receive(self):
+        """The next frame applied (acks and keyframe requests sent back), or None at the end (status kept)."""
+        while True:
+            msg = await self.ws.receive(timeout=WAIT)
+            if msg.type != aiohttp.WSMsgType.BINARY:
+                return None
+            server_msg = pb.ServerMessage.FromString(msg.data)
+            if server_msg.WhichOneof("kind") == "status":
+                self.status = server_msg.status
+                continue
+            replies, update = self.protocol.receive(server_msg)
+            for reply in replies:
+                await self.send(reply)
+            if update is not None:
+                return update
+
+
+async def _session(server, fly, *, protocols=(web.SUBPROTOCOL,), query="", mesh="terrain", token_protocol=None,
+                   protocol=None):
+    """Open a session over WebSocket and run ``fly(client)``; the client (with its final status)."""
+    protocol = protocol or SessionProtocol(mesh, 1, OPTIONS, frame_encoding="raw")
+    offered = list(protocols) + ([web.TOKEN_SUBPROTOCOL + token_protocol] if token_protocol else [])
+    async with aiohttp.ClientSession() as http:
+        async with http.ws_connect(_url(server) + query, protocols=offered) as ws:
+            client = WsClient(ws, protocol)
+            client.subprotocol = ws.protocol
+            await client.send(protocol.open_message())
+            await fly(client)
+            while await client.receive() is not None:
+                pass
+            client.close_code = ws.close_code
+            return client
+
+
+def test_page_static_files_and_meshes(make_server):
+    server = make_server(web_port=0)
+
+    async def go():
+        async with aiohttp.ClientSession() as http:
+            async with http.get(_url(server, "/", "http")) as r:
+                assert r.status == 200 and "text/html" in r.headers["Content-Type"]
+                assert "default-src 'self'" in r.headers["Content-Security-Policy"]
+                page = await r.text()
+            assert "viewer.js" in page
+            async with http.get(_url(server, "/static/viewer.js", "http")) as r:
+                assert r.status == 200 and r.headers["Content-Type"].startswith("text/javascript")
+            for bad in ("/static/..%2Fserver%2Fweb.py", "/static/nothing.js", "/static/.hidden.js"):
+                async with http.get(_url(server, bad, "http")) as r:
+                    assert r.status == 404, bad
+            async with http.get(_url(server, "/v1/meshes", "http")) as r:
+                listing = pb.ListMeshesResponse.FromString(await r.read())
+            assert [m.name for m in listing.meshes] == ["terrain"]
+            async with http.get(_url(server, "/v1/session", "http")) as r:     # not a WebSocket
+                assert r.status == 400 and "WebSocket" in await r.text()
+    _run(go())
+
+
+def _flyover(n_poses: int, mirror_check=None):
+    async def fly(client):
+        p = client.protocol
+        while not p.ready:
+            assert await client.receive() is None or p.ready
+        lo, hi = p.info.mesh.bounds_min, p.info.mesh.bounds_max
+        lo, hi = (lo.x, lo.y, lo.z), (hi.x, hi.y, hi.z)
+        for i in range(n_poses):
+            pose = paths.flyover(lo, hi, 0, 2.0 * i)
+            await client.send(p.pose_message(0, pose.eye, pose.target, pose.up))
+            update = await client.receive()
+            while update is not None and update.cameras.get(0) is not None \
+                    and update.cameras[0].pose_seq < p.pose_seq:
+                update = await client.receive()
+            if mirror_check is not None:
+                mirror_check(p)
+        await client.send(p.close_message("done"))
+    return fly
+
+
+def test_websocket_session_equals_the_mirror_and_closes_ok(make_server):
+    server = make_server(web_port=0)
+    checked = []
+
+    def check(p):
+        mirror = server.sessions.sessions[p.token].cams[0].triangles()
+        held = p.buffers.triangles(0)
+        assert sorted(held) == sorted(mirror) and all(np.array_equal(held[k], mirror[k]) for k in held)
+        checked.append(sum(len(t) for t in held.values()))
+
+    client = _run(_session(server, _flyover(12, check)))
+    assert client.subprotocol == web.SUBPROTOCOL
+    assert client.status.code == 0 and client.close_code == 1000
+    assert client.protocol.divergences == 0 and client.protocol.bad_frames == 0
+    assert len(checked) == 12 and max(checked) > 0
+    assert wait_until(lambda: not server.sessions.sessions)         # a Close frees it at once
+
+
+@pytest.mark.parametrize("encoding", ["raw", "ops"])
+def test_both_frame_encodings(make_server, encoding):
+    server = make_server(web_port=0)
+    p = SessionProtocol("terrain", 1, OPTIONS, frame_encoding=encoding)
+    client = _run(_session(server, _flyover(6), protocol=p))
+    assert client.status.code == 0 and p.divergences == 0 and p.last_applied >= 6
+
+
+def test_a_bad_mesh_name_gets_not_found_with_the_message(make_server):
+    server = make_server(web_port=0)
+    client = _run(_session(server, lambda c: asyncio.sleep(0), mesh="nope"))
+    assert client.status.code == 5 and "nope" in client.status.message
+    assert client.close_code == 4005
+
+
+def test_a_text_message_is_refused(make_server):
+    server = make_server(web_port=0)
+
+    async def fly(client):
+        await client.ws.send_str("hello")
+    client = _run(_session(server, fly))
+    assert client.status.code == 3 and "binary" in client.status.message and client.close_code == 4003
+
+
+def test_tokens_by_query_or_subprotocol_never_logged(make_server, tmp_path, caplog):
+    server = make_server(web_port=0, tokens=("s3cret-token",))
+    caplog.set_level(logging.INFO)
+    # no token, a wrong one: UNAUTHENTICATED after the upgrade, with a message saying what to do
+    for kwargs in ({}, {"query": "?token=wrong"}, {"token_protocol": "wrong"}):
+        client = _run(_session(server, lambda c: asyncio.sleep(0), **kwargs))
+        assert client.status.code == 16 and "?token=" in client.status.message, kwargs
+        assert client.close_code == 4016
+    for kwargs in ({"query": "?token=s3cret-token"}, {"token_protocol": "s3cret-token"}):
+        client = _run(_session(server, _flyover(2), **kwargs))
+        assert client.status.code == 0 and client.subprotocol == web.SUBPROTOCOL, kwargs
+
+    async def listing(query):
+        async with aiohttp.ClientSession() as http:
+            async with http.get(_url(server, "/v1/meshes" + query, "http")) as r:
+                return r.status
+    assert _run(listing("")) == 401 and _run(listing("?token=s3cret-token")) == 200
+    from caveclod.server.logs import JsonFormatter
+    logged = "\n".join(JsonFormatter().format(r) for r in caplog.records)
+    assert "s3cret-token" not in logged and "wrong" not in logged
+    assert '"path": "/v1/session"' in logged and '"path": "/v1/meshes"' in logged   # an access log, without queries
+
+
+def test_drain_ends_websocket_sessions_with_unavailable(make_server):
+    server = make_server(web_port=0)
+
+    async def fly(client):
+        p = client.protocol
+        while not p.ready:
+            await client.receive()
+        draining.append(asyncio.ensure_future(asyncio.to_thread(server.drain, 0.2)))   # read on meanwhile
+
+    draining = []
+    client = _run(_session(server, fly))
+    assert client.status.code == 14 and client.status.message
+    assert client.close_code == 4014
+
+
+def test_a_dropped_websocket_leaves_the_session_resumable(make_server):
+    server = make_server(web_port=0, resume_ttl=30)
+    p = SessionProtocol("terrain", 1, OPTIONS, frame_encoding="raw")
+
+    async def first():
+        async with aiohttp.ClientSession() as http:
+            async with http.ws_connect(_url(server), protocols=[web.SUBPROTOCOL]) as ws:
+                client = WsClient(ws, p)
+                await client.send(p.open_message())
+                while not p.ready:
+                    await client.receive()
+                lo, hi = p.info.mesh.bounds_min, p.info.mesh.bounds_max
+                pose = paths.circle((lo.x, lo.y, lo.z), (hi.x, hi.y, hi.z), 0, 0.0)
+                await client.send(p.pose_message(0, pose.eye, pose.target, pose.up))
+                await client.receive()
+        # the connection dropped without a Close (a tab's network went away)
+    _run(first())
+    token = p.token
+    assert wait_until(lambda: token in server.sessions.sessions and server.sessions.counts()[0] == 0)
+    client = _run(_session(server, _flyover(2), protocol=p))
+    assert p.info.resumed and p.token == token and client.status.code == 0 and p.divergences == 0
+
+
+def test_websocket_and_grpc_sessions_share_the_limit(make_server):
+    from service import Driver
+    server = make_server(web_port=0, max_sessions=1)
+    driver = Driver(server.port, SessionProtocol("terrain", 1, OPTIONS))
+    try:
+        assert wait_until(lambda: server.sessions.counts()[0] == 1)
+        client = _run(_session(server, lambda c: asyncio.sleep(0)))
+        assert client.status.code == 8 and client.close_code == 4008
+    finally:
+        driver.close()
+
+
+def test_close_codes_and_reasons_fit_websocket_limits():
+    import grpc
+    assert web.close_code(grpc.StatusCode.OK) == 1000
+    assert web.close_code(grpc.StatusCode.UNAUTHENTICATED) == 4016
+    long = "é" * 200
+    assert len(web._reason(long).encode()) <= 123 and web._reason(long).startswith("é")
