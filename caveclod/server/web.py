@@ -186,6 +186,7 @@ class WebFront:
         app = web.Application(client_max_size=MAX_CLIENT_MESSAGE, middlewares=[_headers])
         app.router.add_get("/", self.page)
         app.router.add_get("/static/{name}", self.static)
+        app.router.add_get("/static/vendor/{name}", self.vendored)
         app.router.add_get("/v1/meshes", self.meshes)
         app.router.add_get("/v1/session", self.session)
         self.app = app
@@ -213,11 +214,17 @@ class WebFront:
     async def page(self, request: web.Request) -> web.StreamResponse:
         return await self.static(request, "index.html")
 
+    async def vendored(self, request: web.Request) -> web.StreamResponse:
+        return await self.static(request, "vendor/" + request.match_info["name"])
+
     async def static(self, request: web.Request, name: str | None = None) -> web.StreamResponse:
         name = name or request.match_info["name"]
         suffix = name[name.rfind("."):] if "." in name else ""
-        path = STATIC / name
-        if "/" in name or name.startswith(".") or suffix not in CONTENT_TYPES or not path.is_file():
+        folder, _, base = name.rpartition("/")
+        path = STATIC / folder / base if folder else STATIC / base
+        # Only the page's own files: no other folder, no dot files, known types.
+        if folder not in ("", "vendor") or "/" in base or base.startswith(".") or suffix not in CONTENT_TYPES \
+                or not path.is_file():
             raise web.HTTPNotFound(text=f"no file {name!r} here; the viewer is at /")
         return web.Response(body=path.read_bytes(), content_type=CONTENT_TYPES[suffix],
                             headers={"Cache-Control": "no-cache"})
