@@ -18,6 +18,7 @@ import shutil
 TOOLS = {
     "xvfb-run": ((), "Debian's xvfb (apt-get install xvfb xauth)"),
     "nginx": (("/usr/sbin/nginx",), "Debian's nginx-light (apt-get install nginx-light)"),
+    "chromium-headless-shell": ((), "Debian's chromium-headless-shell (apt-get install chromium-headless-shell)"),
 }
 
 

@@ -241,3 +241,21 @@ def test_close_codes_and_reasons_fit_websocket_limits():
     assert web.close_code(grpc.StatusCode.UNAUTHENTICATED) == 4016
     long = "é" * 200
     assert len(web._reason(long).encode()) <= 123 and web._reason(long).startswith("é")
+
+
+def test_the_vendored_messages_follow_the_proto(tmp_path):
+    """caveclod/web/vendor/caveclod_pb.js, generated from the .proto by web/build.mjs, knows every
+    message and field (regenerate it after editing the .proto); byte for byte where npm's tools are here."""
+    import shutil
+    import subprocess
+    from pathlib import Path
+    text = (web.STATIC / "vendor" / "caveclod_pb.js").read_text()
+    for message in pb.DESCRIPTOR.message_types_by_name.values():
+        assert f"v1.{message.name} = (function" in text, f"{message.name}: run `cd web && npm ci && npm run build`"
+        for field in message.fields:
+            camel = field.name.split("_")[0] + "".join(w.title() for w in field.name.split("_")[1:])
+            assert f"{message.name}.prototype.{camel} =" in text, f"{message.name}.{field.name}: rebuild web/"
+    web_dir = Path(__file__).resolve().parents[1] / "web"
+    if shutil.which("node") and (web_dir / "node_modules" / "protobufjs-cli").is_dir():
+        subprocess.run(["node", str(web_dir / "build.mjs"), str(tmp_path)], check=True, capture_output=True, timeout=120)
+        assert (tmp_path / "caveclod_pb.js").read_bytes() == (web.STATIC / "vendor" / "caveclod_pb.js").read_bytes()

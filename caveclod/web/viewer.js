@@ -120,11 +120,13 @@ async function main() {
       stats.ready = true;
     },
     onEnd(status) {
+      syncStats();
       stats.ended = true;
       if (status.code !== 0) showError(status.message);
     },
   });
   window.caveclodSession = session; // for the console
+  const syncStats = () => Object.assign(stats, session.stats, { error: stats.error || session.stats.error });
   addEventListener("pagehide", () => session.close("the page was closed"));
   session.connect();
 
@@ -148,7 +150,7 @@ async function main() {
     }
     fpsFrames++;
     if (now - fpsSince >= 1000) { stats.fps = (1000 * fpsFrames) / (now - fpsSince); fpsFrames = 0; fpsSince = now; }
-    Object.assign(stats, session.stats, { error: stats.error || session.stats.error });
+    syncStats();
     hud.textContent = [
       `${mesh} · ${cameras} camera${cameras > 1 ? "s" : ""}${trajectory ? " · " + trajectory : ""}${session.stats.connected ? "" : " · offline"}`,
       `faces ${stats.facesDrawn.toLocaleString()}   frames ${stats.frames}   ${stats.fps.toFixed(0)} fps`,
