@@ -26,16 +26,18 @@ from systemtools import system_tool
 
 TEMPLATE = Path(ROOT) / "deploy" / "nginx" / "caveclod.conf.template"
 PLACEHOLDERS = ("CAVECLOD_LISTEN", "CAVECLOD_RESOLVER", "CAVECLOD_UPSTREAM_SERVERS")
+WEB_TEMPLATE = Path(ROOT) / "deploy" / "nginx" / "caveclod-web.conf.template"
+WEB_PLACEHOLDERS = ("CAVECLOD_WEB_LISTEN", "CAVECLOD_WEB_UPSTREAM_SERVERS")
 RATE = 30.0                      # poses a second, each viewer
 
 
-def render_template(**values: str) -> str:
-    """The nginx template with every ${NAME} replaced, as the nginx image's envsubst does
+def render_template(template: Path = TEMPLATE, placeholders=PLACEHOLDERS, **values: str) -> str:
+    """An nginx template with every ${NAME} replaced, as the nginx image's envsubst does
     (nginx's own $variables are left alone); KeyError when a placeholder has no value."""
-    missing = set(PLACEHOLDERS) - set(values)
+    missing = set(placeholders) - set(values)
     if missing:
         raise KeyError(f"no value for {sorted(missing)}")
-    return re.sub(r"\$\{(\w+)\}", lambda m: values[m.group(1)], TEMPLATE.read_text())
+    return re.sub(r"\$\{(\w+)\}", lambda m: values[m.group(1)], template.read_text())
 
 
 def nginx_binary() -> str | None:
@@ -62,6 +64,12 @@ class Replica:
             if not line.startswith("listening on "):
                 raise AssertionError(f"{name} printed {line!r} first; log: {self.log.read_text()[-2000:]}")
             self.port = int(line.rsplit(":", 1)[1])
+            self.web_port = None
+            if "--web-port" in args:      # printed right after (often read into the pipe's buffer already)
+                line = self.proc.stdout.readline()
+                if not line.startswith("viewer on "):
+                    raise AssertionError(f"{name} printed {line!r} second; log: {self.log.read_text()[-2000:]}")
+                self.web_port = int(line.strip().rstrip("/").rsplit(":", 1)[1])
             assert wait_until(lambda: "server.ready" in self.log.read_text(), timeout=60), "kernels did not load"
         except BaseException:
             stop_process(self.proc)
@@ -76,15 +84,25 @@ class Replica:
 
 
 class Balancer:
-    """nginx, configured from deploy/nginx/caveclod.conf.template, in front of ``replicas``."""
+    """nginx, configured from deploy/nginx/caveclod.conf.template, in front of ``replicas``;
+    with ``web``, also from caveclod-web.conf.template in front of their web ports (``web_port``)."""
 
-    def __init__(self, nginx: str, replicas: list[Replica]):
+    def __init__(self, nginx: str, replicas: list[Replica], web: bool = False):
         self.dir = Path(tempfile.mkdtemp(prefix="caveclod-nginx-"))
         os.chmod(self.dir, 0o755)                 # workers (nobody, when we are root) read temp paths here
         self.port = free_port()
         servers = " ".join(f"server 127.0.0.1:{r.port} max_fails=0;" for r in replicas)
         (self.dir / "caveclod.conf").write_text(render_template(
             CAVECLOD_LISTEN=f"127.0.0.1:{self.port}", CAVECLOD_RESOLVER="", CAVECLOD_UPSTREAM_SERVERS=servers))
+        includes = f" include {self.dir}/caveclod.conf;\n"
+        self.web_port = None
+        if web:
+            self.web_port = free_port()
+            web_servers = " ".join(f"server 127.0.0.1:{r.web_port} max_fails=0;" for r in replicas)
+            (self.dir / "caveclod-web.conf").write_text(render_template(
+                WEB_TEMPLATE, WEB_PLACEHOLDERS, CAVECLOD_WEB_LISTEN=f"127.0.0.1:{self.web_port}",
+                CAVECLOD_WEB_UPSTREAM_SERVERS=web_servers))
+            includes += f" include {self.dir}/caveclod-web.conf;\n"
         d = self.dir
         # The main file of the nginx image, cut down: the template goes inside http { }.
         (d / "nginx.conf").write_text(
@@ -92,7 +110,7 @@ class Balancer:
             "events { worker_connections 1024; }\n"
             f"http {{\n client_body_temp_path {d}/client_body;\n proxy_temp_path {d}/proxy;\n"
             f" fastcgi_temp_path {d}/fastcgi;\n uwsgi_temp_path {d}/uwsgi;\n scgi_temp_path {d}/scgi;\n"
-            f" include {d}/caveclod.conf;\n}}\n")
+            f"{includes}}}\n")
         cmd = [nginx, "-p", str(d), "-c", str(d / "nginx.conf"), "-g", "daemon off;"]
         test = subprocess.run([*cmd[:-2], "-t"], capture_output=True, text=True, timeout=30)
         if test.returncode != 0:

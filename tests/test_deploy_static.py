@@ -211,10 +211,10 @@ def test_every_serve_command_line_parses_with_the_real_cli():
 
 def test_ports_agree_with_the_serve_flags():
     serve = _parse(next(iter(_serve_commands().values())))
-    grpc_port, metrics_port = serve.port, serve.metrics_port
+    grpc_port, metrics_port, web_port = serve.port, serve.metrics_port, serve.web_port
     # Dockerfile: EXPOSE and the HEALTHCHECK's target.
     (expose,) = _docker("server", "EXPOSE")
-    assert sorted(map(int, expose.split())) == sorted((grpc_port, metrics_port))
+    assert sorted(map(int, expose.split())) == sorted((grpc_port, metrics_port, web_port))
     health = _parse(_healthcheck_argv())
     assert health.command == "health" and health.target == f"127.0.0.1:{grpc_port}"
     # compose: the balancer's servers, Prometheus' targets.
@@ -222,6 +222,8 @@ def test_ports_agree_with_the_serve_flags():
     services = compose["services"]
     lines = _server_lines(services["balancer"]["environment"]["CAVECLOD_UPSTREAM_SERVERS"])
     assert [(h, p) for h, p, _ in lines] == [(n, grpc_port) for n in sorted(services) if n.startswith("caveclod-")]
+    web_lines = _server_lines(services["balancer"]["environment"]["CAVECLOD_WEB_UPSTREAM_SERVERS"])
+    assert [(h, p) for h, p, _ in web_lines] == [(h, web_port) for h, _, _ in lines]
     prom = yaml.safe_load((DEPLOY / "prometheus" / "compose.yml").read_text())
     (job,) = prom["scrape_configs"]
     assert job["static_configs"][0]["targets"] == [f"{h}:{metrics_port}" for h, _, _ in lines]
@@ -229,12 +231,14 @@ def test_ports_agree_with_the_serve_flags():
     k8s = _k8s()
     sts = k8s["StatefulSet", "caveclod"]
     c = _container(sts, "caveclod")
-    assert {p["name"]: p["containerPort"] for p in c["ports"]} == {"grpc": grpc_port, "metrics": metrics_port}
+    assert {p["name"]: p["containerPort"] for p in c["ports"]} == {"grpc": grpc_port, "metrics": metrics_port,
+                                                                    "web": web_port}
     for probe in ("startupProbe", "readinessProbe", "livenessProbe"):
         assert c[probe]["grpc"]["port"] == grpc_port, probe
     svc = k8s["Service", sts["spec"]["serviceName"]]
     assert svc["spec"]["clusterIP"] == "None"
-    assert {p["name"]: p["port"] for p in svc["spec"]["ports"]} == {"grpc": grpc_port, "metrics": metrics_port}
+    assert {p["name"]: p["port"] for p in svc["spec"]["ports"]} == {"grpc": grpc_port, "metrics": metrics_port,
+                                                                    "web": web_port}
     annotations = sts["spec"]["template"]["metadata"]["annotations"]
     assert annotations["prometheus.io/scrape"] == "true" and int(annotations["prometheus.io/port"]) == metrics_port
 
@@ -347,12 +351,15 @@ def test_metric_names_are_those_a_real_server_exposes(terrain_path):
 # -- the nginx template against compose, Kubernetes and the client ---------------------------
 
 def test_template_placeholders_are_filled_everywhere():
-    from failover import PLACEHOLDERS, render_template
-    found = set(re.findall(r"\$\{(\w+)\}", TEMPLATE.read_text()))
-    assert found == set(PLACEHOLDERS)
+    from failover import PLACEHOLDERS, WEB_PLACEHOLDERS, WEB_TEMPLATE, render_template
+    templates = {TEMPLATE: PLACEHOLDERS, WEB_TEMPLATE: WEB_PLACEHOLDERS}
+    for template, placeholders in templates.items():
+        assert set(re.findall(r"\$\{(\w+)\}", template.read_text())) == set(placeholders), template.name
+    found = set(PLACEHOLDERS) | set(WEB_PLACEHOLDERS)
+    files = [f"nginx/{t.name}" for t in templates]
     compose = yaml.safe_load(COMPOSE.read_text())["services"]["balancer"]
     assert set(compose["environment"]) == found
-    assert compose["volumes"] == ["./nginx/caveclod.conf.template:/etc/nginx/templates/caveclod.conf.template:ro"]
+    assert compose["volumes"] == [f"./{f}:/etc/nginx/templates/{f.split('/')[1]}:ro" for f in files]
     balancer = _k8s()["Deployment", "caveclod-balancer"]
     c = _container(balancer, "nginx")
     assert {e["name"] for e in c["env"]} == found
@@ -360,7 +367,7 @@ def test_template_placeholders_are_filled_everywhere():
     assert mount["mountPath"] == "/etc/nginx/templates"
     kustomization = yaml.safe_load((DEPLOY / "kustomization.yaml").read_text())
     (generator,) = kustomization["configMapGenerator"]
-    assert generator["files"] == ["nginx/caveclod.conf.template"]
+    assert generator["files"] == files
     (volume,) = balancer["spec"]["template"]["spec"]["volumes"]
     assert volume["configMap"]["name"] == generator["name"] and volume["name"] == mount["name"]
     assert all((DEPLOY / r).is_file() for r in kustomization["resources"])
@@ -369,6 +376,12 @@ def test_template_placeholders_are_filled_everywhere():
     text = render_template(CAVECLOD_LISTEN="127.0.0.1:1", CAVECLOD_RESOLVER="",
                            CAVECLOD_UPSTREAM_SERVERS="server 127.0.0.1:2;")
     assert "${" not in text and "$http_x_caveclod_session" in text
+    text = render_template(WEB_TEMPLATE, WEB_PLACEHOLDERS, CAVECLOD_WEB_LISTEN="127.0.0.1:1",
+                           CAVECLOD_WEB_UPSTREAM_SERVERS="server 127.0.0.1:2;")
+    assert "${" not in text and "$arg_affinity" in text
+    # The web access log writes the path without the query, which may hold a token.
+    (log_format,) = re.findall(r"log_format caveclod_web (.*?);", text, re.S)
+    assert "$uri" in log_format and "$request\"" not in log_format and "$request " not in log_format
     with pytest.raises(KeyError):
         render_template(CAVECLOD_LISTEN="127.0.0.1:1")
 

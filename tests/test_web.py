@@ -13,16 +13,13 @@ import logging
 import aiohttp
 import numpy as np
 import pytest
+from service import WAIT, wait_until
+from webclient import OPTIONS, WsClient, ws_session
 
 from caveclod import paths
 from caveclod.client import SessionProtocol
 from caveclod.server import web
 from caveclod.v1 import caveclod_pb2 as pb
-
-from service import WAIT, wait_until
-
-OPTIONS = {"width": 640, "height": 360, "fov_y": None, "tolerance_px": 1.0, "cull": None, "backface": None,
-           "max_ops": None, "max_faces": None}
 
 
 def _url(server, path="/v1/session", scheme="ws"):
@@ -31,50 +28,6 @@ def _url(server, path="/v1/session", scheme="ws"):
 
 def _run(coroutine):
     return asyncio.run(asyncio.wait_for(coroutine, WAIT))
-
-
-class WsClient:
-    """A SessionProtocol over an aiohttp WebSocket: what the browser page does, in Python."""
-
-    def __init__(self, ws, protocol: SessionProtocol):
-        self.ws, self.protocol = ws, protocol
-        self.status: pb.Status | None = None
-
-    async def send(self, msg: pb.ClientMessage) -> None:
-        await self.ws.send_bytes(msg.SerializeToString())
-
-    async def receive(self):
-        """The next frame applied (acks and keyframe requests sent back), or None at the end (status kept)."""
-        while True:
-            msg = await self.ws.receive(timeout=WAIT)
-            if msg.type != aiohttp.WSMsgType.BINARY:
-                return None
-            server_msg = pb.ServerMessage.FromString(msg.data)
-            if server_msg.WhichOneof("kind") == "status":
-                self.status = server_msg.status
-                continue
-            replies, update = self.protocol.receive(server_msg)
-            for reply in replies:
-                await self.send(reply)
-            if update is not None:
-                return update
-
-
-async def _session(server, fly, *, protocols=(web.SUBPROTOCOL,), query="", mesh="terrain", token_protocol=None,
-                   protocol=None):
-    """Open a session over WebSocket and run ``fly(client)``; the client (with its final status)."""
-    protocol = protocol or SessionProtocol(mesh, 1, OPTIONS, frame_encoding="raw")
-    offered = list(protocols) + ([web.TOKEN_SUBPROTOCOL + token_protocol] if token_protocol else [])
-    async with aiohttp.ClientSession() as http:
-        async with http.ws_connect(_url(server) + query, protocols=offered) as ws:
-            client = WsClient(ws, protocol)
-            client.subprotocol = ws.protocol
-            await client.send(protocol.open_message())
-            await fly(client)
-            while await client.receive() is not None:
-                pass
-            client.close_code = ws.close_code
-            return client
 
 
 def test_page_static_files_and_meshes(make_server):
@@ -130,7 +83,7 @@ def test_websocket_session_equals_the_mirror_and_closes_ok(make_server):
         assert sorted(held) == sorted(mirror) and all(np.array_equal(held[k], mirror[k]) for k in held)
         checked.append(sum(len(t) for t in held.values()))
 
-    client = _run(_session(server, _flyover(12, check)))
+    client = _run(ws_session(_url(server), _flyover(12, check)))
     assert client.subprotocol == web.SUBPROTOCOL
     assert client.status.code == 0 and client.close_code == 1000
     assert client.protocol.divergences == 0 and client.protocol.bad_frames == 0
@@ -142,13 +95,13 @@ def test_websocket_session_equals_the_mirror_and_closes_ok(make_server):
 def test_both_frame_encodings(make_server, encoding):
     server = make_server(web_port=0)
     p = SessionProtocol("terrain", 1, OPTIONS, frame_encoding=encoding)
-    client = _run(_session(server, _flyover(6), protocol=p))
+    client = _run(ws_session(_url(server), _flyover(6), protocol=p))
     assert client.status.code == 0 and p.divergences == 0 and p.last_applied >= 6
 
 
 def test_a_bad_mesh_name_gets_not_found_with_the_message(make_server):
     server = make_server(web_port=0)
-    client = _run(_session(server, lambda c: asyncio.sleep(0), mesh="nope"))
+    client = _run(ws_session(_url(server), lambda c: asyncio.sleep(0), mesh="nope"))
     assert client.status.code == 5 and "nope" in client.status.message
     assert client.close_code == 4005
 
@@ -158,7 +111,7 @@ def test_a_text_message_is_refused(make_server):
 
     async def fly(client):
         await client.ws.send_str("hello")
-    client = _run(_session(server, fly))
+    client = _run(ws_session(_url(server), fly))
     assert client.status.code == 3 and "binary" in client.status.message and client.close_code == 4003
 
 
@@ -167,11 +120,11 @@ def test_tokens_by_query_or_subprotocol_never_logged(make_server, tmp_path, capl
     caplog.set_level(logging.INFO)
     # no token, a wrong one: UNAUTHENTICATED after the upgrade, with a message saying what to do
     for kwargs in ({}, {"query": "?token=wrong"}, {"token_protocol": "wrong"}):
-        client = _run(_session(server, lambda c: asyncio.sleep(0), **kwargs))
+        client = _run(ws_session(_url(server), lambda c: asyncio.sleep(0), **kwargs))
         assert client.status.code == 16 and "?token=" in client.status.message, kwargs
         assert client.close_code == 4016
     for kwargs in ({"query": "?token=s3cret-token"}, {"token_protocol": "s3cret-token"}):
-        client = _run(_session(server, _flyover(2), **kwargs))
+        client = _run(ws_session(_url(server), _flyover(2), **kwargs))
         assert client.status.code == 0 and client.subprotocol == web.SUBPROTOCOL, kwargs
 
     async def listing(query):
@@ -195,7 +148,7 @@ def test_drain_ends_websocket_sessions_with_unavailable(make_server):
         draining.append(asyncio.ensure_future(asyncio.to_thread(server.drain, 0.2)))   # read on meanwhile
 
     draining = []
-    client = _run(_session(server, fly))
+    client = _run(ws_session(_url(server), fly))
     assert client.status.code == 14 and client.status.message
     assert client.close_code == 4014
 
@@ -219,7 +172,7 @@ def test_a_dropped_websocket_leaves_the_session_resumable(make_server):
     _run(first())
     token = p.token
     assert wait_until(lambda: token in server.sessions.sessions and server.sessions.counts()[0] == 0)
-    client = _run(_session(server, _flyover(2), protocol=p))
+    client = _run(ws_session(_url(server), _flyover(2), protocol=p))
     assert p.info.resumed and p.token == token and client.status.code == 0 and p.divergences == 0
 
 
@@ -229,7 +182,7 @@ def test_websocket_and_grpc_sessions_share_the_limit(make_server):
     driver = Driver(server.port, SessionProtocol("terrain", 1, OPTIONS))
     try:
         assert wait_until(lambda: server.sessions.counts()[0] == 1)
-        client = _run(_session(server, lambda c: asyncio.sleep(0)))
+        client = _run(ws_session(_url(server), lambda c: asyncio.sleep(0)))
         assert client.status.code == 8 and client.close_code == 4008
     finally:
         driver.close()

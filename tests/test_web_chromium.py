@@ -18,7 +18,6 @@ from urllib.parse import urlparse
 
 import numpy as np
 import pytest
-
 from service import wait_until
 
 pytestmark = pytest.mark.requires_tool("chromium-headless-shell")
@@ -31,7 +30,6 @@ VIEWPORT = {"width": 640, "height": 400}
 @pytest.fixture(scope="module")
 def browser():
     from playwright.sync_api import sync_playwright
-
     from systemtools import system_tool
     with sync_playwright() as p:
         chromium = p.chromium.launch(executable_path=system_tool("chromium-headless-shell"), args=BROWSER_ARGS)
@@ -44,9 +42,9 @@ def browser():
 @pytest.fixture(scope="module")
 def textured_path(tmp_path_factory):
     """An object with a UV seam, a UV atlas cut into charts and three materials (not a terrain)."""
-    from caveclod.builder.hierarchy import build_static_mesh
-
     from meshes import uv_sphere
+
+    from caveclod.builder.hierarchy import build_static_mesh
     src = uv_sphere(count=(48, 24))
     centre = src.positions[src.face_positions].mean(axis=1)
     src.face_material = np.digitize(centre[:, 2], [-0.3, 0.4]).astype(np.int32)

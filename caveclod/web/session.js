@@ -91,6 +91,7 @@ export class Session {
     Object.assign(this, { onReady() {}, onFrame() {}, onEnd() {} }, o);
     this.encoding = o.encoding === "raw" ? pb.FrameEncoding.FRAME_ENCODING_RAW : pb.FrameEncoding.FRAME_ENCODING_OPS;
     this.info = null;
+    this.affinity = Array.from(crypto.getRandomValues(new Uint8Array(16)), (b) => b.toString(16).padStart(2, "0")).join("");
     this.token = ""; // the session token, for a resume
     this.payload = null; // the vertex buffer (Uint8Array)
     this.buffers = null; // [camera][material] IndexBuffer
@@ -115,11 +116,13 @@ export class Session {
   }
 
   connect() {
-    let url = this.url;
+    // The session's affinity key, the same on every resume: a balancer in front
+    // of several replicas hashes on it (deploy/nginx/caveclod-web.conf.template).
+    let url = `${this.url}?affinity=${this.affinity}`;
     const protocols = [SUBPROTOCOL];
     if (this.tokenValue) {
       if (TCHAR.test(this.tokenValue)) protocols.push(TOKEN_SUBPROTOCOL + this.tokenValue);
-      else url += (url.includes("?") ? "&" : "?") + "token=" + encodeURIComponent(this.tokenValue);
+      else url += "&token=" + encodeURIComponent(this.tokenValue);
     }
     const ws = new WebSocket(url, protocols);
     ws.binaryType = "arraybuffer";
