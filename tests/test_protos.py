@@ -78,7 +78,7 @@ def test_client_and_server_messages_are_oneofs(compiled):
     client = {f.name for f in pb.ClientMessage.DESCRIPTOR.oneofs_by_name["kind"].fields}
     server = {f.name for f in pb.ServerMessage.DESCRIPTOR.oneofs_by_name["kind"].fields}
     assert client == {"open", "pose", "ack", "keyframe_request", "close"}
-    assert server == {"session_info", "vertex_chunk", "frame"}
+    assert server == {"session_info", "vertex_chunk", "frame", "status"}     # status: WebSocket only
 
 
 # -- round trips ----------------------------------------------------------------

@@ -112,3 +112,28 @@ def test_summed_metrics_add_counters_gauges_and_buckets():
 def test_processes_must_be_positive(terrain_path, capsys):
     assert cli.main(["serve", str(terrain_path), "--processes", "0"]) == 2
     assert "--processes must be at least 1" in capsys.readouterr().err
+
+
+def test_processes_share_the_web_port(terrain_path):
+    """--web-port with --processes: every process serves the viewer and WebSocket sessions on the one port."""
+    import socket
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        web_port = s.getsockname()[1]
+    sup = Supervisor(terrain_path, "--web-port", str(web_port))
+    try:
+        # Printed right after the listening line (already in the pipe's buffer: a plain readline).
+        assert sup.proc.stdout.readline().strip() == f"viewer on http://127.0.0.1:{web_port}/"
+        assert wait_until(lambda: len(log_events(sup.lines, "server.ready")) == 2, 60.0)
+        for _ in range(4):                   # connections spread over the processes; each answers
+            page = urllib.request.urlopen(f"http://127.0.0.1:{web_port}/", timeout=10).read().decode()
+            assert "viewer.js" in page
+        started = [e["web_port"] for e in log_events(sup.lines, "server.started")]
+        assert started == [web_port, web_port]
+    finally:
+        stop_process(sup.proc)
+
+
+def test_processes_need_a_web_port_number(terrain_path, capsys):
+    assert cli.main(["serve", str(terrain_path), "--processes", "2", "--web-port", "0"]) == 2
+    assert "give a port number, not 0" in capsys.readouterr().err

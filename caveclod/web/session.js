@@ -112,6 +112,8 @@ export class Session {
       frames: 0, divergences: 0, crcChecks: 0, badFrames: 0, keyframeRequests: 0, facesDrawn: 0,
       latencyMsP50: 0, latencyMsP99: 0, bytesReceived: 0, posesSent: 0, resumes: 0, connected: false,
       status: null, error: null,
+      frameBytes: 0, // bytes of frames (all their parts), for bytes per frame
+      applyMs: 0, // time this page spent decoding, applying and checking frames (not drawing)
     };
   }
 
@@ -291,6 +293,14 @@ export class Session {
   framePart(frame, nbytes) {
     if (!this.ready) throw new ProtocolError("a Frame before the vertex buffer was complete");
     const now = performance.now();
+    try {
+      this.applyPart(frame, nbytes, now);
+    } finally {
+      this.stats.applyMs += performance.now() - now;
+    }
+  }
+
+  applyPart(frame, nbytes, now) {
     if (!this.frame) {
       if (frame.frameSeq !== this.lastApplied + 1) {
         this.stats.badFrames++;
@@ -303,6 +313,7 @@ export class Session {
     const update = this.frame;
     update.parts++;
     update.bytes += nbytes;
+    this.stats.frameBytes += nbytes;
     for (const cf of frame.cameras) this.cameraPart(cf, update, now);
     if (frame.continued) return;
     this.frame = null;
