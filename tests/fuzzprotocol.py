@@ -890,6 +890,104 @@ async def run_case(channel, case: Case, maker: CaseMaker, report: FuzzReport, se
         maker.remember(state.info.session_token, opened)
 
 
+CODES = {c.value[0]: c for c in Code}
+
+
+async def run_case_ws(http, url: str, case: Case, maker: CaseMaker, report: FuzzReport, seed: int) -> None:
+    """One case as a WebSocket session (``caveclod serve --web-port``; the proto's "WebSocket"):
+    the same messages, one per binary message, judged by the session's final ServerMessage.status
+    as a gRPC stream is by its status; the close code must be the status's (1000 or 4000 + code).
+
+    A WebSocket has no half-close: a case that half-closes sends Close instead (the proto treats
+    both alike); a case that cancels closes the connection (the session stays resumable).
+    """
+    import aiohttp
+    state = StreamState()
+    status: list = []
+    try:
+        ws = await asyncio.wait_for(http.ws_connect(url, protocols=["caveclod.v1"], max_msg_size=0,
+                                                    timeout=aiohttp.ClientWSTimeout(ws_close=STREAM_DEADLINE)),
+                                    STREAM_DEADLINE)
+    except (aiohttp.ClientError, asyncio.TimeoutError) as exc:
+        report.add("wrong", describe(case, seed), f"the WebSocket did not open: {exc!r}")
+        return
+
+    async def read() -> None:
+        try:
+            async for msg in ws:
+                if msg.type != aiohttp.WSMsgType.BINARY:
+                    break
+                reply = pb.ServerMessage.FromString(msg.data)
+                kind = reply.WhichOneof("kind")
+                if kind == "session_info":
+                    state.info, state.resumed = reply.session_info, reply.session_info.resumed
+                    state.got_info.set()
+                elif kind == "frame" and not reply.frame.continued:
+                    state.last_frame = reply.frame.frame_seq
+                    state.frames += 1
+                elif kind == "status":
+                    status.append(reply.status)
+        finally:
+            state.got_info.set()
+
+    reader = asyncio.ensure_future(read())
+    sent, hung = 0, False
+    try:
+        for i, item in enumerate(case.messages):
+            if (case.ending == "cancel" and i >= case.cancel_after) or ws.closed or reader.done():
+                break
+            if i == 1 and case.wait_for_info and state.info is None:
+                try:
+                    await asyncio.wait_for(state.got_info.wait(), STREAM_DEADLINE)
+                except asyncio.TimeoutError:
+                    break
+            try:
+                await ws.send_bytes(item(state) if callable(item) else item)
+            except (ConnectionError, RuntimeError):
+                break
+            sent += 1
+            if case.pause or i == case.mutated:
+                await asyncio.sleep(max(case.pause, SETTLE_SECONDS if i == case.mutated else 0.0))
+        try:
+            if case.ending == "cancel":
+                await ws.close()
+            elif case.ending == "half_close" and not ws.closed:
+                await ws.send_bytes(pb.ClientMessage(close=pb.Close(reason="half-close")).SerializeToString())
+        except (ConnectionError, RuntimeError):
+            pass
+        try:
+            await asyncio.wait_for(asyncio.shield(reader), STREAM_DEADLINE + END_SLACK)
+        except asyncio.TimeoutError:
+            hung = True
+    finally:
+        reader.cancel()
+        await ws.close()
+    report.count("messages", sent)
+    report.count("streams")
+    report.count("frames", state.frames)
+    report.count("resumed", state.resumed)
+    if status:
+        code, details = CODES.get(status[-1].code, Code.UNKNOWN), status[-1].message
+        want = 1000 if code == Code.OK else 4000 + code.value[0]
+        if ws.close_code != want:
+            report.add("wrong", describe(case, seed), f"status {code.name} closed with {ws.close_code}, not {want}")
+    elif case.ending == "cancel":
+        code, details = Code.CANCELLED, "the client closed the WebSocket"
+    else:
+        code, details = None, ("the session did not end within the deadline" if hung else
+                               f"the WebSocket closed ({ws.close_code}) without a status")
+    report.outcome(code.name if code is not None else "NO_END")
+    verdict = judge(case, code, details)
+    if verdict is not None:
+        report.add(verdict[0], describe(case, seed), verdict[1])
+    if state.info is not None and case.record is not None and code == Code.CANCELLED:
+        opened = pb.Open()
+        opened.CopyFrom(case.record["open"])
+        opened.ClearField("resume_token")
+        opened.last_frame_seq = 0
+        maker.remember(state.info.session_token, opened)
+
+
 async def run_list_case(channel, case: Case, report: FuzzReport, seed: int) -> None:
     """One ListMeshes call with the case's request bytes, judged like a stream."""
     call = channel.unary_unary("/caveclod.v1.Lod/ListMeshes", request_serializer=_identity,
@@ -1021,9 +1119,14 @@ async def resume_ttl(channel, mesh: MeshTarget) -> int:
 
 
 async def _fuzz(port: int, budget: Budget, seed: int, report: FuzzReport, concurrency: int,
-                honest: bool) -> int:
-    """The fuzzing itself, on one event loop; returns the resume TTL the server announced (or -1)."""
+                honest: bool, web_port: int | None = None) -> int:
+    """The fuzzing itself, on one event loop; returns the resume TTL the server announced (or -1).
+    With ``web_port``, Session cases go over WebSocket (ListMeshes and the honest sessions over gRPC)."""
     target = f"127.0.0.1:{port}"
+    http = None
+    if web_port is not None:
+        import aiohttp
+        http = aiohttp.ClientSession(connector=aiohttp.TCPConnector(limit=0))
     channels = [grpc.aio.insecure_channel(target, options=[("grpc.use_local_subchannel_pool", 1)])
                 for _ in range(CHANNELS)]
     ttl = -1
@@ -1038,7 +1141,10 @@ async def _fuzz(port: int, budget: Budget, seed: int, report: FuzzReport, concur
             while budget.more():
                 case = maker.make()
                 report.cases += 1
-                await run_case(channels[k % CHANNELS], case, maker, report, seed)
+                if http is not None and case.method != "ListMeshes":
+                    await run_case_ws(http, f"ws://127.0.0.1:{web_port}/v1/session", case, maker, report, seed)
+                else:
+                    await run_case(channels[k % CHANNELS], case, maker, report, seed)
 
         try:
             ttl = await resume_ttl(channels[0], meshes[0])
@@ -1059,21 +1165,24 @@ async def _fuzz(port: int, budget: Budget, seed: int, report: FuzzReport, concur
     finally:
         for ch in channels:
             await ch.close()
+        if http is not None:
+            await http.close()
     return ttl
 
 
 def fuzz_protocol(port: int, budget: Budget, seed: int, report: FuzzReport, metrics_port: int | None = None,
-                  *, concurrency: int = CONCURRENCY, honest: bool = True) -> FuzzReport:
+                  *, concurrency: int = CONCURRENCY, honest: bool = True, web_port: int | None = None) -> FuzzReport:
     """Fuzz the server on ``127.0.0.1:port`` until ``budget`` runs out (one case: one stream).
 
     Adds to ``report``: cases, units ``messages`` (written to gRPC),
     ``streams``, ``frames`` and ``honest_frames``, one outcome per stream
     (its status code's name) and the findings. With ``metrics_port`` (the
     server's Prometheus exporter on 127.0.0.1), checks that no session is
-    left once the resume TTL has passed.
+    left once the resume TTL has passed. With ``web_port`` (``--web-port``), the Session cases
+    run over WebSocket (:func:`run_case_ws`).
     """
     t0 = time.monotonic()
-    ttl = asyncio.run(_fuzz(port, budget, seed, report, concurrency, honest))
+    ttl = asyncio.run(_fuzz(port, budget, seed, report, concurrency, honest, web_port))
     check_health(port, report)
     if metrics_port is not None:
         check_no_sessions_left(metrics_port, ttl if ttl >= 0 else DEFAULT_TTL, report)
@@ -1125,10 +1234,11 @@ class _Drain:
     """Reads a process's output on a thread, so that its log never fills the pipe: keeps the last
     lines, the lines that start a traceback, and the first line starting with ``wanted``."""
 
-    def __init__(self, stream, wanted: str = ""):
+    def __init__(self, stream, wanted: str = "", also: str = ""):
         self.tail: collections.deque = collections.deque(maxlen=40)
         self.tracebacks: list[str] = []
         self.wanted, self.found = wanted, None
+        self.also, self.also_found = also, None       # a second line to keep (the viewer's port)
         self.seen = threading.Event()
         self.thread = threading.Thread(target=self._read, args=(stream,), daemon=True)
         self.thread.start()
@@ -1138,6 +1248,8 @@ class _Drain:
             for line in stream:
                 line = line.rstrip("\n")
                 self.tail.append(line)
+                if self.also and self.also_found is None and line.startswith(self.also):
+                    self.also_found = line
                 if self.wanted and self.found is None and line.startswith(self.wanted):
                     self.found = line
                     self.seen.set()
@@ -1157,9 +1269,10 @@ class _Drain:
 
 
 def run_against_serve(mesh_paths, budget: Budget, seed: int, *, resume_ttl: int = 1, concurrency: int = CONCURRENCY,
-                      extra_args=(), report: FuzzReport | None = None) -> FuzzReport:
+                      extra_args=(), report: FuzzReport | None = None, websocket: bool = False) -> FuzzReport:
     """Start ``caveclod serve`` on ``mesh_paths`` (127.0.0.1, port 0, metrics on, a short resume TTL),
-    fuzz it (:func:`fuzz_protocol`), and stop it by its pid whatever happens.
+    fuzz it (:func:`fuzz_protocol`; with ``websocket``, its Session cases over ``--web-port``), and
+    stop it by its pid whatever happens.
 
     A server that died meanwhile is a ``crash`` finding; a traceback in
     its log is a ``traceback`` finding.
@@ -1168,15 +1281,17 @@ def run_against_serve(mesh_paths, budget: Budget, seed: int, *, resume_ttl: int 
     report = report or FuzzReport("fuzzprotocol")
     proc, port = serve_process(*[str(p) for p in mesh_paths], "--resume-ttl", str(resume_ttl),
                                "--max-sessions", "1000", "--metrics-port", "0", "--metrics-host", "127.0.0.1",
-                               "--announce-metrics", *extra_args)
+                               "--announce-metrics", *(("--web-port", "0") if websocket else ()), *extra_args)
     stderr = None
     try:
         stderr = _Drain(proc.stderr)
-        stdout = _Drain(proc.stdout, wanted="metrics on ")
+        stdout = _Drain(proc.stdout, wanted="metrics on ", also="viewer on ")
         line = stdout.line(30.0)
         if line is None:
             raise AssertionError(f"caveclod serve did not say its metrics port; stdout: {stdout.text()!r}")
-        fuzz_protocol(port, budget, seed, report, metrics_port=int(line.split()[-1]), concurrency=concurrency)
+        web_port = int(stdout.also_found.rstrip("/").rsplit(":", 1)[1]) if websocket else None
+        fuzz_protocol(port, budget, seed, report, metrics_port=int(line.split()[-1]), concurrency=concurrency,
+                      web_port=web_port)
     finally:
         died = proc.poll()
         stop_process(proc)
@@ -1194,10 +1309,12 @@ def main(argv=None) -> int:
     parser = fuzzer_arguments("Fuzz `caveclod serve` with Session streams.")
     parser.add_argument("meshes", nargs="+", help=".cvc files to serve")
     parser.add_argument("--concurrency", type=int, default=CONCURRENCY)
+    parser.add_argument("--websocket", action="store_true",
+                        help="send the Session cases over WebSocket (serve --web-port) instead of gRPC")
     args = parser.parse_args(argv)
     report = FuzzReport("fuzzprotocol")
     run_reported(report, run_against_serve, args.meshes, Budget(cases=args.cases, seconds=args.seconds), args.seed,
-                 concurrency=args.concurrency, report=report)
+                 concurrency=args.concurrency, report=report, websocket=args.websocket)
     return finish(report, "messages", args.out)
 
 

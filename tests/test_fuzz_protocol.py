@@ -46,3 +46,12 @@ def test_the_command_line_writes_its_report(terrain_path, tmp_path):
     report = json.loads(out.read_text())
     assert report["cases"] == 30 and report["units"]["messages"] > 0 and report["fuzzer_error"] == ""
     assert sum(report["findings"].values()) == 0 and report["messages_per_second"] > 0
+
+
+def test_the_websocket_front_keeps_the_contract_under_fuzzing(terrain_path):
+    """The same cases over WebSocket (serve --web-port): the same statuses, each with its close code."""
+    report = run_against_serve([terrain_path], Budget(seconds=6.0), seed=23, websocket=True)
+    report.assert_clean()
+    for code in ("OK", "INVALID_ARGUMENT", "NOT_FOUND", "CANCELLED"):
+        assert report.outcomes.get(code, 0) > 0, report.as_json()
+    assert report.units["messages"] >= 500, report.as_json()

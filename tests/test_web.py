@@ -212,3 +212,25 @@ def test_the_vendored_messages_follow_the_proto(tmp_path):
     if shutil.which("node") and (web_dir / "node_modules" / "protobufjs-cli").is_dir():
         subprocess.run(["node", str(web_dir / "build.mjs"), str(tmp_path)], check=True, capture_output=True, timeout=120)
         assert (tmp_path / "caveclod_pb.js").read_bytes() == (web.STATIC / "vendor" / "caveclod_pb.js").read_bytes()
+
+
+@pytest.mark.parametrize("after_open", [False, True])
+def test_an_oversized_message_gets_resource_exhausted_as_over_grpc(make_server, after_open):
+    server = make_server(web_port=0)
+    big = pb.ClientMessage(keyframe_request=pb.KeyframeRequest(detail="x" * (web.MAX_CLIENT_MESSAGE + 100)))
+
+    async def go():
+        async with aiohttp.ClientSession() as http:
+            async with http.ws_connect(_url(server), protocols=[web.SUBPROTOCOL]) as ws:
+                if after_open:
+                    await ws.send_bytes(SessionProtocol("terrain", 1, OPTIONS).open_message().SerializeToString())
+                await ws.send_bytes(big.SerializeToString())
+                status = None
+                while (msg := await ws.receive(timeout=WAIT)).type == aiohttp.WSMsgType.BINARY:
+                    reply = pb.ServerMessage.FromString(msg.data)
+                    if reply.WhichOneof("kind") == "status":
+                        status = reply.status
+                return status, ws.close_code
+    status, close_code = _run(go())
+    assert status.code == 8 and "at most 65536" in status.message and close_code == 4008
+    assert wait_until(lambda: not server.sessions.sessions)

@@ -30,11 +30,15 @@ from aiohttp.abc import AbstractAccessLogger
 from .. import wire
 from ..v1 import caveclod_pb2 as pb
 from . import logs
+from .session import Refused
 
 SUBPROTOCOL = "caveclod.v1"
 TOKEN_SUBPROTOCOL = "caveclod.bearer."    # + the token: how a browser sends one without a query string
 CLOSE_REASON_BYTES = 123                  # RFC 6455: a close frame's reason
-MAX_CLIENT_MESSAGE = 64 * 1024            # as gRPC's grpc.max_receive_message_length
+MAX_CLIENT_MESSAGE = 64 * 1024            # as gRPC's grpc.max_receive_message_length: RESOURCE_EXHAUSTED past it
+# Past this, aiohttp drops the connection (close code 1009, no status) without
+# reading the message: a bound on what one message may make the server buffer.
+MAX_WEBSOCKET_MESSAGE = 4 * MAX_CLIENT_MESSAGE
 STATIC = resources.files("caveclod") / "web"
 # Only the page's own files: nothing from elsewhere can load, so a page that
 # tried (a CDN left in by mistake) fails loudly in tests/test_web_chromium.py.
@@ -124,17 +128,26 @@ class WebSocketCall:
         self.mark_done()
 
     async def requests(self):
+        """The client's messages, parsed; an oversized one raises Refused (RESOURCE_EXHAUSTED)."""
         try:
             async for msg in self.ws:
                 if msg.type == WSMsgType.BINARY:
+                    if len(msg.data) > MAX_CLIENT_MESSAGE:     # what gRPC answers to an oversized message
+                        raise Refused(grpc.StatusCode.RESOURCE_EXHAUSTED,
+                                      f"a client message of {len(msg.data)} bytes; the server accepts at most "
+                                      f"{MAX_CLIENT_MESSAGE} (a pose is about 100)")
                     yield wire.parse_client_message(msg.data)
                 elif msg.type == WSMsgType.TEXT:
                     yield wire.WireError("a text WebSocket message; send each ClientMessage serialized, "
                                          "as one binary message")
                 else:                         # an error: the connection is gone
                     break
-        finally:
-            self.mark_done()
+        except Refused:
+            raise                             # the session ends with it (the stream is not broken)
+        except Exception:
+            self.mark_done()                  # the connection broke under the read
+            raise
+        self.mark_done()                      # the connection closed: a broken stream, not a half-close
 
 
 def offered_token(request: web.Request) -> str | None:
@@ -239,7 +252,7 @@ class WebFront:
                             content_type="application/x-protobuf")
 
     async def session(self, request: web.Request) -> web.StreamResponse:
-        ws = web.WebSocketResponse(protocols=(SUBPROTOCOL,), max_msg_size=MAX_CLIENT_MESSAGE,
+        ws = web.WebSocketResponse(protocols=(SUBPROTOCOL,), max_msg_size=MAX_WEBSOCKET_MESSAGE,
                                    heartbeat=self.config.keepalive_seconds, compress=False)
         if not ws.can_prepare(request).ok:
             raise web.HTTPBadRequest(text="this is caveclod's WebSocket endpoint: connect with a WebSocket "
@@ -258,6 +271,8 @@ class WebFront:
             await call.finish(grpc.StatusCode.OK, "session closed")
         except Aborted:
             pass
+        except Refused as r:                   # an oversized first message: no session to end
+            await call.finish(r.code, r.message)
         except (ConnectionError, asyncio.CancelledError):
             pass                               # the browser left: the session stays resumable
         finally:
