@@ -84,11 +84,10 @@ def test_resumes_reach_the_replica_that_holds_the_session(front):
 def test_a_page_through_the_balancer_outlives_its_replica(front):
     from playwright.sync_api import sync_playwright
 
-    from systemtools import system_tool
-    from test_web_chromium import BROWSER_ARGS, VIEWPORT
+    from test_web_chromium import VIEWPORT, launch
     replicas, balancer = front
     with sync_playwright() as p:
-        browser = p.chromium.launch(executable_path=system_tool("chromium-headless-shell"), args=BROWSER_ARGS)
+        browser = launch(p)
         try:
             page = browser.new_page(viewport=VIEWPORT)
             errors = []

@@ -18,7 +18,7 @@ TESTS = Path(__file__).parent
 # How a test module runs each tool: as the first word of a command, or through
 # the helper that finds it.
 USES = {"xvfb-run": r"""[(\[]\s*["']xvfb-run["']""", "nginx": r"""[(\[]\s*["']nginx["']|nginx_binary\(|Balancer\(""",
-        "chromium-headless-shell": r"""system_tool\(["']chromium-headless-shell["']\)|chromium\.launch\("""}
+        "chromium-headless-shell": r"""system_tool\(["']chromium-headless-shell["']\)|chromium\.launch\(|\blaunch\(p\)"""}
 
 
 def _files_naming(tool: str) -> list[Path]:
