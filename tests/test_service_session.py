@@ -2,7 +2,9 @@
 after every frame, and equals a core camera fed the same views.
 
 Replay rule (the proto's Lod.Session comment): each CameraFrame that carries
-stats is exactly one ``CameraState.update`` with the view of its pose_seq.
+stats is exactly one ``CameraState.update`` with the view of its pose_seq,
+and a keyframe then puts every buffer in vertex-cache order
+(``CameraState.reorder_for_vertex_cache``).
 """
 
 from __future__ import annotations
@@ -39,6 +41,9 @@ def _check_frame(driver, server, core, views, update):
         if cam.stats is not None:
             delta = core[c].update(views[cam.pose_seq])
             assert (delta.splits, delta.collapses) == (cam.stats.splits, cam.stats.collapses)
+        if cam.keyframe:                  # a keyframe's buffers go out in vertex-cache order
+            for m in range(core[c].n_materials):
+                core[c].reorder_for_vertex_cache(m)
     for c in range(p.n_cameras):
         mirror = session.cams[c].triangles()
         assert _same(p.buffers.triangles(c), mirror), f"frame {update.frame_seq}: camera {c} differs from the mirror"
@@ -140,6 +145,8 @@ def test_frames_over_1_mib_come_in_parts_and_keyframes_replace_buffers(make_serv
         assert first.frame_seq == 1 and first.parts == 1            # the base mesh is small
         info = protocol.info
         core = _core_cameras(big_terrain, info)
+        for m in range(core[0].n_materials):          # frame 1, the keyframe of the base mesh
+            core[0].reorder_for_vertex_cache(m)
         lo, hi = info.mesh.bounds_min, info.mesh.bounds_max
         eye, target = (lo.x, lo.y, hi.z + 100.0), (hi.x, hi.y, lo.z)
         seq = driver.pose(0, eye, target)

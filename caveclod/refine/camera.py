@@ -342,6 +342,29 @@ class CameraState:
             delta.surfaces[s] = SurfaceDelta(np.arange(len(tri), dtype=np.uint32), tri.copy(), len(tri))
         return delta
 
+    def reorder_for_vertex_cache(self, material: int) -> None:
+        """Put one material's index buffer in vertex-cache order (:mod:`caveclod.kernels.cacheorder`).
+
+        Moves the material's records (each keeps its corners and neighbour
+        links, which name faces) to new slots and repoints their faces. The
+        client's copy no longer matches slot by slot, so the caller sends
+        the whole buffer next (a keyframe does): no slot is marked written,
+        and marks left over in the range are cleared.
+        """
+        from ..kernels.cacheorder import cache_order
+        lo, n = int(self.off[material]), int(self.cnt[material])
+        if n < 3:
+            return
+        rows = slice(lo, lo + n)
+        order = cache_order(self.rec_tri[rows])
+        for name in RECORD_ARRAYS:
+            array = getattr(self, name)
+            array[rows] = array[rows][order]
+        self.face_rec[self.rec_face[rows]] = np.arange(lo, lo + n, dtype=self.face_rec.dtype)
+        marks = np.zeros(len(self.dirty) * 64, np.bool_)      # record r is bit r & 63 of word r >> 6
+        marks[rows] = True
+        self.dirty &= ~np.packbits(marks, bitorder="little").view("<u8")
+
     # -- views of the state -----------------------------------------------------
     def triangles(self) -> dict:
         """{material: (k, 3) uint32 vertex-buffer indices}: the index buffers."""

@@ -375,6 +375,8 @@ class Session:
             self.sums[c].reset()
             out.vertices = self._slot_writes(c, kd.slots, kd.vertices)
         for m in touched:                        # a keyframe: every material's whole buffer
+            if cached is None:                   # sent whole anyway: in the order the GPU's vertex cache likes
+                cam.reorder_for_vertex_cache(m)
             buf = cam.index_buffer(m) if cached is None else cached.slot_buffer(m)
             out.surfaces.append(wire.Surface(m, len(buf), np.arange(len(buf), dtype=np.uint32), buf, wire.buffer_crc32(buf)))
             if self.held is not None:
