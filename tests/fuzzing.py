@@ -112,6 +112,23 @@ class Budget:
 
 # -- one-line errors ---------------------------------------------------------------
 
+def damage(data: bytes, rng, how: int) -> bytes:
+    """``data`` damaged one of four ways (``how`` % 4): a bit flipped, cut short at a random
+    place, a random byte inserted, a byte deleted. ``rng``: a numpy Generator."""
+    out = bytearray(data)
+    at = int(rng.integers(len(out))) if out else 0
+    how %= 4
+    if how == 0 and out:
+        out[at] ^= 1 << int(rng.integers(8))
+    elif how == 1:
+        out = out[:at]
+    elif how == 2:
+        out.insert(at, int(rng.integers(256)))
+    elif out:
+        del out[at]
+    return bytes(out)
+
+
 def cli_contract(exit_code: int, stderr: str) -> str | None:
     """None when ``exit_code``/``stderr`` keep the CLI's contract (0, or 2 with one
     ``caveclod: error:`` line and no traceback); else the kind of finding."""

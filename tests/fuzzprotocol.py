@@ -869,13 +869,24 @@ async def run_case(channel, case: Case, maker: CaseMaker, report: FuzzReport, se
             call.cancel()
         if not reader.done():
             reader.cancel()
+    if state.write_failed and code == Code.INTERNAL:
+        _count(report, sent, state)
+        report.outcome("LOST_TO_A_WRITE")
+        return
+    settle(case, state, sent, code, details, maker, report, seed, debug)
+
+
+def _count(report: FuzzReport, sent: int, state: StreamState) -> None:
     report.count("messages", sent)
     report.count("streams")
     report.count("frames", state.frames)
     report.count("resumed", state.resumed)
-    if state.write_failed and code == Code.INTERNAL:
-        report.outcome("LOST_TO_A_WRITE")
-        return
+
+
+def settle(case: Case, state: StreamState, sent: int, code: Code | None, details: str, maker: CaseMaker,
+           report: FuzzReport, seed: int, debug: str = "") -> None:
+    """Count a finished stream, judge its end, and remember a cancelled session for resumes."""
+    _count(report, sent, state)
     report.outcome(code.name if code is not None else "NO_END")
     verdict = judge(case, code, details)
     if verdict is not None:
@@ -962,10 +973,6 @@ async def run_case_ws(http, url: str, case: Case, maker: CaseMaker, report: Fuzz
     finally:
         reader.cancel()
         await ws.close()
-    report.count("messages", sent)
-    report.count("streams")
-    report.count("frames", state.frames)
-    report.count("resumed", state.resumed)
     if status:
         code, details = CODES.get(status[-1].code, Code.UNKNOWN), status[-1].message
         want = 1000 if code == Code.OK else 4000 + code.value[0]
@@ -976,16 +983,7 @@ async def run_case_ws(http, url: str, case: Case, maker: CaseMaker, report: Fuzz
     else:
         code, details = None, ("the session did not end within the deadline" if hung else
                                f"the WebSocket closed ({ws.close_code}) without a status")
-    report.outcome(code.name if code is not None else "NO_END")
-    verdict = judge(case, code, details)
-    if verdict is not None:
-        report.add(verdict[0], describe(case, seed), verdict[1])
-    if state.info is not None and case.record is not None and code == Code.CANCELLED:
-        opened = pb.Open()
-        opened.CopyFrom(case.record["open"])
-        opened.ClearField("resume_token")
-        opened.last_frame_seq = 0
-        maker.remember(state.info.session_token, opened)
+    settle(case, state, sent, code, details, maker, report, seed)
 
 
 async def run_list_case(channel, case: Case, report: FuzzReport, seed: int) -> None:

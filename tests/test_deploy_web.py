@@ -22,6 +22,7 @@ import pytest
 from caveclod import paths
 from caveclod.client import SessionProtocol
 from caveclod.server import web
+
 from failover import Balancer, Replica, nginx_binary
 from service import WAIT, stop_process
 from webclient import OPTIONS, WsClient
@@ -84,39 +85,27 @@ def test_resumes_reach_the_replica_that_holds_the_session(front):
 def test_a_page_through_the_balancer_outlives_its_replica(front):
     from playwright.sync_api import sync_playwright
 
-    from test_web_chromium import VIEWPORT, launch
+    from test_web_chromium import Page, launch
     replicas, balancer = front
     with sync_playwright() as p:
         browser = launch(p)
         try:
-            page = browser.new_page(viewport=VIEWPORT)
-            errors = []
-            page.on("console", lambda m: m.type == "error" and errors.append(m.text))
-            page.goto(f"http://127.0.0.1:{balancer.web_port}/?mesh=terrain&trajectory=flyover&cameras=2")
-
-            def wait(predicate):
-                deadline = time.monotonic() + WAIT
-                while time.monotonic() < deadline:
-                    stats = page.evaluate("window.caveclodStats")
-                    if predicate(stats):
-                        return stats
-                    time.sleep(0.1)
-                return page.evaluate("window.caveclodStats")
-
-            stats = wait(lambda s: s["frames"] >= 20)
-            assert stats["frames"] >= 20 and stats["error"] is None, stats
-            token = page.evaluate("window.caveclodSession.token")
-            victim = next(r for r in replicas if r.holds(token))
-            os.kill(victim.proc.pid, signal.SIGKILL)
-            frames = stats["frames"]
-            stats = wait(lambda s: s["frames"] >= frames + 30 and s["resumes"] >= 1 or s["error"])
-            # The page resumed through the balancer, which took it to the other
-            # replica: a fresh session there, its vertex buffer offered by hash.
-            assert stats["error"] is None and stats["resumes"] >= 1 and stats["divergences"] == 0, stats
-            new_token = page.evaluate("window.caveclodSession.token")
-            assert new_token != token and any(r.holds(new_token) for r in replicas if r is not victim)
-            assert page.evaluate("window.caveclodSession.info.vertexBufferCached")
-            # WebSocket errors of the killed connection are the browser's own log lines; no script error.
-            assert not [e for e in errors if "WebSocket" not in e], errors
+            with Page(browser, f"http://127.0.0.1:{balancer.web_port}/?mesh=terrain&trajectory=flyover&cameras=2") \
+                    as page:
+                stats = page.wait(lambda s: s["frames"] >= 20)
+                assert stats["frames"] >= 20 and stats["error"] is None, stats
+                token = page.page.evaluate("window.caveclodSession.token")
+                victim = next(r for r in replicas if r.holds(token))
+                os.kill(victim.proc.pid, signal.SIGKILL)
+                frames = stats["frames"]
+                stats = page.wait(lambda s: s["frames"] >= frames + 30 and s["resumes"] >= 1 or s["error"])
+                # The page resumed through the balancer, which took it to the other
+                # replica: a fresh session there, its vertex buffer offered by hash.
+                assert stats["error"] is None and stats["resumes"] >= 1 and stats["divergences"] == 0, stats
+                new_token = page.page.evaluate("window.caveclodSession.token")
+                assert new_token != token and any(r.holds(new_token) for r in replicas if r is not victim)
+                assert page.page.evaluate("window.caveclodSession.info.vertexBufferCached")
+                # The killed connection's errors are the browser's own log lines; no script error.
+                assert not [e for e in page.console_errors if "WebSocket" not in e], page.console_errors
         finally:
             browser.close()

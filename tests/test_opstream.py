@@ -15,6 +15,7 @@ from caveclod.paths import pose
 from caveclod.server.held import HeldBuffers
 
 import meshes
+from fuzzing import damage
 
 
 # -- a reference decoder: one write at a time, as the proto's comment reads --------------
@@ -193,17 +194,7 @@ def test_a_damaged_stream_is_an_error_or_a_checked_buffer_never_a_crash(seed):
     ops = _round_trip(old, new, 500)
     errors = 0
     for trial in range(400):
-        data = bytearray(ops)
-        how = trial % 4
-        at = int(rng.integers(len(data)))
-        if how == 0:
-            data[at] ^= 1 << int(rng.integers(8))
-        elif how == 1:
-            data = data[:at]
-        elif how == 2:
-            data.insert(at, int(rng.integers(256)))
-        else:
-            del data[at]
+        data = damage(ops, rng, trial)
         results = []
         for decode in DECODERS:
             try:

@@ -13,13 +13,14 @@ import logging
 import aiohttp
 import numpy as np
 import pytest
-from service import WAIT, wait_until
-from webclient import OPTIONS, WsClient, ws_session
 
 from caveclod import paths
 from caveclod.client import SessionProtocol
 from caveclod.server import web
 from caveclod.v1 import caveclod_pb2 as pb
+
+from service import WAIT, wait_until
+from webclient import OPTIONS, WsClient, ws_session
 
 
 def _url(server, path="/v1/session", scheme="ws"):

@@ -18,6 +18,7 @@ from urllib.parse import urlparse
 
 import numpy as np
 import pytest
+
 from service import wait_until
 
 pytestmark = pytest.mark.requires_tool("chromium-headless-shell")
@@ -31,7 +32,6 @@ def launch(p):
     """Chromium through Playwright; a skip, saying why, where the installed browser does not start
     (a machine whose Chromium lacks a library): what the page does is tested once it has started."""
     from playwright.sync_api import Error
-
     from systemtools import system_tool
     try:
         return p.chromium.launch(executable_path=system_tool("chromium-headless-shell"), args=BROWSER_ARGS)
@@ -109,6 +109,12 @@ class Page:
     def close(self) -> None:
         self.page.close()
 
+    def __enter__(self) -> "Page":
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()
+
 
 def _drawn(part: np.ndarray) -> bool:
     """A quadrant shows the mesh: a fifth of it is not sky (blue-grey) and it is shaded (not flat)."""
@@ -128,8 +134,7 @@ def _base(server) -> str:
 @pytest.mark.parametrize("cameras", [2])
 def test_a_terrain_flyover_in_quadrants(make_server, browser, cameras):
     server = make_server(web_port=0)
-    page = Page(browser, _base(server) + f"?mesh=terrain&cameras={cameras}&trajectory=flyover&tolerance=1")
-    try:
+    with Page(browser, _base(server) + f"?mesh=terrain&cameras={cameras}&trajectory=flyover&tolerance=1") as page:
         stats = page.wait(lambda s: s["frames"] >= 60 and s["crcChecks"] >= 30 or s["error"])
         assert stats["error"] is None and stats["connected"], stats
         assert stats["frames"] >= 60 and stats["crcChecks"] >= 30 and stats["divergences"] == 0, stats
@@ -142,75 +147,57 @@ def test_a_terrain_flyover_in_quadrants(make_server, browser, cameras):
         assert page.page.evaluate("window.caveclodSession.token") == token
         assert not page.console_errors, page.console_errors
         assert not _only_loopback(page.requests), _only_loopback(page.requests)
-    finally:
-        page.close()
 
 
 def test_a_textured_object_circled_with_raw_frames(make_server, browser, textured_path):
     server = make_server(meshes=[textured_path], web_port=0)
-    page = Page(browser, _base(server) + "?mesh=globe&trajectory=circle&encoding=raw")
-    try:
+    with Page(browser, _base(server) + "?mesh=globe&trajectory=circle&encoding=raw") as page:
         stats = page.wait(lambda s: s["frames"] >= 30 and s["crcChecks"] >= 10 or s["error"])
         assert stats["error"] is None and stats["divergences"] == 0 and stats["crcChecks"] >= 10, stats
         assert stats["mesh"] == "globe" and stats["facesDrawn"] > 50
         assert all(_drawn(p) for p in page.quadrants(1))
         assert not page.console_errors and not _only_loopback(page.requests)
-    finally:
-        page.close()
 
 
 def test_the_page_closes_its_session_when_it_unloads(make_server, browser):
     server = make_server(web_port=0, resume_ttl=60)
-    page = Page(browser, _base(server) + "?mesh=terrain&trajectory=rotate")
-    try:
+    with Page(browser, _base(server) + "?mesh=terrain&trajectory=rotate") as page:
         page.wait(lambda s: s["frames"] >= 5)
         assert len(server.sessions.sessions) == 1
         page.page.goto("about:blank")          # pagehide: the page sends Close
         # Closed, not left resumable for the 60 s TTL.
         assert wait_until(lambda: not server.sessions.sessions, timeout=10)
-    finally:
-        page.close()
 
 
 def test_a_bad_mesh_name_is_shown_with_the_servers_message(make_server, browser):
     server = make_server(web_port=0)
-    page = Page(browser, _base(server) + "?mesh=atlantis&trajectory=circle")
-    try:
+    with Page(browser, _base(server) + "?mesh=atlantis&trajectory=circle") as page:
         stats = page.wait(lambda s: s["error"])
         assert "atlantis" in stats["error"] and "not served" in stats["error"]
         assert "atlantis" in page.error_shown()
         assert not _only_loopback(page.requests)
-    finally:
-        page.close()
 
 
 @pytest.mark.parametrize("query, why", [("", "requires a token"), ("&token=wrong", "not accepted"),
                                         ("&token=a%20b", "not accepted")])
 def test_a_missing_or_wrong_token_is_shown(make_server, browser, query, why):
     server = make_server(web_port=0, tokens=("good-token",))
-    page = Page(browser, _base(server) + "?mesh=terrain&trajectory=circle" + query)
-    try:
+    with Page(browser, _base(server) + "?mesh=terrain&trajectory=circle" + query) as page:
         stats = page.wait(lambda s: s["error"])
         assert why in (stats["error"] or "") and why in page.error_shown(), stats
         assert not server.sessions.sessions
-    finally:
-        page.close()
 
 
 def test_a_good_token_by_subprotocol(make_server, browser):
     server = make_server(web_port=0, tokens=("good-token",))
-    page = Page(browser, _base(server) + "?trajectory=circle&token=good-token")      # no ?mesh: the first listed
-    try:
+    with Page(browser, _base(server) + "?trajectory=circle&token=good-token") as page:   # no ?mesh: the first listed
         stats = page.wait(lambda s: s["frames"] >= 5 or s["error"])
         assert stats["error"] is None and stats["frames"] >= 5 and stats["mesh"] == "terrain"
-    finally:
-        page.close()
 
 
 def test_a_drained_server_is_shown_on_the_page(make_server, browser):
     server = make_server(web_port=0)
-    page = Page(browser, _base(server) + "?mesh=terrain&trajectory=flyover&cameras=4")
-    try:
+    with Page(browser, _base(server) + "?mesh=terrain&trajectory=flyover&cameras=4") as page:
         page.wait(lambda s: s["frames"] >= 10)
         drain = threading.Thread(target=server.drain, args=(0.2,))
         drain.start()
@@ -219,8 +206,6 @@ def test_a_drained_server_is_shown_on_the_page(make_server, browser):
         assert "shutting down" in stats["error"] and "shutting down" in page.error_shown()
         assert stats["status"]["code"] == 14 and not stats["connected"]
         assert stats["divergences"] == 0
-    finally:
-        page.close()
 
 
 # -- the page's decoder and checksum against Python's, in the browser -------------------
@@ -243,6 +228,8 @@ def _opstream_cases(terrain_path) -> list:
     import caveclod
     from caveclod.paths import pose
     from caveclod.server.held import HeldBuffers
+
+    from fuzzing import damage
     mesh = caveclod.load(terrain_path)
     lo, hi = mesh.bounds()
     cam = mesh.new_camera()
@@ -262,18 +249,7 @@ def _opstream_cases(terrain_path) -> list:
     real = [c for c in cases if c[0]]
     for i in range(600):
         ops, old, count, n = real[i % len(real)]
-        data = bytearray(ops)
-        at = int(rng.integers(len(data)))
-        how = i % 4
-        if how == 0:
-            data[at] ^= 1 << int(rng.integers(8))
-        elif how == 1:
-            data = data[:at]
-        elif how == 2:
-            data.insert(at, int(rng.integers(256)))
-        else:
-            del data[at]
-        cases.append((bytes(data), old, count, n))
+        cases.append((damage(ops, rng, i), old, count, n))
     return cases
 
 
@@ -281,12 +257,9 @@ def test_the_pages_op_stream_decoder_agrees_with_pythons(browser, terrain_path, 
     from caveclod import opstream
     server = make_server(web_port=0)
     cases = _opstream_cases(terrain_path)
-    page = Page(browser, _base(server) + "?mesh=terrain&trajectory=rotate")
-    try:
+    with Page(browser, _base(server) + "?mesh=terrain&trajectory=rotate") as page:
         results = page.page.evaluate(DECODE_IN_PAGE, [(list(ops), old.ravel().tolist(), count, n)
                                                       for ops, old, count, n in cases])
-    finally:
-        page.close()
     errors = 0
     for (ops, old, count, n), got in zip(cases, results):
         try:
@@ -305,10 +278,7 @@ def test_the_pages_crc32_is_zlibs(browser, make_server):
     server = make_server(web_port=0)
     rng = np.random.default_rng(2)
     blobs = [b"", b"a", bytes(range(256))] + [rng.bytes(int(rng.integers(1, 5000))) for _ in range(20)]
-    page = Page(browser, _base(server) + "?mesh=terrain&trajectory=rotate")
-    try:
+    with Page(browser, _base(server) + "?mesh=terrain&trajectory=rotate") as page:
         got = page.page.evaluate("async (blobs) => { const { crc32 } = await import('/static/crc32.js');"
                                  " return blobs.map((b) => crc32(Uint8Array.from(b))); }", [list(b) for b in blobs])
-    finally:
-        page.close()
     assert got == [zlib.crc32(b) for b in blobs]

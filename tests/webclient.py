@@ -3,11 +3,12 @@
 from __future__ import annotations
 
 import aiohttp
-from service import WAIT
 
 from caveclod.client import SessionProtocol
 from caveclod.server import web
 from caveclod.v1 import caveclod_pb2 as pb
+
+from service import WAIT
 
 OPTIONS = {"width": 640, "height": 360, "fov_y": None, "tolerance_px": 1.0, "cull": None, "backface": None,
            "max_ops": None, "max_faces": None}
