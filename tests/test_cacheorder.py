@@ -94,14 +94,15 @@ def test_a_reordered_camera_refines_on_to_the_same_faces(terrain_path, which):
     assert all(len(d.slots) == 0 for d in reordered.update(view).surfaces.values())
 
 
-def test_a_keyframe_reaches_the_client_in_cache_order(server):
+@pytest.mark.parametrize("cache_mode", [None, {"vertices": 4000, "strategy": "lru", "pq_fraction": None}])
+def test_a_keyframe_reaches_the_client_in_cache_order(server, cache_mode):
     from caveclod.client import SessionProtocol
     from caveclod.v1 import caveclod_pb2 as pb
 
     from service import Driver
     options = {"width": 640, "height": 360, "fov_y": None, "tolerance_px": 0.5, "cull": None, "backface": None,
                "max_ops": None, "max_faces": None}
-    protocol = SessionProtocol("terrain", 1, options, ack_window=1)
+    protocol = SessionProtocol("terrain", 1, options, ack_window=1, cache_mode=cache_mode)
     driver = Driver(server.port, protocol)
     try:
         driver.next_frame()
@@ -119,9 +120,17 @@ def test_a_keyframe_reaches_the_client_in_cache_order(server):
         driver.send(protocol.keyframe_message(0, pb.KEYFRAME_REASON_CLIENT_RESET))
         update = driver.next_frame()
         assert update.cameras[0].keyframe and protocol.divergences == 0
-        mirror = server.sessions.sessions[protocol.token].cams[0]
-        assert np.array_equal(protocol.buffers.buffer(0, biggest), mirror.index_buffer(biggest))
-        after = acmr(protocol.buffers.buffer(0, biggest))
+        session = server.sessions.sessions[protocol.token]
+        mirror = session.cams[0].index_buffer(biggest) if cache_mode is None else session.cached[0].slot_buffer(biggest)
+        assert np.array_equal(protocol.buffers.buffer(0, biggest), mirror)
+        after = acmr(protocol.buffers.buffer(0, biggest))      # in cache mode over slot numbers: the same misses
         assert after < 0.75 * before and after < CACHE_SIZE, (before, after)
+        for t in range(30, 40):                    # and the session goes on refining from there, in step
+            p = pose("flyover", lo, hi, 0, 2.0 * t)
+            driver.pose(0, p.eye, p.target, p.up)
+            driver.next_frame()
+        while driver.next_frame(timeout=0.3) is not None:
+            pass
+        assert protocol.divergences == 0 and protocol.bad_frames == 0
     finally:
         driver.close()

@@ -51,6 +51,13 @@ class ActiveVertices:
         """(count, 3) uint32 view of this copy of one index buffer."""
         return self._rows.get(material, np.zeros((0, 3), np.uint32))[: self._count.get(material, 0)]
 
+    def reorder(self, material: int, order: np.ndarray) -> None:
+        """Follow a reorder of one buffer's slots: slot j now holds what slot ``order[j]`` held
+        (:meth:`CameraState.reorder_for_vertex_cache`); the counts do not change."""
+        rows = self._rows[material]
+        n = self._count[material]
+        rows[:n] = rows[:n][order]
+
     def apply(self, delta) -> tuple[np.ndarray, np.ndarray]:
         """Take one delta's slot writes; returns ``(added, removed)``: (k,)
         int32 vertices whose count went from 0 to above, and from above to 0,

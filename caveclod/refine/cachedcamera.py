@@ -221,6 +221,13 @@ class CachedCamera:
         return CacheDelta(surfaces=surfaces, slots=slots.astype(np.uint32), vertices=vertices,
                           tolerance_px=self.tolerance, delta=base)
 
+    def reorder_for_vertex_cache(self, material: int) -> None:
+        """Put one material's index buffer in vertex-cache order, the copy of it kept for
+        reference counts following (see :meth:`CameraState.reorder_for_vertex_cache`)."""
+        order = self.camera.reorder_for_vertex_cache(material)
+        if order is not None:
+            self.active.reorder(material, order)
+
     # -- views of the state ------------------------------------------------------------
     def slot_buffer(self, material: int) -> np.ndarray:
         """(count, 3) uint32: the client's index buffer of ``material`` (slot numbers)."""

@@ -342,19 +342,22 @@ class CameraState:
             delta.surfaces[s] = SurfaceDelta(np.arange(len(tri), dtype=np.uint32), tri.copy(), len(tri))
         return delta
 
-    def reorder_for_vertex_cache(self, material: int) -> None:
-        """Put one material's index buffer in vertex-cache order (:mod:`caveclod.kernels.cacheorder`).
+    def reorder_for_vertex_cache(self, material: int) -> np.ndarray | None:
+        """Put one material's index buffer in vertex-cache order (:mod:`caveclod.kernels.cacheorder`);
+        returns the order, (count,) int32 (slot j now holds what slot order[j] held), or None when
+        nothing moved.
 
         Moves the material's records (each keeps its corners and neighbour
         links, which name faces) to new slots and repoints their faces. The
         client's copy no longer matches slot by slot, so the caller sends
         the whole buffer next (a keyframe does): no slot is marked written,
-        and marks left over in the range are cleared.
+        and marks left over in the range are cleared. Copies of the buffer
+        kept elsewhere (cache mode's ActiveVertices) follow ``order``.
         """
         from ..kernels.cacheorder import cache_order
         lo, n = int(self.off[material]), int(self.cnt[material])
         if n < 3:
-            return
+            return None
         rows = slice(lo, lo + n)
         order = cache_order(self.rec_tri[rows])
         for name in RECORD_ARRAYS:
@@ -364,6 +367,7 @@ class CameraState:
         marks = np.zeros(len(self.dirty) * 64, np.bool_)      # record r is bit r & 63 of word r >> 6
         marks[rows] = True
         self.dirty &= ~np.packbits(marks, bitorder="little").view("<u8")
+        return order
 
     # -- views of the state -----------------------------------------------------
     def triangles(self) -> dict:

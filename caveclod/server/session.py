@@ -375,10 +375,7 @@ class Session:
             self.sums[c].reset()
             out.vertices = self._slot_writes(c, kd.slots, kd.vertices)
         for m in touched:                        # a keyframe: every material's whole buffer
-            # Sent whole anyway: in the order the GPU's vertex cache likes. Not in cache
-            # mode, whose CachedCamera keeps its own copy of the buffers in slot order.
-            if cached is None:
-                cam.reorder_for_vertex_cache(m)
+            (cam if cached is None else cached).reorder_for_vertex_cache(m)   # sent whole: in vertex-cache order
             buf = cam.index_buffer(m) if cached is None else cached.slot_buffer(m)
             out.surfaces.append(wire.Surface(m, len(buf), np.arange(len(buf), dtype=np.uint32), buf, wire.buffer_crc32(buf)))
             if self.held is not None:
