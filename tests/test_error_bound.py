@@ -184,3 +184,47 @@ def test_bvh_nearest_equals_brute_force(seed):
     got = nearest_dist2(points, V, T, *build_bvh(V, T))
     want = [min(point_triangle_dist2(*p, *V[t[0]], *V[t[1]], *V[t[2]]) for t in T) for p in points]
     np.testing.assert_allclose(got, want, rtol=1e-12)
+
+
+# -- forced splits (issue 18's measure) --------------------------------------------------
+
+def test_needs_detail_is_the_refinement_criterion_over_many_nodes(terrain_path):
+    """measure.needs_detail agrees node for node with ReferenceCamera.need_refine (cull and back-face on and off)."""
+    from caveclod.refine.measure import needs_detail
+    from caveclod.refine.reference import ReferenceCamera
+    mesh = caveclod.load(terrain_path)
+    lo, hi = mesh.bounds()
+    ref = ReferenceCamera(mesh)
+    nodes = np.arange(mesh.n_positions, mesh.n_nodes)
+    for t in range(4):
+        p = flyover(lo, hi, t, 7.0 * t)
+        for cull, backface, tol in ((True, False, 1.0), (True, True, 2.0), (False, False, 0.5)):
+            view = caveclod.View(eye=p.eye, target=p.target, up=p.up, width=800, height=600, tolerance_px=tol,
+                                 cull=cull, backface=backface)
+            ref.set_view(view)
+            got = needs_detail(mesh, nodes, view)
+            want = np.array([ref.need_refine(int(x)) for x in nodes])
+            assert np.array_equal(got, want), (t, cull, backface, int((got != want).sum()))
+
+
+def test_forced_splits_counts_what_the_view_does_not_ask_for(terrain_path):
+    from caveclod.refine.measure import forced_splits
+    mesh = caveclod.load(terrain_path)
+    lo, hi = mesh.bounds()
+    p = flyover(lo, hi, 0, 3.0)
+    cam = mesh.new_camera()
+    view = caveclod.View(eye=p.eye, target=p.target, up=p.up, width=800, height=600, tolerance_px=1.0)
+    cam.update(view)
+    r = forced_splits(cam, view)
+    assert 0 < r["split_nodes"] and 0 <= r["forced_nodes"] <= r["split_nodes"]
+    assert r["faces"] == cam.n_faces and r["forced_faces"] == 2 * r["forced_nodes"]
+    # Everything asked for (no culling, tolerance 0): no split is forced.
+    everything = caveclod.View(eye=p.eye, target=p.target, up=p.up, width=800, height=600, tolerance_px=0.0,
+                               cull=False)
+    cam.update(everything)
+    assert forced_splits(cam, everything)["forced_nodes"] == 0
+    # A view far away asks for nothing: whatever is still split is forced or stuck, and collapses undo it.
+    far = caveclod.View(eye=(lo[0], lo[1], hi[2] + 1e7), target=tuple(0.5 * (lo + hi)), up=(0, 1, 0),
+                        width=800, height=600, tolerance_px=1.0)
+    cam.update(far)
+    assert forced_splits(cam, far)["forced_nodes"] == forced_splits(cam, far)["split_nodes"]

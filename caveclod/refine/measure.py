@@ -49,3 +49,56 @@ def pixel_errors(mesh, triangles, view: View, points: np.ndarray | None = None) 
     d2 = nearest_dist2(P, V, tri, *build_bvh(V, tri))
     eye = vp[P_EYE:P_EYE + 3]
     return np.sqrt(d2) * vp[P_KAPPA] / np.maximum(np.linalg.norm(P - eye, axis=1), 1e-300)
+
+
+def needs_detail(mesh, nodes: np.ndarray, view: View) -> np.ndarray:
+    """(k,) bool: whether each internal node of ``nodes`` (ids >= ``mesh.n_positions``)
+    needs detail for ``view`` by its own test: in the frustum (bounding sphere
+    against the five planes), not wholly back-facing (normal cone, when
+    enabled), and a screen-space error above the tolerance. The refinement's
+    criterion over many nodes at once (``ReferenceCamera.need_refine`` is the
+    one-node version, in the same float64 arithmetic).
+    """
+    from .view import P_BACKFACE, P_CULL, P_TOL
+    p = np.asarray(view.params(), np.float64)
+    i = np.asarray(nodes, np.int64) - mesh.n_positions
+    sphere = np.asarray(mesh.node_sphere, np.float64)[i]
+    cone = np.asarray(mesh.node_cone, np.float64)[i]
+    error = np.asarray(mesh.node_error, np.float64)[i]
+    cx, cy, cz, r = sphere.T
+    need = np.ones(len(i), bool)
+    if p[P_CULL] != 0.0:
+        for k in range(5):
+            nx, ny, nz, d = p[P_PLANES + 4 * k: P_PLANES + 4 * k + 4]
+            need &= ~(nx * cx + ny * cy + nz * cz + d < -r)
+    dx, dy, dz = cx - p[P_EYE], cy - p[P_EYE + 1], cz - p[P_EYE + 2]
+    length = np.sqrt(dx * dx + dy * dy + dz * dz)
+    if p[P_BACKFACE] != 0.0:
+        ax, ay, az, spread = cone.T
+        with np.errstate(invalid="ignore", divide="ignore"):
+            cosphi = np.clip((ax * dx + ay * dy + az * dz) / length, -1.0, 1.0)
+            away = np.arccos(cosphi) + spread + np.arcsin(np.minimum(r / length, 1.0)) < 0.5 * np.pi
+        need &= ~((length > r) & (spread < 0.5 * np.pi) & away)
+    if p[P_TOL] <= 0.0:
+        return need
+    dist = length - r
+    return need & ((dist <= 0.0) | (error * p[P_KAPPA] > p[P_TOL] * dist))
+
+
+def forced_splits(camera, view: View) -> dict:
+    """How much of a camera's mesh its view does not ask for (issue 18's "forced faces").
+
+    A split node whose own test (:func:`needs_detail`) says no is split only
+    because a split it does need depends on it (Hoppe's dependencies). Each
+    split adds two faces, so ``forced_faces`` = 2 x such nodes: the faces a
+    truly selective refinement would not draw. Returns ``split_nodes``,
+    ``forced_nodes``, ``faces`` (active), ``forced_faces`` and
+    ``forced_share`` (forced faces / faces).
+    """
+    from ..kernels import refine as K
+    split = np.flatnonzero((camera.state & K.STATE_MASK) == K.SPLIT)
+    split = split[split >= camera.mesh.n_positions]
+    forced = int((~needs_detail(camera.mesh, split, view)).sum())
+    faces = camera.n_faces
+    return {"split_nodes": len(split), "forced_nodes": forced, "faces": faces, "forced_faces": 2 * forced,
+            "forced_share": 2 * forced / faces if faces else 0.0}
