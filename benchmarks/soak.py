@@ -2,6 +2,7 @@
 
     python benchmarks/soak.py [--minutes 30] [--sessions 32] [--sample 5]
     python benchmarks/soak.py --minutes 2 --sessions 8           # a short run, to try it
+    python benchmarks/soak.py --websocket --out results/soak_web.json  # the same over the browser's WebSocket
 
 One ``caveclod serve`` (127.0.0.1, port 0) serves the 1M-triangle default
 terrain (``--size 708``, built once into benchmarks/results/ and reused, as
@@ -55,6 +56,63 @@ LAP_S = 60.0            # caveclod.paths.flyover's seconds_per_lap
 
 
 # -- the load generator (--driver) ------------------------------------------------------------
+class WebSocketSession:
+    """A session over ``serve --web-port``'s WebSocket (what the browser viewer speaks), with the
+    three calls of the asyncio client's sessions that the soak uses: ``send_pose``, ``next_frame``
+    (SessionEnded at the end: code None when closed normally) and ``begin_close``."""
+
+    def __init__(self, ws, protocol):
+        self.ws, self.protocol = ws, protocol
+        self._writes: set = set()
+
+    @classmethod
+    async def open(cls, http, url: str, mesh: str, options: dict) -> "WebSocketSession":
+        from caveclod.client import SessionProtocol
+        protocol = SessionProtocol(mesh, 1, options)
+        session = cls(await http.ws_connect(url, protocols=["caveclod.v1"], max_msg_size=0), protocol)
+        session._send(protocol.open_message())
+        while not protocol.ready:
+            await session._receive()
+        return session
+
+    def _send(self, msg) -> None:
+        write = asyncio.ensure_future(self.ws.send_bytes(msg.SerializeToString()))
+        self._writes.add(write)                  # kept until done: a task with no reference may vanish
+        write.add_done_callback(self._writes.discard)
+
+    def send_pose(self, camera: int, eye, target, up) -> None:
+        self._send(self.protocol.pose_message(camera, eye, target, up))
+
+    def begin_close(self, reason: str = "") -> None:
+        self._send(self.protocol.close_message(reason))
+
+    async def _receive(self):
+        """One server message handled; the frame it completed, or None."""
+        import aiohttp
+        import grpc
+
+        from caveclod.client.session import SessionEnded
+        from caveclod.v1 import caveclod_pb2 as pb
+        msg = await self.ws.receive()
+        if msg.type != aiohttp.WSMsgType.BINARY:
+            raise SessionEnded(grpc.StatusCode.UNAVAILABLE, f"the WebSocket closed ({self.ws.close_code}) "
+                                                            "without a status")
+        reply = pb.ServerMessage.FromString(msg.data)
+        if reply.WhichOneof("kind") == "status":
+            code = next(c for c in grpc.StatusCode if c.value[0] == reply.status.code)
+            raise SessionEnded(None if code == grpc.StatusCode.OK else code, reply.status.message)
+        out, update = self.protocol.receive(reply)
+        for m in out:
+            self._send(m)
+        return update
+
+    async def next_frame(self):
+        while True:
+            update = await self._receive()
+            if update is not None:
+                return update
+
+
 async def _driver(a: dict) -> None:
     """Fly ``sessions`` sessions for ``duration`` s; print a JSON line every ``sample`` s and a final one."""
     from caveclod.client.aio import AsyncClient
@@ -69,9 +127,18 @@ async def _driver(a: dict) -> None:
     mesh = (await clients[0].list_meshes())[0]
     lo = (mesh.bounds_min.x, mesh.bounds_min.y, mesh.bounds_min.z)
     hi = (mesh.bounds_max.x, mesh.bounds_max.y, mesh.bounds_max.z)
-    sessions = await asyncio.gather(*(clients[i % len(clients)].session(
-        mesh.name, width=a["width"], height=a["height"], fov_y=a["fov"], tolerance_px=a["tolerance"],
-        timeout=120.0) for i in range(n)))
+    http = None
+    if a.get("websocket"):
+        import aiohttp
+        http = aiohttp.ClientSession(connector=aiohttp.TCPConnector(limit=0))
+        options = {"width": a["width"], "height": a["height"], "fov_y": a["fov"], "tolerance_px": a["tolerance"],
+                   "cull": None, "backface": None, "max_ops": None, "max_faces": None}
+        sessions = await asyncio.gather(*(WebSocketSession.open(http, a["websocket"], mesh.name, options)
+                                          for _ in range(n)))
+    else:
+        sessions = await asyncio.gather(*(clients[i % len(clients)].session(
+            mesh.name, width=a["width"], height=a["height"], fov_y=a["fov"], tolerance_px=a["tolerance"],
+            timeout=120.0) for i in range(n)))
     frames, poses, errors, window, chunks, finished = [0], [0], Counter(), [], [], [0]
     cpu0 = time.process_time()
     t0 = time.perf_counter() + 0.5
@@ -153,6 +220,8 @@ async def _driver(a: dict) -> None:
                       **counters()}), flush=True)
     for c in clients:
         await c.close()
+    if http is not None:
+        await http.close()
 
 
 # -- the soak ---------------------------------------------------------------------------------
@@ -176,7 +245,7 @@ def soak(args, mesh: Path, workdir: Path) -> dict:
     duration = 60.0 * args.minutes
     warmup = args.warmup if args.warmup is not None else max(0.1 * duration, min(LAP_S, 0.5 * duration))
     server = Replica(mesh, workdir, "soak-server", "--max-sessions", str(max(32, args.sessions)), "--metrics-port",
-                     "0", "--metrics-host", "127.0.0.1")
+                     "0", "--metrics-host", "127.0.0.1", *(("--web-port", "0") if args.websocket else ()))
     driver = sampler = None
     lines: list = []
     try:
@@ -184,7 +253,8 @@ def soak(args, mesh: Path, workdir: Path) -> dict:
         sampler = Sampler(server.proc.pid, metrics_port(server), t0, period=args.sample, limit_s=duration + 600)
         a = {"target": f"127.0.0.1:{server.port}", "sessions": args.sessions, "rate": args.rate,
              "duration": duration, "sample": args.sample, "warmup": warmup, "connections": args.connections,
-             "cache_dir": str(CACHE), "width": 1280, "height": 720, "fov": 60.0, "tolerance": 1.0}
+             "cache_dir": str(CACHE), "width": 1280, "height": 720, "fov": 60.0, "tolerance": 1.0,
+             "websocket": f"ws://127.0.0.1:{server.web_port}/v1/session" if args.websocket else None}
         with open(workdir / "driver.log", "w") as err:
             driver = subprocess.Popen([sys.executable, __file__, "--driver", json.dumps(a)], stdout=subprocess.PIPE,
                                       stderr=err, text=True, cwd=ROOT)
@@ -220,6 +290,7 @@ def soak(args, mesh: Path, workdir: Path) -> dict:
         flying = [s for s in sampler.samples if fly0 + warmup <= s["t"] <= fly0 + duration]
         all_flying = [s for s in sampler.samples if fly0 <= s["t"] <= fly0 + duration]
         out = {"minutes": args.minutes, "sessions": args.sessions, "rate_hz": args.rate, "sample_s": args.sample,
+               "transport": "websocket" if args.websocket else "grpc",
                "connections": args.connections, "warmup_s": round(warmup, 1), "mesh": f"{head.get('mesh', mesh.stem)} ({head.get('faces', 0):,} triangles)",
                "viewport": [1280, 720], "fov_y": 60.0, "tolerance_px": 1.0, "trajectory": "flyover",
                "driver_exit": status, "fly_start_s": round(fly0, 2)}
@@ -334,6 +405,8 @@ def main() -> int:
     ap.add_argument("--connections", type=int, default=4,
                     help="connections the sessions share (default 4, as benchmarks/service.py)")
     ap.add_argument("--size", type=int, default=708, help="default terrain size (708: 1,002,528 triangles)")
+    ap.add_argument("--websocket", action="store_true",
+                    help="fly the sessions over the browser's WebSocket (serve --web-port), one connection each")
     ap.add_argument("--out", default=str(RESULTS / "soak.json"), help="the JSON report (default results/soak.json)")
     args = ap.parse_args()
     if args.minutes <= 0 or args.sessions < 1 or args.sample <= 0:
