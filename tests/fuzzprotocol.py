@@ -805,6 +805,16 @@ async def read_responses(call, state: StreamState) -> None:
         state.got_info.set()               # a writer waiting for SessionInfo stops waiting
 
 
+async def info_before_second(case: Case, state: StreamState, i: int) -> bool:
+    """Before message ``i == 1`` of a case that waits for it, wait for SessionInfo; False when none came."""
+    if i == 1 and case.wait_for_info and state.info is None:
+        try:
+            await asyncio.wait_for(state.got_info.wait(), STREAM_DEADLINE)
+        except asyncio.TimeoutError:
+            return False
+    return True
+
+
 async def write_messages(call, case: Case, state: StreamState) -> int:
     """Send the case's messages as far as the stream takes them; end our side as the case says.
 
@@ -814,13 +824,8 @@ async def write_messages(call, case: Case, state: StreamState) -> int:
     for i, item in enumerate(case.messages):
         if case.ending == "cancel" and i >= case.cancel_after:
             break
-        if call.done():
+        if call.done() or not await info_before_second(case, state, i):
             break
-        if i == 1 and case.wait_for_info and state.info is None:
-            try:
-                await asyncio.wait_for(state.got_info.wait(), STREAM_DEADLINE)
-            except asyncio.TimeoutError:
-                break
         data = item(state) if callable(item) else item
         try:
             await call.write(data)
@@ -945,13 +950,9 @@ async def run_case_ws(http, url: str, case: Case, maker: CaseMaker, report: Fuzz
     sent, hung = 0, False
     try:
         for i, item in enumerate(case.messages):
-            if (case.ending == "cancel" and i >= case.cancel_after) or ws.closed or reader.done():
+            if (case.ending == "cancel" and i >= case.cancel_after) or ws.closed or reader.done() \
+                    or not await info_before_second(case, state, i):
                 break
-            if i == 1 and case.wait_for_info and state.info is None:
-                try:
-                    await asyncio.wait_for(state.got_info.wait(), STREAM_DEADLINE)
-                except asyncio.TimeoutError:
-                    break
             try:
                 await ws.send_bytes(item(state) if callable(item) else item)
             except (ConnectionError, RuntimeError):

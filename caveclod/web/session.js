@@ -20,7 +20,7 @@ const TOKEN_SUBPROTOCOL = "caveclod.bearer.";
 // The characters a WebSocket subprotocol may hold (RFC 7230 tchar): a token
 // outside them travels as ?token= instead.
 const TCHAR = /^[!#$%&'*+\-.^_`|~0-9A-Za-z]+$/;
-const MAX_RESUMES = 5;
+const MAX_RESUMES = 5; // consecutive tries before the page gives up and says so
 const LATENCIES_KEPT = 2000;
 
 export class ProtocolError extends Error {}
@@ -81,7 +81,7 @@ export class Session {
    * @param {string} o.mesh mesh name
    * @param {number} o.cameras 1 to 4
    * @param {object} o.options RefineOptions fields (viewportWidth, viewportHeight, tolerancePx, ...)
-   * @param {string} [o.token] bearer token
+   * @param {string} [o.tokenValue] the bearer token (--token-file), or none
    * @param {string} [o.encoding] "ops" (default) or "raw"
    * @param {function} o.onReady (info, payload Uint8Array) once the vertex buffer is whole
    * @param {function} o.onFrame (update) after each complete frame
@@ -106,7 +106,7 @@ export class Session {
     this.asked = new Set();
     this.frame = null;
     this.ended = false;
-    this.resumes = 0;
+    this.attempts = 0; // resumes tried since the last SessionInfo
     this.latencies = [];
     this.stats = {
       frames: 0, divergences: 0, crcChecks: 0, badFrames: 0, keyframeRequests: 0, facesDrawn: 0,
@@ -189,11 +189,12 @@ export class Session {
       this.ended = true;
       if (this.status.code !== 0) this.stats.error = this.status.message;
       this.onEnd(this.status);
-    } else if (this.token && this.resumes < MAX_RESUMES) {
-      // Dropped without a status: the session is still on the server. Resume it.
-      this.resumes++;
-      this.stats.resumes = this.resumes;
-      setTimeout(() => this.connect(), 250 * 2 ** this.resumes);
+    } else if (this.token && this.attempts < MAX_RESUMES) {
+      // Dropped without a status: the session is still on the server. Resume it,
+      // backing off over consecutive failures (a SessionInfo starts them over).
+      this.attempts++;
+      this.stats.resumes++;
+      setTimeout(() => this.connect(), 250 * 2 ** this.attempts);
     } else {
       this.ended = true;
       this.stats.error = `the connection to the server was lost (WebSocket close ${event.code}${event.reason ? ": " + event.reason : ""})`;
@@ -224,6 +225,7 @@ export class Session {
   }
 
   sessionInfo(info) {
+    this.attempts = 0;
     const resumed = info.resumed && this.info !== null;
     this.info = info;
     this.token = info.sessionToken;
