@@ -137,3 +137,5 @@ def test_processes_share_the_web_port(terrain_path):
 def test_processes_need_a_web_port_number(terrain_path, capsys):
     assert cli.main(["serve", str(terrain_path), "--processes", "2", "--web-port", "0"]) == 2
     assert "give a port number, not 0" in capsys.readouterr().err
+    assert cli.main(["serve", str(terrain_path), "--web-port", "70000"]) == 2
+    assert "--web-port must be a port number" in capsys.readouterr().err

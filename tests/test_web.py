@@ -33,6 +33,7 @@ def _run(coroutine):
 
 def test_page_static_files_and_meshes(make_server):
     server = make_server(web_port=0)
+    assert server.web.runner.addresses[0][0] == "127.0.0.1"        # the web port follows --host: loopback here
 
     async def go():
         async with aiohttp.ClientSession() as http:
@@ -235,3 +236,14 @@ def test_an_oversized_message_gets_resource_exhausted_as_over_grpc(make_server, 
     status, close_code = _run(go())
     assert status.code == 8 and "at most 65536" in status.message and close_code == 4008
     assert wait_until(lambda: not server.sessions.sessions)
+
+
+def test_a_web_port_in_use_is_a_clear_error(make_server):
+    import socket
+
+    from caveclod.errors import CaveclodError
+    with socket.socket() as held:
+        held.bind(("127.0.0.1", 0))
+        held.listen()
+        with pytest.raises(CaveclodError, match="cannot listen on 127.0.0.1:.* for the viewer.*--web-port"):
+            make_server(web_port=held.getsockname()[1], web_host="127.0.0.1")

@@ -104,11 +104,12 @@ class LodServer:
                                 "choose another --host/--port (--port 0 picks a free port)")
         if config.web_port is not None:
             from .web import WebFront           # aiohttp only where the viewer is asked for
+            web_host = config.host if config.web_host is None else config.web_host
             self.web = WebFront(service, config)
             try:
-                self.web_port = await self.web.start(config.web_host, config.web_port, config.reuse_port)
+                self.web_port = await self.web.start(web_host, config.web_port, config.reuse_port)
             except OSError as exc:
-                raise CaveclodError(f"cannot listen on {config.web_host}:{config.web_port} for the viewer: "
+                raise CaveclodError(f"cannot listen on {web_host}:{config.web_port} for the viewer: "
                                     f"{exc.strerror}; choose another --web-host/--web-port (0 picks a free "
                                     "port)") from None
         return port

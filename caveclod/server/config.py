@@ -51,7 +51,7 @@ class ServerConfig:
             processes of ``caveclod serve --processes N``).
         web_port: serve the browser viewer and WebSocket sessions on this
             HTTP port (:mod:`.web`), or None for none; 0 picks a free port.
-        web_host: address the viewer listens on.
+        web_host: address the viewer listens on; None: ``host``.
     """
 
     meshes: list = field(default_factory=list)
@@ -74,4 +74,4 @@ class ServerConfig:
     settle_seconds: float = 0.05
     reuse_port: bool = False
     web_port: int | None = None
-    web_host: str = "0.0.0.0"
+    web_host: str | None = None

@@ -24,7 +24,9 @@ def config_from_args(args) -> ServerConfig:
     for name in ("max_sessions", "max_cameras", "ack_window", "max_faces", "max_ops"):
         if getattr(args, name) is not None and getattr(args, name) < 1:
             raise InputError(f"--{name.replace('_', '-')} must be at least 1, got {getattr(args, name)}")
-    if args.web_port is not None and args.web_port == 0 and args.processes > 1:
+    if args.web_port is not None and not 0 <= args.web_port <= 65535:
+        raise InputError(f"--web-port must be a port number (0 to 65535; 0 picks a free one), got {args.web_port}")
+    if args.web_port == 0 and args.processes > 1:
         raise InputError("--processes N shares one --web-port between its processes: give a port number, not 0")
     if args.resume_ttl < 0 or args.drain_seconds < 0:
         raise InputError("--resume-ttl and --drain-seconds must be >= 0")
@@ -36,7 +38,7 @@ def config_from_args(args) -> ServerConfig:
         metrics_port=args.metrics_port, metrics_host=args.metrics_host,
         tokens=read_tokens(args.token_file) if args.token_file else (), tls_cert=tls[0], tls_key=tls[1],
         reuse_port=args.reuse_port, web_port=args.web_port,
-        web_host=args.host if args.web_host is None else args.web_host)
+        web_host=args.web_host)
 
 
 def _read(path, flag: str) -> bytes | None:
@@ -67,7 +69,7 @@ def serve(args) -> int:
     server = LodServer(config).start()
     print(f"listening on {config.host}:{server.port}", flush=True)
     if server.web_port is not None:
-        print(f"viewer on http://{config.web_host}:{server.web_port}/", flush=True)
+        print(f"viewer on http://{config.web_host or config.host}:{server.web_port}/", flush=True)
     if server.metrics_port is not None:
         logs.event("server.metrics", port=server.metrics_port)
         if args.announce_metrics:         # a --processes supervisor reads it here

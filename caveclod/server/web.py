@@ -209,9 +209,8 @@ class WebFront:
         self.runner = web.AppRunner(self.app, access_log_class=AccessLog, handle_signals=False,
                                     shutdown_timeout=1.0)
         await self.runner.setup()
-        site = web.TCPSite(self.runner, host, port, reuse_port=reuse_port or None)
-        await site.start()
-        return site._server.sockets[0].getsockname()[1]
+        await web.TCPSite(self.runner, host, port, reuse_port=reuse_port or None).start()
+        return self.runner.addresses[0][1]
 
     async def stop(self, grace: float = 1.0) -> None:
         """Stop: WebSockets whose sessions have ended (a drain) get ``grace`` seconds to send
