@@ -112,6 +112,7 @@ _STATS = (("splits", b"\x08", "v"), ("collapses", b"\x10", "v"), ("update_us", b
           ("cache_hits", b"\x38", "v"), ("cache_inserts", b"\x40", "v"), ("cache_tolerance_px", b"\x49", "d"),
           ("updates", b"\x50", "v"))
 _STAT_NAMES = {name for name, _, _ in _STATS}
+_ZERO_DOUBLE = bytes(8)
 
 
 def stats_bytes(stats: dict) -> bytes:
@@ -122,8 +123,12 @@ def stats_bytes(stats: dict) -> bytes:
     out = []
     for name, tag, kind in _STATS:
         value = stats.get(name)
-        if value:
-            out += (tag, varint(int(value)) if kind == "v" else _DOUBLE.pack(float(value)))
+        if kind == "v":
+            if value:
+                out += (tag, varint(int(value)))
+        elif value is not None and _DOUBLE.pack(float(value)) != _ZERO_DOUBLE:
+            # protobuf leaves out a double only when its bits are zero: -0.0 is written
+            out += (tag, _DOUBLE.pack(float(value)))
     return b"".join(out)
 
 
