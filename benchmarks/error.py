@@ -12,7 +12,10 @@ and converted to pixels as the screen-space test converts errors.
 
 Reported per mesh and tolerance: the distribution (p50, p90, p99, p99.9,
 max, in pixels and as a multiple of the tolerance), the positions measured
-and the faces drawn. Writes ``benchmarks/results/error.json`` and
+and the faces drawn. The other direction too (``lod_to_original``): seven
+points inside each drawn triangle measured against the original surface
+(:func:`caveclod.refine.measure.surface_errors`; a sample, so its max is a
+lower bound), the bulge of the LOD surface between original positions. Writes ``benchmarks/results/error.json`` and
 ``error.png`` (the distributions as CDFs).
 """
 
@@ -29,7 +32,7 @@ import numpy as np
 
 import caveclod
 from caveclod.paths import circle, flyover, line, rotate
-from caveclod.refine.measure import pixel_errors
+from caveclod.refine.measure import pixel_errors, surface_errors
 
 RESULTS = Path(__file__).parent / "results"
 MESHES = ("default", "rough", "scan")
@@ -52,16 +55,36 @@ def views(mesh, tolerance):
     return [caveclod.View.from_pose(p, tolerance_px=tolerance) for p in poses]
 
 
-def measure(mesh, tolerance):
-    px, faces = [], []
+def full_triangles(mesh) -> np.ndarray:
+    """The original surface: a camera refined all the way (tolerance 0, no culling) draws it exactly."""
+    lo, hi = mesh.bounds()
+    cam = mesh.new_camera()
+    view = caveclod.View(eye=tuple(hi + (hi - lo)), target=tuple((lo + hi) / 2), up=(0.0, 0.0, 1.0),
+                         tolerance_px=0.0, cull=False)
+    for _ in range(100):
+        if cam.update(view).operations == 0:
+            break
+    assert cam.n_faces == mesh.n_faces, "full refinement must give back every original face"
+    return np.concatenate(list(cam.triangles().values()))
+
+
+def measure(mesh, tolerance, original):
+    px, back, faces = [], [], []
     for view in views(mesh, tolerance):
         cam = mesh.new_camera()
         for _ in range(6):
             if cam.update(view).operations == 0:
                 break
         px.append(pixel_errors(mesh, cam.triangles(), view))
+        back.append(surface_errors(mesh, cam.triangles(), original, view))
         faces.append(cam.n_faces)
-    return np.concatenate(px), faces
+    return np.concatenate(px), np.concatenate(back), faces
+
+
+def distribution(px: np.ndarray, tolerance: float) -> dict:
+    q = np.percentile(px, [50, 90, 99, 99.9])
+    return {"p50": float(q[0]), "p90": float(q[1]), "p99": float(q[2]), "p999": float(q[3]), "max": float(px.max()),
+            "p99_over_tolerance": float(q[2] / tolerance), "max_over_tolerance": float(px.max() / tolerance)}
 
 
 def main(argv=None) -> int:
@@ -75,18 +98,18 @@ def main(argv=None) -> int:
     for name in MESHES:
         t0 = time.perf_counter()
         mesh = caveclod.build(name, size=args.size)
+        original = full_triangles(mesh)
         rows = {}
         for tol in args.tolerances:
-            px, faces = measure(mesh, tol)
-            q = np.percentile(px, [50, 90, 99, 99.9])
-            rows[str(tol)] = {"positions_measured": int(len(px)), "faces_drawn": faces,
-                              "p50": float(q[0]), "p90": float(q[1]), "p99": float(q[2]), "p999": float(q[3]),
-                              "max": float(px.max()), "p99_over_tolerance": float(q[2] / tol),
-                              "max_over_tolerance": float(px.max() / tol)}
+            px, back, faces = measure(mesh, tol, original)
+            rows[str(tol)] = {"positions_measured": int(len(px)), "faces_drawn": faces, **distribution(px, tol),
+                              "lod_to_original": {"points_measured": int(len(back)), **distribution(back, tol)}}
             curves[(name, tol)] = np.sort(px)
-            print(f"{name:8s} {tol:4.1f} px: p50 {q[0]:.3f}  p99 {q[2]:.3f}  max {px.max():.3f} px "
-                  f"({px.max() / tol:.2f} x tolerance) over {len(px):,} positions, "
-                  f"{int(np.mean(faces)):,} faces a view", flush=True)
+            d, b = rows[str(tol)], rows[str(tol)]["lod_to_original"]
+            print(f"{name:8s} {tol:4.1f} px: original->LOD p50 {d['p50']:.3f}  p99 {d['p99']:.3f}  max {d['max']:.3f} "
+                  f"px ({d['max_over_tolerance']:.2f} x) over {len(px):,} positions; LOD->original p99 "
+                  f"{b['p99']:.3f}  max {b['max']:.3f} px ({b['max_over_tolerance']:.2f} x) over {len(back):,} "
+                  f"points; {int(np.mean(faces)):,} faces a view", flush=True)
         report["meshes"][name] = {"faces": mesh.n_faces, "base_faces": len(mesh.base_faces),
                                   "seconds": round(time.perf_counter() - t0, 1), "tolerances": rows}
     args.out.parent.mkdir(parents=True, exist_ok=True)

@@ -228,3 +228,43 @@ def test_forced_splits_counts_what_the_view_does_not_ask_for(terrain_path):
                         width=800, height=600, tolerance_px=1.0)
     cam.update(far)
     assert forced_splits(cam, far)["forced_nodes"] == forced_splits(cam, far)["split_nodes"]
+
+
+def test_surface_errors_measure_the_drawn_surface_against_the_original(terrain_path):
+    """The LOD -> original direction: zero on the full mesh; on a coarse camera, the sampled points'
+    distances to the original surface, as a brute-force search over every original face finds them."""
+    from caveclod.refine.measure import SURFACE_SAMPLES, surface_errors
+    from caveclod.refine.view import P_EYE, P_KAPPA
+    mesh = caveclod.load(terrain_path)
+    lo, hi = mesh.bounds()
+    full = mesh.new_camera()
+    everything = caveclod.View(eye=tuple(hi + (hi - lo)), target=tuple((lo + hi) / 2), up=(0, 0, 1),
+                               tolerance_px=0.0, cull=False)
+    for _ in range(100):
+        if full.update(everything).operations == 0:
+            break
+    original = np.concatenate(list(full.triangles().values()))
+    assert len(original) == mesh.n_faces
+    p = flyover(lo, hi, 1, 4.0)
+    view = caveclod.View(eye=p.eye, target=p.target, up=p.up, width=640, height=360, tolerance_px=4.0)
+    assert surface_errors(mesh, original, original, view).max() < 1e-6
+    cam = mesh.new_camera()
+    cam.update(view)
+    px = surface_errors(mesh, cam.triangles(), original, view)
+    assert len(px) > 0 and np.isfinite(px).all() and px.max() > 0
+    # Brute force on the samples of a few drawn triangles wholly in view.
+    V = np.asarray(mesh.vertex_positions, np.float64)
+    vp = view.params()
+    planes = vp[3:23].reshape(5, 4)
+    lod = np.concatenate(list(cam.triangles().values()))
+    samples = np.einsum("sc,kcd->ksd", SURFACE_SAMPLES, V[lod])                      # (k, 7, 3)
+    in_view = ((samples @ planes[:, :3].T + planes[:, 3]) >= 0).all(axis=(1, 2))
+    chosen = lod[in_view][:8]
+    assert len(chosen) == 8
+    got = surface_errors(mesh, chosen, original, view)
+    want = []
+    for q in np.einsum("sc,kcd->ksd", SURFACE_SAMPLES, V[chosen]).reshape(-1, 3):
+        d2 = min(point_triangle_dist2(*q, *V[a], *V[b], *V[c]) for a, b, c in original)
+        want.append(np.sqrt(d2) * vp[P_KAPPA] / np.linalg.norm(q - vp[P_EYE:P_EYE + 3]))
+    assert len(want) == 56 and max(want) > 0
+    np.testing.assert_allclose(got, want, rtol=1e-6, atol=1e-9)

@@ -102,3 +102,29 @@ def forced_splits(camera, view: View) -> dict:
     faces = camera.n_faces
     return {"split_nodes": len(split), "forced_nodes": forced, "faces": faces, "forced_faces": 2 * forced,
             "forced_share": 2 * forced / faces if faces else 0.0}
+
+
+# Barycentric points sampled inside each drawn triangle by :func:`surface_errors`:
+# the centroid, the three edge midpoints, and the 2:1:1 points (towards each corner).
+SURFACE_SAMPLES = np.array([[1 / 3, 1 / 3, 1 / 3],
+                            [0.5, 0.5, 0.0], [0.0, 0.5, 0.5], [0.5, 0.0, 0.5],
+                            [2 / 3, 1 / 6, 1 / 6], [1 / 6, 2 / 3, 1 / 6], [1 / 6, 1 / 6, 2 / 3]])
+
+
+def surface_errors(mesh, triangles, original, view: View) -> np.ndarray:
+    """(q,) float64 pixel distance from points of the drawn surface to the original one: the
+    other direction of :func:`pixel_errors` (issue 18's two-sided bound).
+
+    Seven points inside each drawn triangle (:data:`SURFACE_SAMPLES`) that
+    lie in ``view``'s frustum are measured against ``original``, the full
+    mesh's triangles as vertex-buffer indices (a fully refined camera's
+    ``triangles()``), and converted to pixels as the screen-space test does.
+    A sample, so the largest value is a lower bound of the true maximum.
+    """
+    if isinstance(triangles, dict):
+        parts = [np.asarray(t).reshape(-1, 3) for t in triangles.values()]
+        triangles = np.concatenate(parts) if parts else np.zeros((0, 3), np.int64)
+    tri = np.asarray(triangles, np.int64).reshape(-1, 3)
+    V = np.asarray(mesh.vertex_positions, np.float64)
+    points = np.einsum("sc,kcd->ksd", SURFACE_SAMPLES, V[tri]).reshape(-1, 3)
+    return pixel_errors(mesh, original, view, points=points)
