@@ -272,7 +272,7 @@ class WebFront:
             pass
         except Refused as r:                   # an oversized first message: no session to end
             await call.finish(r.code, r.message)
-        except (ConnectionError, asyncio.CancelledError):
+        except ConnectionError:
             pass                               # the browser left: the session stays resumable
         finally:
             call.mark_done()
