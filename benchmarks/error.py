@@ -32,7 +32,7 @@ import numpy as np
 
 import caveclod
 from caveclod.paths import circle, flyover, line, rotate
-from caveclod.refine.measure import pixel_errors, surface_errors
+from caveclod.refine.measure import original_triangles, pixel_errors, surface_errors
 
 RESULTS = Path(__file__).parent / "results"
 MESHES = ("default", "rough", "scan")
@@ -53,19 +53,6 @@ def views(mesh, tolerance):
             eye = c + r * (0.4 + 0.3 * k) * np.array([math.cos(angle), math.sin(angle), 0.2 * (k - 3)])
             poses.append((tuple(eye), tuple(c), (0.0, 0.0, 1.0)))
     return [caveclod.View.from_pose(p, tolerance_px=tolerance) for p in poses]
-
-
-def full_triangles(mesh) -> np.ndarray:
-    """The original surface: a camera refined all the way (tolerance 0, no culling) draws it exactly."""
-    lo, hi = mesh.bounds()
-    cam = mesh.new_camera()
-    view = caveclod.View(eye=tuple(hi + (hi - lo)), target=tuple((lo + hi) / 2), up=(0.0, 0.0, 1.0),
-                         tolerance_px=0.0, cull=False)
-    for _ in range(100):
-        if cam.update(view).operations == 0:
-            break
-    assert cam.n_faces == mesh.n_faces, "full refinement must give back every original face"
-    return np.concatenate(list(cam.triangles().values()))
 
 
 def measure(mesh, tolerance, original):
@@ -98,7 +85,7 @@ def main(argv=None) -> int:
     for name in MESHES:
         t0 = time.perf_counter()
         mesh = caveclod.build(name, size=args.size)
-        original = full_triangles(mesh)
+        original = original_triangles(mesh)
         rows = {}
         for tol in args.tolerances:
             px, back, faces = measure(mesh, tol, original)

@@ -233,17 +233,11 @@ def test_forced_splits_counts_what_the_view_does_not_ask_for(terrain_path):
 def test_surface_errors_measure_the_drawn_surface_against_the_original(terrain_path):
     """The LOD -> original direction: zero on the full mesh; on a coarse camera, the sampled points'
     distances to the original surface, as a brute-force search over every original face finds them."""
-    from caveclod.refine.measure import SURFACE_SAMPLES, surface_errors
+    from caveclod.refine.measure import SURFACE_SAMPLES, original_triangles, surface_errors
     from caveclod.refine.view import P_EYE, P_KAPPA
     mesh = caveclod.load(terrain_path)
     lo, hi = mesh.bounds()
-    full = mesh.new_camera()
-    everything = caveclod.View(eye=tuple(hi + (hi - lo)), target=tuple((lo + hi) / 2), up=(0, 0, 1),
-                               tolerance_px=0.0, cull=False)
-    for _ in range(100):
-        if full.update(everything).operations == 0:
-            break
-    original = np.concatenate(list(full.triangles().values()))
+    original = original_triangles(mesh)
     assert len(original) == mesh.n_faces
     p = flyover(lo, hi, 1, 4.0)
     view = caveclod.View(eye=p.eye, target=p.target, up=p.up, width=640, height=360, tolerance_px=4.0)

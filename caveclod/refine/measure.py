@@ -111,14 +111,29 @@ SURFACE_SAMPLES = np.array([[1 / 3, 1 / 3, 1 / 3],
                             [2 / 3, 1 / 6, 1 / 6], [1 / 6, 2 / 3, 1 / 6], [1 / 6, 1 / 6, 2 / 3]])
 
 
+def original_triangles(mesh) -> np.ndarray:
+    """(p, 3) int64 the original surface as vertex-buffer indices: what a camera refined all the way
+    (tolerance 0, no culling) draws, which is the source mesh exactly."""
+    lo, hi = mesh.bounds()
+    cam = mesh.new_camera()
+    view = View(eye=tuple(hi + (hi - lo)), target=tuple((lo + hi) / 2), up=(0.0, 0.0, 1.0), tolerance_px=0.0,
+                cull=False)
+    for _ in range(100):                     # an update converges; the bound is for a damaged hierarchy
+        if cam.update(view).operations == 0:
+            break
+    if cam.n_faces != mesh.n_faces:
+        raise AssertionError(f"full refinement drew {cam.n_faces} faces of {mesh.n_faces}")
+    return np.concatenate(list(cam.triangles().values())).astype(np.int64)
+
+
 def surface_errors(mesh, triangles, original, view: View) -> np.ndarray:
     """(q,) float64 pixel distance from points of the drawn surface to the original one: the
     other direction of :func:`pixel_errors` (issue 18's two-sided bound).
 
     Seven points inside each drawn triangle (:data:`SURFACE_SAMPLES`) that
     lie in ``view``'s frustum are measured against ``original``, the full
-    mesh's triangles as vertex-buffer indices (a fully refined camera's
-    ``triangles()``), and converted to pixels as the screen-space test does.
+    mesh's triangles as vertex-buffer indices (:func:`original_triangles`),
+    and converted to pixels as the screen-space test does.
     A sample, so the largest value is a lower bound of the true maximum.
     """
     if isinstance(triangles, dict):
