@@ -108,6 +108,7 @@ export class Session {
     this.ended = false;
     this.attempts = 0; // resumes tried since the last SessionInfo
     this.latencies = [];
+    this.newLatencies = false; // samples added since the percentiles were computed
     this.stats = {
       frames: 0, divergences: 0, crcChecks: 0, badFrames: 0, keyframeRequests: 0, facesDrawn: 0,
       latencyMsP50: 0, latencyMsP99: 0, bytesReceived: 0, posesSent: 0, resumes: 0, connected: false,
@@ -335,6 +336,7 @@ export class Session {
     let faces = 0;
     for (const row of this.buffers) for (const b of row) faces += b.count;
     this.stats.facesDrawn = faces;
+    if (this.newLatencies) this.latencyPercentiles();
     this.onFrame(update);
   }
 
@@ -351,7 +353,10 @@ export class Session {
         this.answered[c] = cf.poseSeq;
         const sent = this.sent[c].get(cf.poseSeq);
         for (const seq of [...this.sent[c].keys()]) if (seq <= cf.poseSeq) this.sent[c].delete(seq);
-        if (sent !== undefined) this.latency(now - sent);
+        if (sent !== undefined) {
+          this.latencies.push(now - sent);
+          this.newLatencies = true;
+        }
       }
     }
     if (update.untrusted.has(c)) return;
@@ -414,11 +419,12 @@ export class Session {
     }
   }
 
-  latency(ms) {
-    this.latencies.push(ms);
+  /** p50 and p99 of the latest LATENCIES_KEPT pose -> frame latencies: once a frame that answered poses. */
+  latencyPercentiles() {
     if (this.latencies.length > LATENCIES_KEPT) this.latencies.splice(0, this.latencies.length - LATENCIES_KEPT);
     const sorted = [...this.latencies].sort((a, b) => a - b);
     this.stats.latencyMsP50 = percentile(sorted, 0.5);
     this.stats.latencyMsP99 = percentile(sorted, 0.99);
+    this.newLatencies = false;
   }
 }
