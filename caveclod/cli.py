@@ -242,7 +242,13 @@ def _client_arguments(p: argparse.ArgumentParser) -> None:
 
 
 def _cache_arguments(p: argparse.ArgumentParser, more: str = "") -> None:
-    """Cache mode for the commands that open sessions: N vertex slots per camera."""
+    """How vertices reach the commands that open sessions: packed or float32, or cache mode's slots."""
+    p.add_argument("--vertex-encoding", choices=("packed", "float32"), default="packed",
+                   help="how the vertex buffer downloads: packed (quantized and deflated, 1-7 bytes a vertex; "
+                        "the default) or float32 (32 bytes a vertex, exact)")
+    p.add_argument("--position-bits", type=int, metavar="B",
+                   help="packed: bits per position component, 8-24 (default 20; a position moves by about "
+                        "extent * 2^-B at most)")
     p.add_argument("--cache-vertices", type=int, metavar="N",
                    help="cache mode: N vertex slots per camera instead of the whole vertex buffer" + more)
     p.add_argument("--cache-strategy", choices=("fa", "lru", "lru_pq"),

@@ -154,8 +154,13 @@ def fly(target: str, mesh: str, out: Path, size: tuple, args) -> tuple[dict, lis
     try:
         with Client(target, cache_dir=out / "vertex-cache") as client:
             with client.session(mesh, cameras=len(CAMERAS), width=qw, height=qh) as session:
+                info = session.info
+                packed = info.vertex_packing if info.HasField("vertex_packing") else None
+                how = "" if packed is None else (
+                    f", packed into {packed.packed_bytes:,} bytes (float32: {info.vertex_format.payload_bytes:,}; "
+                    f"positions within {packed.max_position_error:.2g} units)")
                 print(f"demo: session of {len(CAMERAS)} cameras, {qw}x{qh} each, 1 px tolerance; "
-                      f"vertex buffer {session.vertex_buffer.n_vertices:,} vertices", flush=True)
+                      f"vertex buffer {session.vertex_buffer.n_vertices:,} vertices{how}", flush=True)
                 summary, frames = record(session, out / "frames", size=size, trajectory="flyover",
                                          frames=args.frames, wireframe=args.wireframe, keep_every=args.keep_every,
                                          animation=out / "animation.gif", animation_width=args.animation_width,
@@ -164,6 +169,10 @@ def fly(target: str, mesh: str, out: Path, size: tuple, args) -> tuple[dict, lis
         raise CaveclodError(f"the session ended: {exc}; see the server log {out / 'server.log'}") from None
     except FlightError as exc:
         raise CaveclodError(str(exc)) from None
+    summary["vertex_download"] = {
+        "float32_bytes": info.vertex_format.payload_bytes,
+        "packed_bytes": packed.packed_bytes if packed is not None else None,
+        "max_position_error": packed.max_position_error if packed is not None else 0.0}
     summary["cameras_described"] = {
         name: f"flies a circle over the {q} quadrant of the terrain, looking ahead and down"
         for name, q in zip(CAMERAS, ("south-west", "south-east", "north-west", "north-east"))}

@@ -140,6 +140,9 @@ def test_a_terrain_flyover_in_quadrants(make_server, browser, cameras):
         assert stats["frames"] >= 60 and stats["crcChecks"] >= 30 and stats["divergences"] == 0, stats
         assert stats["badFrames"] == 0 and stats["keyframeRequests"] == 0 and stats["facesDrawn"] > 100
         assert stats["cameras"] == cameras and 0 < stats["latencyMsP50"] <= stats["latencyMsP99"]
+        # The vertex buffer came packed (the page's default), under a quarter of its float32 bytes.
+        payload = server.sessions.catalogue.get("terrain").vertex_format.payload_bytes
+        assert stats["vertexPacked"] and 0 < 4 * stats["vertexDownloadBytes"] < payload, stats
         parts = page.quadrants(cameras)
         assert all(_drawn(p) for p in parts), [float(p.std()) for p in parts]
         # The page holds what the server's mirror holds, buffer for buffer.
@@ -151,9 +154,10 @@ def test_a_terrain_flyover_in_quadrants(make_server, browser, cameras):
 
 def test_a_textured_object_circled_with_raw_frames(make_server, browser, textured_path):
     server = make_server(meshes=[textured_path], web_port=0)
-    with Page(browser, _base(server) + "?mesh=globe&trajectory=circle&encoding=raw") as page:
+    with Page(browser, _base(server) + "?mesh=globe&trajectory=circle&encoding=raw&vertices=float32") as page:
         stats = page.wait(lambda s: s["frames"] >= 30 and s["crcChecks"] >= 10 or s["error"])
         assert stats["error"] is None and stats["divergences"] == 0 and stats["crcChecks"] >= 10, stats
+        assert not stats["vertexPacked"]
         assert stats["mesh"] == "globe" and stats["facesDrawn"] > 50
         assert all(_drawn(p) for p in page.quadrants(1))
         assert not page.console_errors and not _only_loopback(page.requests)
@@ -282,3 +286,58 @@ def test_the_pages_crc32_is_zlibs(browser, make_server):
         got = page.page.evaluate("async (blobs) => { const { crc32 } = await import('/static/crc32.js');"
                                  " return blobs.map((b) => crc32(Uint8Array.from(b))); }", [list(b) for b in blobs])
     assert got == [zlib.crc32(b) for b in blobs]
+
+
+UNPACK_IN_PAGE = """async (cases) => {
+  const { unpackVertices } = await import('/static/vertexpack.js');
+  const { crc32 } = await import('/static/crc32.js');
+  const out = [];
+  for (const [packing, format, packed] of cases) {
+    try {
+      out.push(crc32(await unpackVertices(packing, format, Uint8Array.from(packed))));
+    } catch (err) {
+      out.push(err.constructor.name + ': ' + err.message);
+    }
+  }
+  return out;
+}"""
+
+
+def test_the_pages_vertex_unpacker_makes_pythons_bytes(browser, make_server, textured_path):
+    """The page decodes packed buffers (terrain, a coloured random buffer, bits 8-24) to the very bytes
+    caveclod.vertexpack makes, and refuses damaged ones."""
+    import caveclod
+    from caveclod import vertexpack, wire
+    server = make_server(web_port=0)
+    rng = np.random.default_rng(3)
+    mesh = caveclod.load(textured_path)
+    buffers = [(mesh.vertex_positions, mesh.vertex_normals, mesh.vertex_uvs, mesh.vertex_colors)]
+    d = 500
+    n = rng.normal(size=(d, 3))
+    buffers.append(((5e5 + rng.random((d, 3)) * 3e3).astype(np.float32),
+                    (n / np.linalg.norm(n, axis=1)[:, None]).astype(np.float32),
+                    (rng.random((d, 2)) * 700 - 30).astype(np.float32), rng.integers(0, 256, (d, 4), dtype=np.uint8)))
+    cases, want = [], []
+    for p, nrm, uv, col in buffers:
+        for bits in (8, 20, 24):
+            packed = vertexpack.pack(p, nrm, uv, col, bits)
+            fmt = wire.vertex_format(wire.vertex_blocks(p, nrm, uv, np.zeros((0, 4), np.uint8) if col is None else col))
+            msg = vertexpack.to_message(packed, "ab" * 16)       # as protobufjs names its fields
+            o = msg.position_origin
+            packing = {"positionOrigin": {"x": o.x, "y": o.y, "z": o.z}, "positionStep": msg.position_step,
+                       "normalBits": msg.normal_bits, "texcoordStep": msg.texcoord_step}
+            fmt_dict = {"vertexCount": int(fmt.vertex_count),
+                        "attributes": [{"semantic": a.semantic} for a in fmt.attributes]}
+            cases.append((packing, fmt_dict, list(packed.data)))
+            want.append(packed.decoded_crc32)
+            bad = bytearray(packed.data)
+            bad[len(bad) // 3] ^= 0x04
+            cases.append((packing, fmt_dict, list(bad)))
+            want.append(None)
+    with Page(browser, _base(server) + "?mesh=terrain&trajectory=rotate") as page:
+        got = page.page.evaluate(UNPACK_IN_PAGE, cases)
+    for g, w in zip(got, want):
+        if w is None:
+            assert isinstance(g, str) and g.startswith("PackedVertexError"), g
+        else:
+            assert g == w, g

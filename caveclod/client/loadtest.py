@@ -44,6 +44,7 @@ import grpc
 import numpy as np
 
 from ..errors import InputError
+from ..vertexpack import MAX_POSITION_BITS, MIN_POSITION_BITS
 from ..paths import pose as path_pose
 from .aio import AsyncClient, AsyncSession
 from .session import SessionEnded
@@ -166,7 +167,9 @@ async def _one(client: AsyncClient, index: int, args, mesh, tally: Tally, t0: fl
                                        fov_y=args.fov, tolerance_px=args.tolerance,
                                        cache_vertices=args.cache_vertices, cache_strategy=args.cache_strategy,
                                        cache_pq_fraction=args.cache_pq_fraction,
-                                       frame_encoding=getattr(args, "frame_encoding", "ops"))
+                                       frame_encoding=getattr(args, "frame_encoding", "ops"),
+                                       vertex_encoding=getattr(args, "vertex_encoding", "packed"),
+                                       position_bits=getattr(args, "position_bits", None))
         flying = asyncio.ensure_future(_fly(session, index, args, lo, hi, t0, tally))
         try:
             await _receive(session, t0 + args.duration + TAIL_SECONDS, t0 + args.warmup, tally)
@@ -259,7 +262,7 @@ def _argv(args) -> list:
     out = []
     for name in ("target", "mesh", "sessions", "connections", "cameras", "duration", "warmup", "rate", "trajectory",
                  "tolerance", "width", "height", "fov", "token", "tls_ca", "cache_dir", "cache_vertices",
-                 "cache_strategy", "cache_pq_fraction", "frame_encoding"):
+                 "cache_strategy", "cache_pq_fraction", "frame_encoding", "vertex_encoding", "position_bits"):
         value = getattr(args, name, None)
         if value is not None:
             out += ["--" + name.replace("_", "-"), str(value)]
@@ -284,7 +287,8 @@ def report(args, tally: Tally, mesh: str, faces: int, cpu: float, wall: float) -
         "target": args.target, "mesh": mesh, "mesh_faces": faces, "sessions": args.sessions,
         "cameras": args.cameras, "duration_s": args.duration, "warmup_s": args.warmup, "rate_hz": args.rate, "trajectory": args.trajectory,
         "viewport": [args.width, args.height], "fov_y": args.fov, "tolerance_px": args.tolerance,
-        "frame_encoding": getattr(args, "frame_encoding", "ops"), "processes": getattr(args, "processes", 1),
+        "frame_encoding": getattr(args, "frame_encoding", "ops"),
+        "vertex_encoding": getattr(args, "vertex_encoding", "packed"), "processes": getattr(args, "processes", 1),
         "connections": getattr(args, "connections", None) or args.sessions,
         "frames": tally.frames, "frames_per_second": round(tally.frames / args.duration, 1),
         "keyframes": tally.keyframes, "poses_sent": tally.poses_sent, "poses_timed": len(lat),
@@ -319,6 +323,11 @@ def main(args) -> int:
         return 2
     if args.cache_vertices is None and (args.cache_strategy is not None or args.cache_pq_fraction is not None):
         print("caveclod: error: --cache-strategy and --cache-pq-fraction need --cache-vertices N (slots per camera)",
+              file=sys.stderr)
+        return 2
+    bits = getattr(args, "position_bits", None)
+    if bits is not None and not MIN_POSITION_BITS <= bits <= MAX_POSITION_BITS:
+        print(f"caveclod: error: --position-bits must be {MIN_POSITION_BITS} to {MAX_POSITION_BITS}, got {bits}",
               file=sys.stderr)
         return 2
     if args.cache_vertices is not None and args.cache_vertices < 1:

@@ -22,7 +22,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from .. import wire
+from .. import vertexpack, wire
 from ..v1 import caveclod_pb2 as pb
 from .buffers import IndexBuffers
 from .cache import VertexBufferCache
@@ -36,6 +36,7 @@ CLIENT_NAME = "caveclod-client/0.1"
 # opens a session makes it, after the balancer has chosen that replica.
 AFFINITY_HEADER = "x-caveclod-session"
 FRAME_ENCODINGS = {"ops": pb.FRAME_ENCODING_OPS, "raw": pb.FRAME_ENCODING_RAW}
+VERTEX_ENCODINGS = {"packed": pb.VERTEX_ENCODING_PACKED, "float32": pb.VERTEX_ENCODING_FLOAT32}
 
 
 class ProtocolError(Exception):
@@ -135,14 +136,23 @@ class SessionProtocol:
             for a resident vertex buffer.
         frame_encoding: ``"ops"`` (op streams, under a third of the bytes; the
             default) or ``"raw"`` (uint32 arrays) to ask for in Open.
+        vertex_encoding: ``"packed"`` (the vertex buffer downloads quantized
+            and deflated, 1-7 bytes a vertex; the default) or ``"float32"``
+            (32 bytes a vertex, exact). Cache mode ignores it.
+        position_bits: bits per position component when packed (8 to 24;
+            None: the server's 20).
     """
 
     def __init__(self, mesh: str, cameras: int, options: dict, *, cache: VertexBufferCache | None = None,
                  ack_window: int = 0, client: str = CLIENT_NAME, cache_mode: dict | None = None,
-                 frame_encoding: str = "ops"):
+                 frame_encoding: str = "ops", vertex_encoding: str = "packed", position_bits: int | None = None):
         if frame_encoding not in FRAME_ENCODINGS:
             raise ValueError(f"frame_encoding {frame_encoding!r}: use one of {', '.join(FRAME_ENCODINGS)}")
-        self.frame_encoding = frame_encoding
+        if vertex_encoding not in VERTEX_ENCODINGS:
+            raise ValueError(f"vertex_encoding {vertex_encoding!r}: use one of {', '.join(VERTEX_ENCODINGS)}")
+        if position_bits is not None:
+            vertexpack.check_position_bits(position_bits)
+        self.frame_encoding, self.vertex_encoding, self.position_bits = frame_encoding, vertex_encoding, position_bits
         self.mesh, self.n_cameras, self.options = mesh, cameras, dict(options)
         self.cache, self.ack_window, self.client = cache, ack_window, client
         self.cache_mode = dict(cache_mode) if cache_mode is not None else None
@@ -180,7 +190,11 @@ class SessionProtocol:
         return (*base, (AFFINITY_HEADER, self.affinity_key))
 
     def offer_vertex_buffer(self, vertex_buffer_hash: str) -> bool:
-        """Offer a cached buffer in the next Open when the cache holds ``vertex_buffer_hash``."""
+        """Offer a cached buffer in the next Open when the cache holds ``vertex_buffer_hash``
+        (MeshInfo's; when the buffer travels packed, the key of its decoded form)."""
+        if self.vertex_encoding == "packed" and vertex_buffer_hash and self.cache_mode is None:
+            vertex_buffer_hash = vertexpack.packed_hash(vertex_buffer_hash,
+                                                        self.position_bits or vertexpack.DEFAULT_POSITION_BITS)
         if self.vertex is not None and self.vertex.hash == vertex_buffer_hash:
             self._known_hash = vertex_buffer_hash
         elif self.cache is not None and vertex_buffer_hash and self.cache.lookup(vertex_buffer_hash) is not None:
@@ -195,7 +209,10 @@ class SessionProtocol:
         msg = pb.Open(mesh=self.mesh, options=wire.options_from_dict(self.options), cameras=self.n_cameras,
                       vertex_buffer_hash=self._known_hash, resume_token=self.token, last_frame_seq=self.last_applied,
                       ack_window=self.ack_window, client=self.client,
-                      frame_encoding=FRAME_ENCODINGS[self.frame_encoding])
+                      frame_encoding=FRAME_ENCODINGS[self.frame_encoding],
+                      vertex_encoding=VERTEX_ENCODINGS[self.vertex_encoding])
+        if self.position_bits is not None:
+            msg.position_bits = self.position_bits
         wire.set_cache_options(msg, self.cache_mode)
         return pb.ClientMessage(open=msg)
 
@@ -282,7 +299,7 @@ class SessionProtocol:
             self._use_cached(info)
         else:
             self._chunks = bytearray()
-            if info.vertex_format.payload_bytes == 0:
+            if self._download_bytes() == 0:
                 self._finish_vertex_buffer()
         # Poses in flight when the stream broke are lost: send each camera's latest
         # again. A fresh session has none of them: send every camera's latest.
@@ -292,8 +309,20 @@ class SessionProtocol:
                 out.append(self.pose_message(c, *pose))
         return out
 
+    def _buffer_key(self) -> str:
+        """The vertex buffer's cache key: MeshInfo's, or VertexPacking's when it travels packed."""
+        info = self.info
+        return info.vertex_packing.vertex_buffer_hash if info.HasField("vertex_packing") else \
+            info.mesh.vertex_buffer_hash
+
+    def _download_bytes(self) -> int:
+        """Bytes the VertexChunks carry in all."""
+        info = self.info
+        return info.vertex_packing.packed_bytes if info.HasField("vertex_packing") else \
+            info.vertex_format.payload_bytes
+
     def _use_cached(self, info: pb.SessionInfo) -> None:
-        key = info.mesh.vertex_buffer_hash
+        key = self._buffer_key()
         if self.vertex is not None and self.vertex.hash == key:
             payload, crc = self.vertex.payload, zlib.crc32(self.vertex.payload)
         else:
@@ -306,8 +335,7 @@ class SessionProtocol:
         self._set_vertex(key, payload)
 
     def _vertex_chunk(self, chunk: pb.VertexChunk) -> None:
-        if self._chunks is None or chunk.offset != len(self._chunks) \
-                or chunk.total != self.info.vertex_format.payload_bytes:
+        if self._chunks is None or chunk.offset != len(self._chunks) or chunk.total != self._download_bytes():
             raise ProtocolError(f"vertex chunk at offset {chunk.offset} out of order (expected "
                                 f"{0 if self._chunks is None else len(self._chunks)})")
         self._chunks += chunk.data
@@ -317,13 +345,29 @@ class SessionProtocol:
     def _finish_vertex_buffer(self) -> None:
         payload = bytes(self._chunks)
         self._chunks = None
+        if self.info.HasField("vertex_packing"):
+            payload = self._unpack(payload)
         if zlib.crc32(payload) != self.info.vertex_payload_crc32:
             raise ProtocolError("the vertex buffer's CRC-32 differs from SessionInfo.vertex_payload_crc32; "
-                                "it was damaged in transit, open the session again")
-        key = self.info.mesh.vertex_buffer_hash
+                                + ("it was damaged in transit, open the session again"
+                                   if not self.info.HasField("vertex_packing") else
+                                   "this client decodes packed buffers unlike the server: report it, and open "
+                                   "with vertex_encoding float32 meanwhile"))
+        key = self._buffer_key()
         self._set_vertex(key, payload)
         if self.cache is not None:
             self.cache.put(key, payload)
+
+    def _unpack(self, packed: bytes) -> bytes:
+        """The PLANAR payload decoded from the packed download (caveclod.vertexpack)."""
+        if zlib.crc32(packed) != self.info.vertex_packing.packed_crc32:
+            raise ProtocolError("the packed vertex buffer's CRC-32 differs from VertexPacking.packed_crc32; it was "
+                                "damaged in transit, open the session again")
+        try:
+            packing = vertexpack.from_message(self.info.vertex_packing, self.info.vertex_format)
+            return vertexpack.planar_payload(vertexpack.unpack(packing, packed))
+        except wire.WireError as exc:
+            raise ProtocolError(str(exc)) from None
 
     def _set_vertex(self, key: str, payload: bytes) -> None:
         try:

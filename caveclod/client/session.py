@@ -152,7 +152,8 @@ class Client:
                 backface: bool | None = None, max_ops: int | None = None, max_faces: int | None = None,
                 ack_window: int = 0, retries: int = 12, timeout: float = 30.0, cache_vertices: int | None = None,
                 cache_strategy: str | None = None, cache_pq_fraction: float | None = None,
-                frame_encoding: str = "ops") -> "Session":
+                frame_encoding: str = "ops", vertex_encoding: str = "packed",
+                position_bits: int | None = None) -> "Session":
         """Open a session and wait for its vertex buffer (from the cache when it holds it).
 
         Options left None take the server's defaults (60 degrees, 1 px,
@@ -174,12 +175,20 @@ class Client:
         ``frame_encoding``: ``"ops"`` (the default) asks for op streams, about
         a third of the bytes of ``"raw"`` uint32 writes; a server that does
         not know them answers raw, which the client reads as well.
+
+        ``vertex_encoding``: ``"packed"`` (the default) downloads the vertex
+        buffer quantized and deflated (1-7 bytes a vertex against 32;
+        ``position_bits`` per position component, default 20: each position
+        moves by at most about extent * 2**-bits, SessionInfo's
+        vertex_packing.max_position_error says exactly), ``"float32"`` as
+        the mesh holds it. Either way :attr:`Session.vertex` holds float32.
         """
         protocol = SessionProtocol(mesh, cameras, refine_options(width, height, fov_y, tolerance_px, cull,
                                                                  backface, max_ops, max_faces),
                                    cache=self.cache, ack_window=ack_window,
                                    cache_mode=cache_mode(cache_vertices, cache_strategy, cache_pq_fraction),
-                                   frame_encoding=frame_encoding)
+                                   frame_encoding=frame_encoding, vertex_encoding=vertex_encoding,
+                                   position_bits=position_bits)
         session = Session(self, protocol, retries)
         session._open(timeout)
         return session

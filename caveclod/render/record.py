@@ -21,6 +21,7 @@ from pathlib import Path
 import numpy as np
 
 from ..errors import InputError
+from ..vertexpack import check_position_bits
 from ..wire import strategy_name
 from .camera import quadrants
 from .flight import FlightError, fly
@@ -44,15 +45,23 @@ def parse_size(text: str) -> tuple[int, int]:
 
 
 def cache_options(args) -> dict:
-    """``client.session`` keywords for ``--cache-vertices N [--cache-strategy S] [--cache-pq-fraction F]``."""
+    """``client.session`` keywords for ``--cache-vertices N [--cache-strategy S] [--cache-pq-fraction F]``
+    and ``--vertex-encoding E [--position-bits B]``."""
     n, strategy, fraction = args.cache_vertices, args.cache_strategy, args.cache_pq_fraction
+    bits = getattr(args, "position_bits", None)
+    if bits is not None:
+        try:
+            check_position_bits(bits)
+        except ValueError as exc:
+            raise InputError(f"--{str(exc).replace('_', '-')}") from None
+    encoding = {"vertex_encoding": getattr(args, "vertex_encoding", "packed"), "position_bits": bits}
     if n is None:
         if strategy is not None or fraction is not None:
             raise InputError("--cache-strategy and --cache-pq-fraction need --cache-vertices N (slots per camera)")
-        return {}
+        return encoding
     if n < 1:
         raise InputError(f"--cache-vertices must be at least 1 (slots per camera), got {n}")
-    return {"cache_vertices": n, "cache_strategy": strategy, "cache_pq_fraction": fraction}
+    return {"cache_vertices": n, "cache_strategy": strategy, "cache_pq_fraction": fraction, **encoding}
 
 
 def shrink(image: np.ndarray, width: int = ANIMATION_WIDTH) -> np.ndarray:

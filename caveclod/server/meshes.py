@@ -22,6 +22,8 @@ import threading
 from functools import cached_property
 from pathlib import Path
 
+import numpy as np
+
 from .. import wire
 from ..v1 import caveclod_pb2 as pb
 
@@ -40,6 +42,7 @@ class ServedMesh:
         self._lock = threading.Lock()
         self._crc: int | None = None
         self._info: pb.MeshInfo | None = None
+        self._packed: dict = {}             # position_bits -> (Packed, VertexPacking message)
 
     @cached_property
     def blocks(self) -> list[wire.VertexBlock]:
@@ -87,6 +90,29 @@ class ServedMesh:
     def vertex_chunks(self, max_bytes: int = wire.MAX_CHUNK_BYTES):
         """The vertex payload as VertexChunk ServerMessages."""
         return wire.vertex_chunks(self.blocks, max_bytes)
+
+    def packed(self, position_bits: int):
+        """(Packed, VertexPacking message) of the vertex buffer at ``position_bits`` (caveclod.vertexpack).
+
+        Packed on the first Open that asks (0.1-0.3 s per million vertices,
+        off the event loop) and kept: a few bytes per vertex per bits value.
+        """
+        from .. import vertexpack
+        with self._lock:
+            found = self._packed.get(position_bits)
+        if found is None:
+            m = self.mesh
+            packed = vertexpack.pack(m.vertex_positions, m.vertex_normals, m.vertex_uvs, m.vertex_colors,
+                                     position_bits)
+            found = (packed, vertexpack.to_message(packed, m.vertex_buffer_hash))
+            with self._lock:        # two first Opens may pack at once: the same bytes, keep one
+                found = self._packed.setdefault(position_bits, found)
+        return found
+
+    def packed_chunks(self, position_bits: int, max_bytes: int = wire.MAX_CHUNK_BYTES):
+        """The packed vertex buffer as VertexChunk ServerMessages (``packed`` first)."""
+        data = self.packed(position_bits)[0].data
+        return wire.vertex_chunks([wire.VertexBlock(0, np.frombuffer(data, np.uint8))], max_bytes)
 
 
 class Catalogue:

@@ -13,7 +13,7 @@ import time
 
 import grpc
 
-from .. import wire
+from .. import vertexpack, wire
 from ..errors import InputError, MeshDamagedError
 from ..v1 import caveclod_pb2 as pb
 from .config import MAX_ACK_WINDOW, ServerConfig
@@ -67,6 +67,10 @@ class Sessions:
         view_options, budgets = self._options(msg.options)
         cache = self._cache(msg, served)
         ops = msg.frame_encoding == pb.FRAME_ENCODING_OPS      # an encoding we do not know: RAW (the proto says so)
+        try:
+            vertexpack.requested_bits(msg)
+        except ValueError as exc:
+            raise Refused(grpc.StatusCode.INVALID_ARGUMENT, str(exc)) from None
         self.ready.wait()
         with self.lock:
             if self.draining:                # drained while this Open waited for the kernels

@@ -20,7 +20,7 @@ import threading
 
 import grpc
 
-from .. import wire
+from .. import vertexpack, wire
 from ..errors import MeshDamagedError
 from ..v1 import caveclod_pb2 as pb
 from . import logs
@@ -58,9 +58,9 @@ class LodService:
             await context.abort(grpc.StatusCode.INVALID_ARGUMENT,
                                 f"the first message must be Open, got {first.WhichOneof('kind') or 'an empty message'}")
         # Off the loop: an Open waits for the kernels while the server warms up.
-        opening = asyncio.ensure_future(asyncio.to_thread(self.sessions.open, first.open))
+        opening = asyncio.ensure_future(asyncio.to_thread(self._open, first.open))
         try:
-            session, generation, resumed = await asyncio.shield(opening)
+            session, generation, resumed, packed = await asyncio.shield(opening)
         except asyncio.CancelledError:
             # The client left (a deadline, a cancel) while its Open waited: the
             # open still finishes in its thread, and must not hold a session
@@ -83,7 +83,7 @@ class LodService:
         reader = asyncio.ensure_future(_read(requests, stream))
         end = End(grpc.StatusCode.CANCELLED, "the stream broke", False)
         try:
-            for msg in self._start(session, first.open, resumed):
+            for msg in self._start(session, first.open, resumed, packed):
                 await context.write(msg)
             end = await stream.write_frames()
         finally:
@@ -95,34 +95,55 @@ class LodService:
         if end.code not in (grpc.StatusCode.OK, grpc.StatusCode.CANCELLED):
             await context.abort(end.code, end.message)
 
+    def _open(self, opened: pb.Open) -> tuple:
+        """(session, generation, resumed, packed) of an Open, in a thread: ``packed`` is
+        ServedMesh.packed's (Packed, VertexPacking) when the buffer travels packed, else None
+        (packing takes 0.1-0.3 s per million vertices, once per mesh and bits)."""
+        session, generation, resumed = self.sessions.open(opened)
+        bits = vertexpack.requested_bits(opened)       # None in cache mode; its range checked by open
+        try:
+            packed = None if bits is None or session.cache is not None else session.served.packed(bits)
+        except BaseException:
+            self.sessions.stream_ended(session, generation, End(grpc.StatusCode.INTERNAL,
+                                                                "packing the vertex buffer failed", not resumed))
+            raise
+        return session, generation, resumed, packed
+
     def _abandoned(self, opening: asyncio.Future) -> None:
         """An Open whose stream was gone before it finished: end what it opened (a new session
         whose token no client got is dropped; a resumed one stays resumable)."""
         if opening.cancelled() or opening.exception() is not None:
             return
-        session, generation, resumed = opening.result()
+        session, generation, resumed, _ = opening.result()
         self.sessions.stream_ended(session, generation, End(grpc.StatusCode.CANCELLED,
                                                             "the client left before its session opened", not resumed))
         logs.event("session.abandoned", **session.describe(), resumed=resumed)
 
-    def _start(self, session, opened: pb.Open, resumed: bool):
-        """SessionInfo, then the vertex chunks unless the client holds the buffer (serialized)."""
+    def _start(self, session, opened: pb.Open, resumed: bool, packed: tuple | None):
+        """SessionInfo, then the vertex chunks unless the client holds the buffer (serialized).
+
+        ``packed``: (Packed, VertexPacking) when the buffer travels packed."""
         served = session.served
         # In cache mode the client holds slots, never the buffer: no chunks.
-        cached = session.cache is None and opened.vertex_buffer_hash == served.mesh.vertex_buffer_hash
+        key = served.mesh.vertex_buffer_hash if packed is None else packed[1].vertex_buffer_hash
+        cached = session.cache is None and opened.vertex_buffer_hash == key
         info = wire.session_info(
             token=session.token, resumed=resumed, mesh=served.info, vertex_format=served.vertex_format,
-            vertex_buffer_cached=cached, vertex_payload_crc32=served.payload_crc32,
+            vertex_buffer_cached=cached,
+            vertex_payload_crc32=served.payload_crc32 if packed is None else packed[0].decoded_crc32,
             view_options=session.view_options, budgets=session.budgets, cameras=session.n_cameras,
             ack_window=session.ack_window, resume_ttl_s=self.sessions.config.resume_ttl,
             last_frame_seq=session.frame_seq if resumed else 0,
             last_pose_seq=session.last_pose_seq if resumed else 0, cache=session.cache,
             frame_encoding=session.frame_encoding)
+        if packed is not None:
+            info.session_info.vertex_packing.CopyFrom(packed[1])
         data = info.SerializeToString()
         self.metrics.bytes_out(len(data))
         yield data
         if not cached and session.cache is None:
-            for chunk in served.vertex_chunks():
+            chunks = served.vertex_chunks() if packed is None else served.packed_chunks(packed[1].position_bits)
+            for chunk in chunks:
                 data = chunk.SerializeToString()
                 self.metrics.bytes_out(len(data))
                 yield data

@@ -7,6 +7,12 @@ from typing import ClassVar as _ClassVar, Optional as _Optional, Union as _Union
 
 DESCRIPTOR: _descriptor.FileDescriptor
 
+class VertexEncoding(int, metaclass=_enum_type_wrapper.EnumTypeWrapper):
+    __slots__ = ()
+    VERTEX_ENCODING_UNSPECIFIED: _ClassVar[VertexEncoding]
+    VERTEX_ENCODING_FLOAT32: _ClassVar[VertexEncoding]
+    VERTEX_ENCODING_PACKED: _ClassVar[VertexEncoding]
+
 class FrameEncoding(int, metaclass=_enum_type_wrapper.EnumTypeWrapper):
     __slots__ = ()
     FRAME_ENCODING_UNSPECIFIED: _ClassVar[FrameEncoding]
@@ -46,6 +52,9 @@ class ScalarType(int, metaclass=_enum_type_wrapper.EnumTypeWrapper):
     SCALAR_TYPE_UNSPECIFIED: _ClassVar[ScalarType]
     SCALAR_TYPE_FLOAT32: _ClassVar[ScalarType]
     SCALAR_TYPE_UINT8: _ClassVar[ScalarType]
+VERTEX_ENCODING_UNSPECIFIED: VertexEncoding
+VERTEX_ENCODING_FLOAT32: VertexEncoding
+VERTEX_ENCODING_PACKED: VertexEncoding
 FRAME_ENCODING_UNSPECIFIED: FrameEncoding
 FRAME_ENCODING_RAW: FrameEncoding
 FRAME_ENCODING_OPS: FrameEncoding
@@ -84,7 +93,7 @@ class ClientMessage(_message.Message):
     def __init__(self, open: _Optional[_Union[Open, _Mapping]] = ..., pose: _Optional[_Union[CameraPose, _Mapping]] = ..., ack: _Optional[_Union[Ack, _Mapping]] = ..., keyframe_request: _Optional[_Union[KeyframeRequest, _Mapping]] = ..., close: _Optional[_Union[Close, _Mapping]] = ...) -> None: ...
 
 class Open(_message.Message):
-    __slots__ = ("mesh", "options", "cameras", "vertex_buffer_hash", "resume_token", "last_frame_seq", "ack_window", "client", "cache_vertices", "cache_strategy", "cache_pq_fraction", "frame_encoding")
+    __slots__ = ("mesh", "options", "cameras", "vertex_buffer_hash", "resume_token", "last_frame_seq", "ack_window", "client", "cache_vertices", "cache_strategy", "cache_pq_fraction", "frame_encoding", "vertex_encoding", "position_bits")
     MESH_FIELD_NUMBER: _ClassVar[int]
     OPTIONS_FIELD_NUMBER: _ClassVar[int]
     CAMERAS_FIELD_NUMBER: _ClassVar[int]
@@ -97,6 +106,8 @@ class Open(_message.Message):
     CACHE_STRATEGY_FIELD_NUMBER: _ClassVar[int]
     CACHE_PQ_FRACTION_FIELD_NUMBER: _ClassVar[int]
     FRAME_ENCODING_FIELD_NUMBER: _ClassVar[int]
+    VERTEX_ENCODING_FIELD_NUMBER: _ClassVar[int]
+    POSITION_BITS_FIELD_NUMBER: _ClassVar[int]
     mesh: str
     options: RefineOptions
     cameras: int
@@ -109,7 +120,9 @@ class Open(_message.Message):
     cache_strategy: CacheStrategy
     cache_pq_fraction: float
     frame_encoding: FrameEncoding
-    def __init__(self, mesh: _Optional[str] = ..., options: _Optional[_Union[RefineOptions, _Mapping]] = ..., cameras: _Optional[int] = ..., vertex_buffer_hash: _Optional[str] = ..., resume_token: _Optional[str] = ..., last_frame_seq: _Optional[int] = ..., ack_window: _Optional[int] = ..., client: _Optional[str] = ..., cache_vertices: _Optional[int] = ..., cache_strategy: _Optional[_Union[CacheStrategy, str]] = ..., cache_pq_fraction: _Optional[float] = ..., frame_encoding: _Optional[_Union[FrameEncoding, str]] = ...) -> None: ...
+    vertex_encoding: VertexEncoding
+    position_bits: int
+    def __init__(self, mesh: _Optional[str] = ..., options: _Optional[_Union[RefineOptions, _Mapping]] = ..., cameras: _Optional[int] = ..., vertex_buffer_hash: _Optional[str] = ..., resume_token: _Optional[str] = ..., last_frame_seq: _Optional[int] = ..., ack_window: _Optional[int] = ..., client: _Optional[str] = ..., cache_vertices: _Optional[int] = ..., cache_strategy: _Optional[_Union[CacheStrategy, str]] = ..., cache_pq_fraction: _Optional[float] = ..., frame_encoding: _Optional[_Union[FrameEncoding, str]] = ..., vertex_encoding: _Optional[_Union[VertexEncoding, str]] = ..., position_bits: _Optional[int] = ...) -> None: ...
 
 class RefineOptions(_message.Message):
     __slots__ = ("viewport_width", "viewport_height", "fov_y_deg", "tolerance_px", "cull", "backface", "max_ops", "max_faces")
@@ -192,7 +205,7 @@ class Status(_message.Message):
     def __init__(self, code: _Optional[int] = ..., message: _Optional[str] = ...) -> None: ...
 
 class SessionInfo(_message.Message):
-    __slots__ = ("session_token", "resumed", "mesh", "vertex_format", "vertex_buffer_cached", "vertex_payload_crc32", "options", "cameras", "ack_window", "resume_ttl_s", "last_frame_seq", "last_pose_seq", "max_chunk_bytes", "cache_vertices", "cache_strategy", "cache_pq_fraction", "frame_encoding", "acks_on_poses")
+    __slots__ = ("session_token", "resumed", "mesh", "vertex_format", "vertex_buffer_cached", "vertex_payload_crc32", "options", "cameras", "ack_window", "resume_ttl_s", "last_frame_seq", "last_pose_seq", "max_chunk_bytes", "cache_vertices", "cache_strategy", "cache_pq_fraction", "frame_encoding", "acks_on_poses", "vertex_packing")
     SESSION_TOKEN_FIELD_NUMBER: _ClassVar[int]
     RESUMED_FIELD_NUMBER: _ClassVar[int]
     MESH_FIELD_NUMBER: _ClassVar[int]
@@ -211,6 +224,7 @@ class SessionInfo(_message.Message):
     CACHE_PQ_FRACTION_FIELD_NUMBER: _ClassVar[int]
     FRAME_ENCODING_FIELD_NUMBER: _ClassVar[int]
     ACKS_ON_POSES_FIELD_NUMBER: _ClassVar[int]
+    VERTEX_PACKING_FIELD_NUMBER: _ClassVar[int]
     session_token: str
     resumed: bool
     mesh: MeshInfo
@@ -229,7 +243,34 @@ class SessionInfo(_message.Message):
     cache_pq_fraction: float
     frame_encoding: FrameEncoding
     acks_on_poses: bool
-    def __init__(self, session_token: _Optional[str] = ..., resumed: _Optional[bool] = ..., mesh: _Optional[_Union[MeshInfo, _Mapping]] = ..., vertex_format: _Optional[_Union[VertexFormat, _Mapping]] = ..., vertex_buffer_cached: _Optional[bool] = ..., vertex_payload_crc32: _Optional[int] = ..., options: _Optional[_Union[RefineOptions, _Mapping]] = ..., cameras: _Optional[int] = ..., ack_window: _Optional[int] = ..., resume_ttl_s: _Optional[int] = ..., last_frame_seq: _Optional[int] = ..., last_pose_seq: _Optional[int] = ..., max_chunk_bytes: _Optional[int] = ..., cache_vertices: _Optional[int] = ..., cache_strategy: _Optional[_Union[CacheStrategy, str]] = ..., cache_pq_fraction: _Optional[float] = ..., frame_encoding: _Optional[_Union[FrameEncoding, str]] = ..., acks_on_poses: _Optional[bool] = ...) -> None: ...
+    vertex_packing: VertexPacking
+    def __init__(self, session_token: _Optional[str] = ..., resumed: _Optional[bool] = ..., mesh: _Optional[_Union[MeshInfo, _Mapping]] = ..., vertex_format: _Optional[_Union[VertexFormat, _Mapping]] = ..., vertex_buffer_cached: _Optional[bool] = ..., vertex_payload_crc32: _Optional[int] = ..., options: _Optional[_Union[RefineOptions, _Mapping]] = ..., cameras: _Optional[int] = ..., ack_window: _Optional[int] = ..., resume_ttl_s: _Optional[int] = ..., last_frame_seq: _Optional[int] = ..., last_pose_seq: _Optional[int] = ..., max_chunk_bytes: _Optional[int] = ..., cache_vertices: _Optional[int] = ..., cache_strategy: _Optional[_Union[CacheStrategy, str]] = ..., cache_pq_fraction: _Optional[float] = ..., frame_encoding: _Optional[_Union[FrameEncoding, str]] = ..., acks_on_poses: _Optional[bool] = ..., vertex_packing: _Optional[_Union[VertexPacking, _Mapping]] = ...) -> None: ...
+
+class VertexPacking(_message.Message):
+    __slots__ = ("encoding", "packed_bytes", "packed_crc32", "vertex_buffer_hash", "position_bits", "position_origin", "position_step", "normal_bits", "texcoord_step", "max_position_error", "max_normal_degrees")
+    ENCODING_FIELD_NUMBER: _ClassVar[int]
+    PACKED_BYTES_FIELD_NUMBER: _ClassVar[int]
+    PACKED_CRC32_FIELD_NUMBER: _ClassVar[int]
+    VERTEX_BUFFER_HASH_FIELD_NUMBER: _ClassVar[int]
+    POSITION_BITS_FIELD_NUMBER: _ClassVar[int]
+    POSITION_ORIGIN_FIELD_NUMBER: _ClassVar[int]
+    POSITION_STEP_FIELD_NUMBER: _ClassVar[int]
+    NORMAL_BITS_FIELD_NUMBER: _ClassVar[int]
+    TEXCOORD_STEP_FIELD_NUMBER: _ClassVar[int]
+    MAX_POSITION_ERROR_FIELD_NUMBER: _ClassVar[int]
+    MAX_NORMAL_DEGREES_FIELD_NUMBER: _ClassVar[int]
+    encoding: VertexEncoding
+    packed_bytes: int
+    packed_crc32: int
+    vertex_buffer_hash: str
+    position_bits: int
+    position_origin: Vec3
+    position_step: float
+    normal_bits: int
+    texcoord_step: float
+    max_position_error: float
+    max_normal_degrees: float
+    def __init__(self, encoding: _Optional[_Union[VertexEncoding, str]] = ..., packed_bytes: _Optional[int] = ..., packed_crc32: _Optional[int] = ..., vertex_buffer_hash: _Optional[str] = ..., position_bits: _Optional[int] = ..., position_origin: _Optional[_Union[Vec3, _Mapping]] = ..., position_step: _Optional[float] = ..., normal_bits: _Optional[int] = ..., texcoord_step: _Optional[float] = ..., max_position_error: _Optional[float] = ..., max_normal_degrees: _Optional[float] = ...) -> None: ...
 
 class MeshInfo(_message.Message):
     __slots__ = ("name", "faces", "vertices", "positions", "nodes", "base_faces", "surface_group_ids", "materials", "bounds_min", "bounds_max", "content_hash", "vertex_buffer_hash")

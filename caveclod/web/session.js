@@ -12,6 +12,7 @@
 
 import { crc32 } from "./crc32.js";
 import { decodeOps, OpStreamError } from "./opstream.js";
+import { PackedVertexError, unpackVertices } from "./vertexpack.js";
 
 const pb = globalThis.protobuf.roots.default.caveclod.v1;
 export const CLIENT_NAME = "caveclod-web/0.1";
@@ -83,6 +84,7 @@ export class Session {
    * @param {object} o.options RefineOptions fields (viewportWidth, viewportHeight, tolerancePx, ...)
    * @param {string} [o.tokenValue] the bearer token (--token-file), or none
    * @param {string} [o.encoding] "ops" (default) or "raw"
+   * @param {string} [o.vertices] "packed" (default: quantized and deflated, 1-7 bytes a vertex) or "float32"
    * @param {function} o.onReady (info, payload Uint8Array) once the vertex buffer is whole
    * @param {function} o.onFrame (update) after each complete frame
    * @param {function} o.onEnd ({code, message}) when the session has ended for good
@@ -90,6 +92,9 @@ export class Session {
   constructor(o) {
     Object.assign(this, { onReady() {}, onFrame() {}, onEnd() {} }, o);
     this.encoding = o.encoding === "raw" ? pb.FrameEncoding.FRAME_ENCODING_RAW : pb.FrameEncoding.FRAME_ENCODING_OPS;
+    this.vertexEncoding = o.vertices === "float32" ? pb.VertexEncoding.VERTEX_ENCODING_FLOAT32 : pb.VertexEncoding.VERTEX_ENCODING_PACKED;
+    this.unpacking = null; // messages that arrived while a packed vertex buffer was being decoded
+    this.infoSeq = 0; // +1 per SessionInfo: a decode finished for an older one is dropped
     this.info = null;
     this.affinity = Array.from(crypto.getRandomValues(new Uint8Array(16)), (b) => b.toString(16).padStart(2, "0")).join("");
     this.token = ""; // the session token, for a resume
@@ -115,6 +120,9 @@ export class Session {
       status: null, error: null,
       frameBytes: 0, // bytes of frames (all their parts), for bytes per frame
       applyMs: 0, // time this page spent decoding, applying and checking frames (not drawing)
+      vertexDownloadBytes: 0, // bytes of the last vertex buffer download (packed or not)
+      vertexPacked: false, // whether it came packed (SessionInfo.vertex_packing)
+      unpackMs: 0, // time to decode it, when packed
     };
   }
 
@@ -143,8 +151,13 @@ export class Session {
     return {
       mesh: this.mesh, options: this.options, cameras: this.cameras, client: CLIENT_NAME,
       frameEncoding: this.encoding, resumeToken: this.token, lastFrameSeq: this.lastApplied,
-      vertexBufferHash: this.payload && this.info ? this.info.mesh.vertexBufferHash : "",
+      vertexEncoding: this.vertexEncoding, vertexBufferHash: this.payload && this.info ? this.bufferKey() : "",
     };
+  }
+
+  /** The held vertex buffer's key: MeshInfo's hash, or VertexPacking's when it came packed. */
+  bufferKey() {
+    return this.info.vertexPacking ? this.info.vertexPacking.vertexBufferHash : this.info.mesh.vertexBufferHash;
   }
 
   send(fields) {
@@ -204,6 +217,7 @@ export class Session {
   }
 
   receive(data) {
+    if (this.unpacking) { this.unpacking.push(data); return; } // applied once the buffer is decoded
     this.stats.bytesReceived += data.byteLength;
     let msg;
     try {
@@ -227,6 +241,7 @@ export class Session {
 
   sessionInfo(info) {
     this.attempts = 0;
+    this.infoSeq++;
     const resumed = info.resumed && this.info !== null;
     this.info = info;
     this.token = info.sessionToken;
@@ -252,9 +267,10 @@ export class Session {
       }
       this.becomeReady();
     } else {
-      this.chunks = new Uint8Array(info.vertexFormat.payloadBytes);
+      const total = info.vertexPacking ? info.vertexPacking.packedBytes : info.vertexFormat.payloadBytes;
+      this.chunks = new Uint8Array(total);
       this.received = 0;
-      if (info.vertexFormat.payloadBytes === 0) this.finishVertexBuffer();
+      if (total === 0) this.finishVertexBuffer();
     }
   }
 
@@ -269,12 +285,44 @@ export class Session {
   }
 
   finishVertexBuffer() {
-    if (crc32(this.chunks) !== this.info.vertexPayloadCrc32 >>> 0) {
+    const info = this.info;
+    this.stats.vertexDownloadBytes = this.chunks.length;
+    this.stats.vertexPacked = Boolean(info.vertexPacking);
+    if (info.vertexPacking) return this.unpack(info);
+    if (crc32(this.chunks) !== info.vertexPayloadCrc32 >>> 0) {
       throw new ProtocolError("the vertex buffer's CRC-32 differs from the server's; it was damaged in transit: reload the page");
     }
     this.payload = this.chunks;
     this.chunks = null;
     this.becomeReady();
+  }
+
+  /** Decode a packed vertex buffer (asynchronous: inflating is a stream); messages wait meanwhile. */
+  unpack(info) {
+    const packed = this.chunks;
+    this.chunks = null;
+    if (crc32(packed) !== info.vertexPacking.packedCrc32 >>> 0) {
+      throw new ProtocolError("the packed vertex buffer's CRC-32 differs from the server's; it was damaged in transit: reload the page");
+    }
+    const seq = this.infoSeq;
+    const t0 = performance.now();
+    this.unpacking = [];
+    unpackVertices(info.vertexPacking, info.vertexFormat, packed).then((payload) => {
+      if (seq !== this.infoSeq || this.ended) return;
+      this.stats.unpackMs = performance.now() - t0;
+      if (crc32(payload) !== info.vertexPayloadCrc32 >>> 0) {
+        throw new PackedVertexError("this page decodes the packed vertex buffer unlike the server (CRC-32 of the decoded buffer differs); report it, and open the page with ?vertices=float32 meanwhile");
+      }
+      this.payload = payload;
+      this.becomeReady();
+    }).then(() => {
+      const waiting = this.unpacking || [];
+      this.unpacking = null;
+      for (const data of waiting) { if (!this.ended) this.receive(data); }
+    }, (err) => {
+      this.unpacking = null;
+      this.fail(err instanceof PackedVertexError ? err.message : `decoding the packed vertex buffer failed: ${err.message}`);
+    });
   }
 
   becomeReady() {

@@ -111,6 +111,7 @@ async function main() {
   const url = `${location.protocol === "https:" ? "wss" : "ws"}://${location.host}/v1/session`;
   const session = new Session({
     url, mesh, cameras, options, tokenValue: token(), encoding: params.get("encoding") || "ops",
+    vertices: params.get("vertices") || "packed",
     onReady(info, payload) {
       const b = (v) => [v.x, v.y, v.z];
       lo = b(info.mesh.boundsMin);

@@ -169,6 +169,8 @@
                 Open.prototype.cacheStrategy = 0;
                 Open.prototype.cachePqFraction = null;
                 Open.prototype.frameEncoding = 0;
+                Open.prototype.vertexEncoding = 0;
+                Open.prototype.positionBits = null;
     
                 var $oneOfFields;
     
@@ -181,6 +183,12 @@
                 // Virtual OneOf for proto3 optional field
                 $Object.defineProperty(Open.prototype, "_cachePqFraction", {
                     get: $util.oneOfGetter($oneOfFields = ["cachePqFraction"]),
+                    set: $util.oneOfSetter($oneOfFields)
+                });
+    
+                // Virtual OneOf for proto3 optional field
+                $Object.defineProperty(Open.prototype, "_positionBits", {
+                    get: $util.oneOfGetter($oneOfFields = ["positionBits"]),
                     set: $util.oneOfSetter($oneOfFields)
                 });
     
@@ -215,6 +223,10 @@
                         writer.uint32(89).double(message.cachePqFraction);
                     if (message.frameEncoding != null && $Object.hasOwnProperty.call(message, "frameEncoding") && message.frameEncoding !== 0)
                         writer.uint32(96).int32(message.frameEncoding);
+                    if (message.vertexEncoding != null && $Object.hasOwnProperty.call(message, "vertexEncoding") && message.vertexEncoding !== 0)
+                        writer.uint32(104).int32(message.vertexEncoding);
+                    if (message.positionBits != null && $Object.hasOwnProperty.call(message, "positionBits"))
+                        writer.uint32(112).uint32(message.positionBits);
                     if (message.$unknowns != null && $Object.hasOwnProperty.call(message, "$unknowns"))
                         for (var i = 0; i < message.$unknowns.length; ++i)
                             writer.raw(message.$unknowns[i]);
@@ -349,6 +361,22 @@
                                     delete message.frameEncoding;
                                 continue;
                             }
+                        case 13: {
+                                if (wireType !== 0)
+                                    break;
+                                if (value = reader.int32())
+                                    message.vertexEncoding = value;
+                                else
+                                    delete message.vertexEncoding;
+                                continue;
+                            }
+                        case 14: {
+                                if (wireType !== 0)
+                                    break;
+                                message.positionBits = reader.uint32();
+                                message._positionBits = "positionBits";
+                                continue;
+                            }
                         }
                         reader.skipType(wireType, _depth, tag);
                         if (!reader.discardUnknown) {
@@ -373,6 +401,14 @@
                 };
     
                 return Open;
+            })();
+    
+            v1.VertexEncoding = (function() {
+                var valuesById = $Object.create(null), values = $Object.create(valuesById);
+                values[valuesById[0] = "VERTEX_ENCODING_UNSPECIFIED"] = 0;
+                values[valuesById[1] = "VERTEX_ENCODING_FLOAT32"] = 1;
+                values[valuesById[2] = "VERTEX_ENCODING_PACKED"] = 2;
+                return values;
             })();
     
             v1.FrameEncoding = (function() {
@@ -1294,6 +1330,7 @@
                 SessionInfo.prototype.cachePqFraction = 0;
                 SessionInfo.prototype.frameEncoding = 0;
                 SessionInfo.prototype.acksOnPoses = false;
+                SessionInfo.prototype.vertexPacking = null;
     
                 SessionInfo.encode = function (message, writer, _depth) {
                     if (!writer)
@@ -1338,6 +1375,8 @@
                         writer.uint32(136).int32(message.frameEncoding);
                     if (message.acksOnPoses != null && $Object.hasOwnProperty.call(message, "acksOnPoses") && message.acksOnPoses !== false)
                         writer.uint32(144).bool(message.acksOnPoses);
+                    if (message.vertexPacking != null && $Object.hasOwnProperty.call(message, "vertexPacking"))
+                        $root.caveclod.v1.VertexPacking.encode(message.vertexPacking, writer.uint32(154).fork(), _depth + 1).ldelim();
                     if (message.$unknowns != null && $Object.hasOwnProperty.call(message, "$unknowns"))
                         for (var i = 0; i < message.$unknowns.length; ++i)
                             writer.raw(message.$unknowns[i]);
@@ -1524,6 +1563,12 @@
                                     delete message.acksOnPoses;
                                 continue;
                             }
+                        case 19: {
+                                if (wireType !== 2)
+                                    break;
+                                message.vertexPacking = $root.caveclod.v1.VertexPacking.decode(reader, reader.size(), $undefined, _depth + 1, message.vertexPacking);
+                                continue;
+                            }
                         }
                         reader.skipType(wireType, _depth, tag);
                         if (!reader.discardUnknown) {
@@ -1548,6 +1593,211 @@
                 };
     
                 return SessionInfo;
+            })();
+    
+            v1.VertexPacking = (function() {
+    
+                var VertexPacking = function (properties) {
+                    if (properties)
+                        for (var keys = $Object.keys(properties), i = 0; i < keys.length; ++i)
+                            if (properties[keys[i]] != null && keys[i] !== "__proto__")
+                                this[keys[i]] = properties[keys[i]];
+                };
+    
+                VertexPacking.prototype.encoding = 0;
+                VertexPacking.prototype.packedBytes = $util.Long ? $util.Long.fromBits(0,0,true) : 0;
+                VertexPacking.prototype.packedCrc32 = 0;
+                VertexPacking.prototype.vertexBufferHash = "";
+                VertexPacking.prototype.positionBits = 0;
+                VertexPacking.prototype.positionOrigin = null;
+                VertexPacking.prototype.positionStep = 0;
+                VertexPacking.prototype.normalBits = 0;
+                VertexPacking.prototype.texcoordStep = 0;
+                VertexPacking.prototype.maxPositionError = 0;
+                VertexPacking.prototype.maxNormalDegrees = 0;
+    
+                VertexPacking.encode = function (message, writer, _depth) {
+                    if (!writer)
+                        writer = $Writer.create();
+                    if (_depth === $undefined)
+                        _depth = 0;
+                    if (_depth > $util.recursionLimit)
+                        throw $Error("max depth exceeded");
+                    if (message.encoding != null && $Object.hasOwnProperty.call(message, "encoding") && message.encoding !== 0)
+                        writer.uint32(8).int32(message.encoding);
+                    if (message.packedBytes != null && $Object.hasOwnProperty.call(message, "packedBytes") && (typeof message.packedBytes === "object" ? message.packedBytes.low || message.packedBytes.high : message.packedBytes !== 0))
+                        writer.uint32(16).uint64(message.packedBytes);
+                    if (message.packedCrc32 != null && $Object.hasOwnProperty.call(message, "packedCrc32") && message.packedCrc32 !== 0)
+                        writer.uint32(29).fixed32(message.packedCrc32);
+                    if (message.vertexBufferHash != null && $Object.hasOwnProperty.call(message, "vertexBufferHash") && message.vertexBufferHash !== "")
+                        writer.uint32(34).string(message.vertexBufferHash);
+                    if (message.positionBits != null && $Object.hasOwnProperty.call(message, "positionBits") && message.positionBits !== 0)
+                        writer.uint32(40).uint32(message.positionBits);
+                    if (message.positionOrigin != null && $Object.hasOwnProperty.call(message, "positionOrigin"))
+                        $root.caveclod.v1.Vec3.encode(message.positionOrigin, writer.uint32(50).fork(), _depth + 1).ldelim();
+                    if (message.positionStep != null && $Object.hasOwnProperty.call(message, "positionStep") && !$Object.is(message.positionStep, 0))
+                        writer.uint32(57).double(message.positionStep);
+                    if (message.normalBits != null && $Object.hasOwnProperty.call(message, "normalBits") && message.normalBits !== 0)
+                        writer.uint32(64).uint32(message.normalBits);
+                    if (message.texcoordStep != null && $Object.hasOwnProperty.call(message, "texcoordStep") && !$Object.is(message.texcoordStep, 0))
+                        writer.uint32(73).double(message.texcoordStep);
+                    if (message.maxPositionError != null && $Object.hasOwnProperty.call(message, "maxPositionError") && !$Object.is(message.maxPositionError, 0))
+                        writer.uint32(81).double(message.maxPositionError);
+                    if (message.maxNormalDegrees != null && $Object.hasOwnProperty.call(message, "maxNormalDegrees") && !$Object.is(message.maxNormalDegrees, 0))
+                        writer.uint32(89).double(message.maxNormalDegrees);
+                    if (message.$unknowns != null && $Object.hasOwnProperty.call(message, "$unknowns"))
+                        for (var i = 0; i < message.$unknowns.length; ++i)
+                            writer.raw(message.$unknowns[i]);
+                    return writer;
+                };
+    
+                VertexPacking.decode = function (reader, length, _end, _depth, _target) {
+                    if (!(reader instanceof $Reader))
+                        reader = $Reader.create(reader);
+                    if (_depth === $undefined)
+                        _depth = 0;
+                    if (_depth > $Reader.recursionLimit)
+                        throw $Error("max depth exceeded");
+                    var end, message, value;
+                    if (length === $undefined)
+                        end = reader.len;
+                    else {
+                        end = reader.pos + length;
+                        if (end > reader.len)
+                            throw $RangeError("index out of range");
+                        length = reader.len;
+                        reader.len = end;
+                    }
+                    message = _target || new $root.caveclod.v1.VertexPacking();
+                    while (reader.pos < end) {
+                        var start = reader.pos;
+                        var tag = reader.tag();
+                        if (tag === _end) {
+                            _end = $undefined;
+                            break;
+                        }
+                        var wireType = tag & 7;
+                        switch (tag >>>= 3) {
+                        case 1: {
+                                if (wireType !== 0)
+                                    break;
+                                if (value = reader.int32())
+                                    message.encoding = value;
+                                else
+                                    delete message.encoding;
+                                continue;
+                            }
+                        case 2: {
+                                if (wireType !== 0)
+                                    break;
+                                if (typeof (value = reader.uint64()) === "object" ? value.low || value.high : value !== 0)
+                                    message.packedBytes = value;
+                                else
+                                    delete message.packedBytes;
+                                continue;
+                            }
+                        case 3: {
+                                if (wireType !== 5)
+                                    break;
+                                if (value = reader.fixed32())
+                                    message.packedCrc32 = value;
+                                else
+                                    delete message.packedCrc32;
+                                continue;
+                            }
+                        case 4: {
+                                if (wireType !== 2)
+                                    break;
+                                if ((value = reader.stringVerify()).length)
+                                    message.vertexBufferHash = value;
+                                else
+                                    delete message.vertexBufferHash;
+                                continue;
+                            }
+                        case 5: {
+                                if (wireType !== 0)
+                                    break;
+                                if (value = reader.uint32())
+                                    message.positionBits = value;
+                                else
+                                    delete message.positionBits;
+                                continue;
+                            }
+                        case 6: {
+                                if (wireType !== 2)
+                                    break;
+                                message.positionOrigin = $root.caveclod.v1.Vec3.decode(reader, reader.size(), $undefined, _depth + 1, message.positionOrigin);
+                                continue;
+                            }
+                        case 7: {
+                                if (wireType !== 1)
+                                    break;
+                                if (!$Object.is(value = reader.double(), 0))
+                                    message.positionStep = value;
+                                else
+                                    delete message.positionStep;
+                                continue;
+                            }
+                        case 8: {
+                                if (wireType !== 0)
+                                    break;
+                                if (value = reader.uint32())
+                                    message.normalBits = value;
+                                else
+                                    delete message.normalBits;
+                                continue;
+                            }
+                        case 9: {
+                                if (wireType !== 1)
+                                    break;
+                                if (!$Object.is(value = reader.double(), 0))
+                                    message.texcoordStep = value;
+                                else
+                                    delete message.texcoordStep;
+                                continue;
+                            }
+                        case 10: {
+                                if (wireType !== 1)
+                                    break;
+                                if (!$Object.is(value = reader.double(), 0))
+                                    message.maxPositionError = value;
+                                else
+                                    delete message.maxPositionError;
+                                continue;
+                            }
+                        case 11: {
+                                if (wireType !== 1)
+                                    break;
+                                if (!$Object.is(value = reader.double(), 0))
+                                    message.maxNormalDegrees = value;
+                                else
+                                    delete message.maxNormalDegrees;
+                                continue;
+                            }
+                        }
+                        reader.skipType(wireType, _depth, tag);
+                        if (!reader.discardUnknown) {
+                            $util.makeProp(message, "$unknowns", false);
+                            (message.$unknowns || (message.$unknowns = [])).push(reader.raw(start, reader.pos));
+                        }
+                    }
+                    if (length !== $undefined) {
+                        if (reader.pos !== end)
+                            throw $RangeError("index out of range");
+                        reader.len = length;
+                    }
+                    if (_end !== $undefined)
+                        throw $Error("missing end group");
+                    return message;
+                };
+    
+                VertexPacking.getTypeUrl = function(prefix) {
+                    if (prefix === $undefined)
+                        prefix = "type.googleapis.com";
+                    return prefix + "/caveclod.v1.VertexPacking";
+                };
+    
+                return VertexPacking;
             })();
     
             v1.MeshInfo = (function() {

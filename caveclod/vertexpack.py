@@ -1,0 +1,313 @@
+"""The packed vertex download (VERTEX_ENCODING_PACKED): quantize, delta-code, deflate.
+
+A resident-buffer client downloads the whole vertex buffer once: 32 bytes
+per vertex as float32 (36 with colours). Packed, the same buffer travels in
+1-7 bytes per vertex (benchmarks/vertex_download.py), and the client decodes
+it back into the float32 PLANAR payload that ``SessionInfo.vertex_format``
+describes, so nothing after the download changes: renderers, caches and
+index buffers see float32 attributes as before.
+
+Numpy and zlib only, so the thin client decodes it; the proto's
+``VertexPacking`` comment is the specification for other languages (a
+browser inflates with ``DecompressionStream("deflate")``). In short:
+
+* positions: ``q = round((p - origin) / step)`` per component, ``step`` the
+  largest extent over ``2**position_bits - 1``; decoded ``float32(origin +
+  q * step)`` computed in float64.
+* normals: octahedral, ``normal_bits`` (12) per component, two components;
+  decoded as :func:`decode_normals` says, in float64, then float32.
+* texcoords: ``q = round(uv / texcoord_step)``, ``texcoord_step`` a power of
+  two (2**-16 unless the coordinates are too large for 24 bits); decoded
+  ``float32(q * texcoord_step)``.
+* colours: the bytes as they are.
+
+Each component of each attribute, in ``vertex_format.attributes`` order,
+becomes ``d`` deltas (``q[i] - q[i - 1]``, ``q[-1] = 0``), zigzag-coded into
+uint32 and stored as four byte planes (every value's lowest byte, then the
+next, ...): a delta of a smooth surface is small, its upper planes all
+zeros, and deflate (zlib format, RFC 1950) takes them to almost nothing.
+
+Every decoding step is exact IEEE arithmetic in a fixed order, so every
+decoder produces the same bytes: ``SessionInfo.vertex_payload_crc32`` is the
+CRC-32 of the *decoded* payload, a check of the decoder as well as of the
+transfer (``VertexPacking.packed_crc32`` checks the packed bytes).
+
+What quantizing costs is measured, not assumed: :func:`pack` reports the
+largest distance between a decoded position and its original
+(``max_position_error``, world units; a viewer adds it to the screen-space
+bound at its nearest distance) and the largest normal angle.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import zlib
+from dataclasses import dataclass
+
+import numpy as np
+
+from .wire import WireError
+
+DEFAULT_POSITION_BITS = 20
+MIN_POSITION_BITS, MAX_POSITION_BITS = 8, 24
+NORMAL_BITS = 12
+TEXCOORD_MAX_EXPONENT = 16          # texcoord_step is at most this fine: 2**-16
+TEXCOORD_RANGE_BITS = 24            # |q| of a texcoord stays below 2**24
+ZLIB_LEVEL = 6                      # level 9 saved 2-6 % more at 3-8x the time here
+
+
+@dataclass(frozen=True)
+class Packing:
+    """What a decoder needs besides the packed bytes (``VertexPacking`` on the wire)."""
+
+    vertex_count: int
+    position_bits: int
+    position_origin: tuple          # (3,) float64
+    position_step: float
+    normal_bits: int
+    texcoord_step: float
+    has_color: bool
+
+
+@dataclass(frozen=True)
+class Packed:
+    """A packed vertex buffer and what the server says about it."""
+
+    packing: Packing
+    data: bytes                     # the deflated streams (VertexChunk data, concatenated)
+    decoded_crc32: int              # CRC-32 of the decoded float32 payload
+    max_position_error: float       # world units: largest |decoded - original| position
+    max_normal_degrees: float       # largest angle between a decoded normal and its original
+
+
+def packed_hash(vertex_buffer_hash: str, position_bits: int) -> str:
+    """Cache key of the decoded buffer (``VertexPacking.vertex_buffer_hash``).
+
+    The lower-case hex SHA-256 of ``"caveclod.packed.v1:" + vertex_buffer_hash
+    + ":" + str(position_bits)`` (UTF-8), so that a client computes it before
+    it opens a session and offers a buffer it decoded earlier.
+    """
+    return hashlib.sha256(f"caveclod.packed.v1:{vertex_buffer_hash}:{position_bits}".encode()).hexdigest()
+
+
+def check_position_bits(bits: int) -> None:
+    if not MIN_POSITION_BITS <= bits <= MAX_POSITION_BITS:
+        raise ValueError(f"position_bits is {bits}; use {MIN_POSITION_BITS} to {MAX_POSITION_BITS} "
+                         f"(unset: {DEFAULT_POSITION_BITS})")
+
+
+# -- quantization ------------------------------------------------------------------------
+
+def position_quantization(positions: np.ndarray, bits: int) -> tuple[np.ndarray, float]:
+    """(origin (3,) float64, step) for ``positions`` (d, 3) at ``bits`` per component."""
+    p = np.asarray(positions, np.float64)
+    if len(p) == 0:
+        return np.zeros(3), 1.0
+    origin = p.min(axis=0)
+    extent = float((p.max(axis=0) - origin).max())
+    return origin, (extent / ((1 << bits) - 1) if extent > 0 else 1.0)
+
+
+def texcoord_step(uvs: np.ndarray) -> float:
+    """The power-of-two step of ``uvs`` (d, 2): 2**-16, or coarser when |uv| reaches 2**8."""
+    top = float(np.abs(uvs).max()) if len(uvs) else 0.0
+    e = TEXCOORD_MAX_EXPONENT
+    while e > -64 and top * 2.0 ** e >= 2 ** TEXCOORD_RANGE_BITS:
+        e -= 1
+    return 2.0 ** -e
+
+
+def encode_normals(normals: np.ndarray, bits: int = NORMAL_BITS) -> np.ndarray:
+    """(d, 3) unit normals -> (d, 2) int64 octahedral codes in [-(2**(bits-1) - 1), 2**(bits-1) - 1].
+
+    A zero normal (a degenerate corner) becomes +z.
+    """
+    n = np.asarray(normals, np.float64)
+    l1 = np.abs(n).sum(axis=1)
+    zero = ~(l1 > 0)
+    n = n / np.where(zero, 1.0, l1)[:, None]
+    n[zero] = (0.0, 0.0, 1.0)
+    x, y = n[:, 0].copy(), n[:, 1].copy()
+    low = n[:, 2] < 0                    # the lower half folds over the diagonals
+    sx = np.where(x[low] >= 0, 1.0, -1.0)
+    sy = np.where(y[low] >= 0, 1.0, -1.0)
+    x[low], y[low] = (1.0 - np.abs(n[low, 1])) * sx, (1.0 - np.abs(n[low, 0])) * sy
+    s = (1 << (bits - 1)) - 1
+    return np.rint(np.stack([x, y], axis=1) * s).astype(np.int64)
+
+
+def decode_normals(codes: np.ndarray, bits: int = NORMAL_BITS) -> np.ndarray:
+    """(d, 2) octahedral codes -> (d, 3) float32 unit normals.
+
+    In float64, in this order: ``x = qx / s``, ``y = qy / s`` (``s =
+    2**(bits-1) - 1``), ``z = 1 - |x| - |y|``, ``t = max(-z, 0)``, ``x -= t``
+    where ``x >= 0`` else ``x += t`` (the same for ``y``), then each of x, y,
+    z divided by ``sqrt(x*x + y*y + z*z)``, then rounded to float32.
+    """
+    s = float((1 << (bits - 1)) - 1)
+    q = np.asarray(codes, np.float64)
+    x, y = q[:, 0] / s, q[:, 1] / s
+    z = 1.0 - np.abs(x) - np.abs(y)
+    t = np.maximum(-z, 0.0)
+    x = np.where(x >= 0, x - t, x + t)
+    y = np.where(y >= 0, y - t, y + t)
+    length = np.sqrt(x * x + y * y + z * z)
+    return np.stack([x / length, y / length, z / length], axis=1).astype(np.float32)
+
+
+# -- the byte streams --------------------------------------------------------------------
+
+def _delta_planes(q: np.ndarray) -> bytes:
+    """(d,) int64 values -> 4 * d bytes: zigzag deltas as four byte planes."""
+    delta = np.diff(q, prepend=0).astype(np.int32)
+    zig = ((delta.astype(np.int64) << 1) ^ (delta.astype(np.int64) >> 31)).astype(np.uint32)
+    return zig.astype("<u4").view(np.uint8).reshape(-1, 4).T.tobytes()
+
+
+def _undelta_planes(raw: memoryview, d: int) -> np.ndarray:
+    """4 * d bytes of planes -> (d,) int64 values (the inverse of :func:`_delta_planes`)."""
+    planes = np.frombuffer(raw, np.uint8).reshape(4, d).astype(np.uint32)
+    zig = planes[0] | (planes[1] << 8) | (planes[2] << 16) | (planes[3] << 24)
+    delta = (zig >> 1).astype(np.int64) ^ -(zig & 1).astype(np.int64)
+    return np.cumsum(delta)
+
+
+def _columns(positions, normals, uvs, colors, packing: Packing) -> list[np.ndarray]:
+    """The quantized components, stream order: (d,) int64 each."""
+    qp = np.rint((np.asarray(positions, np.float64) - np.asarray(packing.position_origin))
+                 / packing.position_step).astype(np.int64)
+    qn = encode_normals(normals, packing.normal_bits)
+    qu = np.rint(np.asarray(uvs, np.float64) / packing.texcoord_step).astype(np.int64)
+    cols = [qp[:, k] for k in range(3)] + [qn[:, k] for k in range(2)] + [qu[:, k] for k in range(2)]
+    if colors is not None:
+        qc = np.asarray(colors, np.uint8).astype(np.int64)
+        cols += [qc[:, k] for k in range(4)]
+    return cols
+
+
+def stream_components(has_color: bool) -> int:
+    """Components in the packed streams: 3 position + 2 normal + 2 texcoord (+ 4 colour)."""
+    return 7 + 4 * has_color
+
+
+# -- pack / unpack ------------------------------------------------------------------------
+
+def pack(positions: np.ndarray, normals: np.ndarray, uvs: np.ndarray, colors: np.ndarray | None,
+         position_bits: int = DEFAULT_POSITION_BITS) -> Packed:
+    """Pack a vertex buffer: positions, normals (d, 3) float32, uvs (d, 2) float32, colors (d, 4) uint8,
+    or None or (0, 4) when the mesh has none (as :func:`caveclod.wire.vertex_blocks` takes them)."""
+    check_position_bits(position_bits)
+    if colors is not None and not len(colors):
+        colors = None
+    d = len(positions)
+    origin, step = position_quantization(positions, position_bits)
+    packing = Packing(vertex_count=d, position_bits=position_bits, position_origin=tuple(float(v) for v in origin),
+                      position_step=step, normal_bits=NORMAL_BITS, texcoord_step=texcoord_step(np.asarray(uvs)),
+                      has_color=colors is not None)
+    raw = b"".join(_delta_planes(c) for c in _columns(positions, normals, uvs, colors, packing))
+    data = zlib.compress(raw, ZLIB_LEVEL)
+    decoded = unpack(packing, data)
+    p = np.asarray(positions, np.float64)
+    err = float(np.sqrt(((decoded["position"].astype(np.float64) - p) ** 2).sum(axis=1)).max()) if d else 0.0
+    n0 = np.asarray(normals, np.float64)
+    n0 = n0 / np.maximum(np.linalg.norm(n0, axis=1), 1e-30)[:, None]
+    cos = np.clip((n0 * decoded["normal"].astype(np.float64)).sum(axis=1), -1.0, 1.0)
+    nonzero = np.abs(np.asarray(normals)).sum(axis=1) > 0
+    angle = float(np.degrees(np.arccos(cos[nonzero])).max()) if nonzero.any() else 0.0
+    return Packed(packing, data, zlib.crc32(planar_payload(decoded)), err, angle)
+
+
+def unpack(packing: Packing, data: bytes) -> dict:
+    """{"position", "normal", "texcoord"[, "color"]: (d, c) array} decoded from the packed bytes.
+
+    Raises WireError when the bytes do not inflate, or inflate to a length
+    other than the streams' (damaged or from another format).
+    """
+    d = packing.vertex_count
+    want = 4 * d * stream_components(packing.has_color)
+    try:
+        inflater = zlib.decompressobj()
+        raw = inflater.decompress(data, want + 1)
+        complete = inflater.eof and not inflater.unconsumed_tail and not inflater.unused_data
+    except zlib.error as exc:
+        raise WireError(f"the packed vertex buffer does not inflate ({exc}); it is damaged: open the session "
+                        "again, or ask for vertex_encoding FLOAT32") from None
+    if len(raw) != want or not complete:
+        raise WireError(f"the packed vertex buffer inflates to {len(raw)}{'' if complete else '+'} bytes where "
+                        f"{d} vertices need {want}; it is damaged or from another format: open the session again")
+    view = memoryview(raw)
+    cols = [_undelta_planes(view[4 * d * k: 4 * d * (k + 1)], d) for k in range(stream_components(packing.has_color))]
+    origin = np.asarray(packing.position_origin, np.float64)
+    out = {
+        "position": (origin + np.stack(cols[0:3], axis=1).astype(np.float64) * packing.position_step)
+        .astype(np.float32),
+        "normal": decode_normals(np.stack(cols[3:5], axis=1), packing.normal_bits),
+        "texcoord": (np.stack(cols[5:7], axis=1).astype(np.float64) * packing.texcoord_step).astype(np.float32),
+    }
+    if packing.has_color:
+        c = np.stack(cols[7:11], axis=1)
+        if d and (c.min() < 0 or c.max() > 255):
+            raise WireError("the packed vertex buffer's colours fall outside 0..255; it is damaged: open the "
+                            "session again")
+        out["color"] = c.astype(np.uint8)
+    return out
+
+
+def planar_payload(arrays: dict) -> bytes:
+    """The PLANAR float32 payload (caveclod.proto's VertexFormat) of decoded arrays."""
+    parts = [np.ascontiguousarray(arrays["position"], "<f4"), np.ascontiguousarray(arrays["normal"], "<f4"),
+             np.ascontiguousarray(arrays["texcoord"], "<f4")]
+    if "color" in arrays:
+        parts.append(np.ascontiguousarray(arrays["color"], np.uint8))
+    return b"".join(p.tobytes() for p in parts)
+
+
+# -- on the wire ---------------------------------------------------------------------------
+
+def to_message(packed: Packed, vertex_buffer_hash: str):
+    """The ``VertexPacking`` message of ``packed``; ``vertex_buffer_hash`` is the mesh's (MeshInfo's)."""
+    from .v1 import caveclod_pb2 as pb
+    p = packed.packing
+    x, y, z = p.position_origin
+    return pb.VertexPacking(
+        encoding=pb.VERTEX_ENCODING_PACKED, packed_bytes=len(packed.data), packed_crc32=zlib.crc32(packed.data),
+        vertex_buffer_hash=packed_hash(vertex_buffer_hash, p.position_bits), position_bits=p.position_bits,
+        position_origin=pb.Vec3(x=x, y=y, z=z), position_step=p.position_step, normal_bits=p.normal_bits,
+        texcoord_step=p.texcoord_step, max_position_error=packed.max_position_error,
+        max_normal_degrees=packed.max_normal_degrees)
+
+
+def from_message(msg, vertex_format) -> Packing:
+    """The :class:`Packing` a ``VertexPacking`` message and its SessionInfo's ``vertex_format`` describe.
+
+    Raises WireError for an encoding this client does not know or values no
+    server sends (a step that is not positive, normal bits out of range).
+    """
+    from .v1 import caveclod_pb2 as pb
+    if msg.encoding != pb.VERTEX_ENCODING_PACKED:
+        raise WireError(f"vertex encoding {msg.encoding} is unknown to this client; upgrade it, or ask for "
+                        "vertex_encoding FLOAT32")
+    if not (msg.position_step > 0 and msg.texcoord_step > 0 and 2 <= msg.normal_bits <= 16):
+        raise WireError(f"VertexPacking with position_step {msg.position_step}, texcoord_step {msg.texcoord_step}, "
+                        f"normal_bits {msg.normal_bits}: not a packing a server sends; upgrade the client")
+    has_color = any(a.semantic == pb.ATTRIBUTE_SEMANTIC_COLOR for a in vertex_format.attributes)
+    o = msg.position_origin
+    return Packing(vertex_count=int(vertex_format.vertex_count), position_bits=msg.position_bits,
+                   position_origin=(o.x, o.y, o.z), position_step=msg.position_step, normal_bits=msg.normal_bits,
+                   texcoord_step=msg.texcoord_step, has_color=has_color)
+
+
+def requested_bits(open_msg) -> int | None:
+    """position_bits an Open asks to pack with, or None (FLOAT32, unknown encodings and cache mode).
+
+    Raises ValueError naming the field for position_bits out of range.
+    """
+    from .v1 import caveclod_pb2 as pb
+    if open_msg.vertex_encoding != pb.VERTEX_ENCODING_PACKED or open_msg.HasField("cache_vertices"):
+        return None
+    bits = open_msg.position_bits if open_msg.HasField("position_bits") else DEFAULT_POSITION_BITS
+    try:
+        check_position_bits(bits)
+    except ValueError as exc:
+        raise ValueError(f"Open.{exc}") from None
+    return bits

@@ -1,0 +1,191 @@
+"""The packed vertex download (VERTEX_ENCODING_PACKED): the numpy codec against a slow
+reference decoder written from the proto's text, its error bounds on realistic meshes and
+random input, and damage that is always an error, never a wrong buffer.
+"""
+
+from __future__ import annotations
+
+import math
+import struct
+import zlib
+
+import numpy as np
+import pytest
+from hypothesis import example, given, settings, strategies as st
+
+import caveclod
+from caveclod import vertexpack, wire
+from caveclod.v1 import caveclod_pb2 as pb
+
+import meshes
+
+
+# -- a reference decoder: a value at a time, as the proto's VertexPacking comment reads ---
+
+def reference_decode(msg: pb.VertexPacking, vertex_format: pb.VertexFormat, packed: bytes) -> bytes:
+    """The decoded PLANAR payload, following VertexPacking's numbered steps literally."""
+    d = vertex_format.vertex_count
+    has_color = any(a.semantic == pb.ATTRIBUTE_SEMANTIC_COLOR for a in vertex_format.attributes)
+    k = 11 if has_color else 7
+    raw = zlib.decompress(packed)
+    assert len(raw) == 4 * d * k
+    streams = []
+    for s in range(k):
+        q, out = 0, []
+        for i in range(d):
+            z = sum(raw[4 * d * s + j * d + i] << (8 * j) for j in range(4))
+            delta = (z >> 1) ^ -(z & 1)
+            q += delta
+            out.append(q)
+        streams.append(out)
+
+    def f32(values):
+        return struct.pack(f"<{len(values)}f", *values)
+
+    o = (msg.position_origin.x, msg.position_origin.y, msg.position_origin.z)
+    pos = [o[c] + streams[c][i] * msg.position_step for i in range(d) for c in range(3)]
+    s = 2.0 ** (msg.normal_bits - 1) - 1
+    nrm = []
+    for i in range(d):
+        x, y = streams[3][i] / s, streams[4][i] / s
+        z = 1 - abs(x) - abs(y)
+        t = max(-z, 0.0)
+        x = x - t if x >= 0 else x + t
+        y = y - t if y >= 0 else y + t
+        n = math.sqrt(x * x + y * y + z * z)
+        nrm += [x / n, y / n, z / n]
+    uv = [streams[5 + c][i] * msg.texcoord_step for i in range(d) for c in range(2)]
+    out = f32(pos) + f32(nrm) + f32(uv)
+    if has_color:
+        out += bytes(streams[7 + c][i] for i in range(d) for c in range(4))
+    return out
+
+
+def _format(positions, normals, uvs, colors) -> pb.VertexFormat:
+    return wire.vertex_format(wire.vertex_blocks(positions, normals, uvs, colors))
+
+
+def _random_buffer(seed: int, d: int, *, offset=0.0, extent=1.0, uv_scale=1.0, colors=False):
+    rng = np.random.default_rng(seed)
+    p = (offset + rng.random((d, 3)) * extent).astype(np.float32)
+    n = rng.normal(size=(d, 3))
+    n[: d // 8] = np.eye(3)[rng.integers(0, 3, d // 8)] * rng.choice([-1, 1], (d // 8, 1))   # axis normals
+    n = (n / np.linalg.norm(n, axis=1)[:, None]).astype(np.float32)
+    uv = ((rng.random((d, 2)) - 0.25) * uv_scale).astype(np.float32)
+    c = rng.integers(0, 256, (d, 4), dtype=np.uint8) if colors else np.zeros((0, 4), np.uint8)
+    return p, n, uv, c
+
+
+def _check_bounds(packed: vertexpack.Packed, p, n, uv, c, decoded) -> None:
+    """Each decoded attribute within what its quantization allows; the reported errors true."""
+    step = packed.packing.position_step
+    p64 = np.asarray(p, np.float64)
+    ulp = np.spacing(np.abs(p64).max(axis=0).astype(np.float32)).astype(np.float64)
+    assert (np.abs(decoded["position"] - p64) <= step / 2 + ulp + 1e-12).all()
+    dist = np.sqrt(((decoded["position"].astype(np.float64) - p64) ** 2).sum(axis=1))
+    assert dist.max(initial=0.0) == pytest.approx(packed.max_position_error, rel=1e-9, abs=1e-30)
+    # 12-bit octahedral normals: within 0.06 degrees; unit length to float32.
+    cos = np.clip((decoded["normal"].astype(np.float64) * n).sum(axis=1), -1, 1)
+    assert np.degrees(np.arccos(cos)).max(initial=0.0) <= 0.06
+    assert packed.max_normal_degrees <= 0.06
+    assert np.allclose(np.linalg.norm(decoded["normal"], axis=1), 1.0, atol=2e-7)
+    tstep = packed.packing.texcoord_step
+    assert (np.abs(decoded["texcoord"] - np.asarray(uv, np.float64))
+            <= tstep / 2 + np.spacing(np.abs(uv).astype(np.float32)) + 1e-12).all()
+    if len(c):
+        assert np.array_equal(decoded["color"], c)
+    else:
+        assert "color" not in decoded
+
+
+# -- the codec ------------------------------------------------------------------------------
+
+@pytest.mark.parametrize("colors", [False, True])
+def test_the_numpy_decoder_gives_the_reference_decoders_bytes(colors):
+    p, n, uv, c = _random_buffer(3, 300, offset=-40.0, extent=90.0, uv_scale=7.0, colors=colors)
+    packed = vertexpack.pack(p, n, uv, c, position_bits=17)
+    msg = vertexpack.to_message(packed, "ab" * 16)
+    fmt = _format(p, n, uv, c)
+    mine = vertexpack.planar_payload(vertexpack.unpack(vertexpack.from_message(msg, fmt), packed.data))
+    assert mine == reference_decode(msg, fmt, packed.data)
+    assert zlib.crc32(mine) == packed.decoded_crc32
+    assert msg.packed_bytes == len(packed.data) and msg.packed_crc32 == zlib.crc32(packed.data)
+    assert msg.vertex_buffer_hash == vertexpack.packed_hash("ab" * 16, 17)
+
+
+@pytest.mark.parametrize("source", ["rough", "scan", "sphere", "holey"])
+def test_realistic_meshes_pack_small_and_decode_within_their_bounds(source):
+    if source in ("rough", "scan"):
+        mesh = caveclod.build(source, size=64)
+    else:
+        mesh = caveclod.build(meshes.uv_sphere() if source == "sphere" else meshes.holey_scan())
+    p, n, uv, c = mesh.vertex_positions, mesh.vertex_normals, mesh.vertex_uvs, mesh.vertex_colors
+    for bits in (12, 20, 24):
+        packed = vertexpack.pack(p, n, uv, c, bits)
+        decoded = vertexpack.unpack(packed.packing, packed.data)
+        _check_bounds(packed, p, np.asarray(n, np.float64) / np.linalg.norm(n, axis=1)[:, None], uv, c, decoded)
+        assert len(packed.data) <= 12 * len(p), "well under float32's 32 bytes a vertex"
+    # More bits: a smaller error.
+    errors = [vertexpack.pack(p, n, uv, c, b).max_position_error for b in (12, 16, 20)]
+    assert errors[0] > errors[1] > errors[2]
+
+
+@settings(max_examples=40, deadline=None)
+@given(seed=st.integers(0, 2**31), d=st.integers(0, 64), bits=st.integers(8, 24),
+       offset=st.sampled_from([0.0, -1e3, 5e6]), extent=st.sampled_from([0.0, 1e-3, 1.0, 1e4]),
+       uv_scale=st.sampled_from([0.0, 1.0, 900.0, 1e6]), colors=st.booleans())
+@example(seed=0, d=1, bits=8, offset=0.0, extent=0.0, uv_scale=0.0, colors=False)   # one vertex, no extent
+def test_any_buffer_round_trips_within_its_quantization(seed, d, bits, offset, extent, uv_scale, colors):
+    p, n, uv, c = _random_buffer(seed, d, offset=offset, extent=extent, uv_scale=uv_scale, colors=colors)
+    packed = vertexpack.pack(p, n, uv, c, bits)
+    decoded = vertexpack.unpack(packed.packing, packed.data)
+    assert zlib.crc32(vertexpack.planar_payload(decoded)) == packed.decoded_crc32
+    if d:
+        _check_bounds(packed, p, n.astype(np.float64), uv, c, decoded)
+
+
+def test_zero_normals_decode_as_up_and_the_lower_hemisphere_folds_back():
+    n = np.array([[0, 0, 0], [0, 0, -1], [0.6, 0, -0.8], [-0.6, 0.8, 0], [0, -0.6, -0.8]], np.float32)
+    codes = vertexpack.encode_normals(n)
+    back = vertexpack.decode_normals(codes)
+    assert np.allclose(back[0], [0, 0, 1])
+    assert np.allclose(back[1:], n[1:], atol=1e-3)
+
+
+def test_position_bits_out_of_range_is_refused_by_name():
+    p, n, uv, c = _random_buffer(1, 4)
+    for bits in (7, 25):
+        with pytest.raises(ValueError, match="position_bits is .*8 to 24"):
+            vertexpack.pack(p, n, uv, c, bits)
+
+
+# -- damage -------------------------------------------------------------------------------
+
+def test_any_damaged_byte_or_cut_is_an_error_never_a_wrong_buffer():
+    mesh = caveclod.build("scan", size=24)
+    packed = vertexpack.pack(mesh.vertex_positions, mesh.vertex_normals, mesh.vertex_uvs, mesh.vertex_colors)
+    data = packed.data
+    rng = np.random.default_rng(0)
+    for at in sorted(set(rng.integers(0, len(data), 150).tolist()) | {0, 1, len(data) - 1}):
+        for flip in (0x01, 0x80, 0xFF):
+            bad = bytearray(data)
+            bad[at] ^= flip
+            with pytest.raises(wire.WireError, match="damaged|inflate"):
+                vertexpack.unpack(packed.packing, bytes(bad))
+    for cut in (0, 1, len(data) // 2, len(data) - 1):
+        with pytest.raises(wire.WireError, match="damaged|inflate"):
+            vertexpack.unpack(packed.packing, data[:cut])
+    with pytest.raises(wire.WireError, match="inflates to"):
+        vertexpack.unpack(packed.packing, data + b"tail")
+    other = vertexpack.Packing(**{**packed.packing.__dict__, "vertex_count": packed.packing.vertex_count + 1})
+    with pytest.raises(wire.WireError, match="inflates to"):
+        vertexpack.unpack(other, data)
+
+
+def test_a_packing_message_no_server_sends_is_refused():
+    fmt = _format(*_random_buffer(2, 3))
+    for bad in (pb.VertexPacking(encoding=pb.VERTEX_ENCODING_FLOAT32, position_step=1, texcoord_step=1, normal_bits=12),
+                pb.VertexPacking(encoding=pb.VERTEX_ENCODING_PACKED, position_step=0, texcoord_step=1, normal_bits=12),
+                pb.VertexPacking(encoding=pb.VERTEX_ENCODING_PACKED, position_step=1, texcoord_step=1, normal_bits=40)):
+        with pytest.raises(wire.WireError, match="upgrade"):
+            vertexpack.from_message(bad, fmt)
