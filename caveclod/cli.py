@@ -21,6 +21,8 @@ import sys
 from .errors import CaveclodError
 from .server.config import DEFAULT_MAX_SESSIONS
 
+DEFAULT_MORPH_MS = 500.0     # geomorph duration of render, view and demo (benchmarks/geomorph.py)
+
 EXIT_USAGE = 2
 
 
@@ -206,6 +208,7 @@ def _parser() -> argparse.ArgumentParser:
     r.add_argument("--wireframe", action="store_true", help="overlay the triangles' edges")
     r.add_argument("--out", required=True, metavar="DIR", help="directory for the frames")
     _cache_arguments(r)
+    _morph_argument(r)
     r.set_defaults(run=_render)
 
     v = sub.add_parser("view", help="an interactive window flying one camera through a server (needs a display)",
@@ -219,6 +222,7 @@ def _parser() -> argparse.ArgumentParser:
     v.add_argument("--frames", type=int, default=None, help="quit after this many drawn frames (default: run until closed)")
     v.add_argument("--screenshot", metavar="FILE", help="write the last drawn frame as PNG on exit")
     _cache_arguments(v)
+    _morph_argument(v)
     v.set_defaults(run=_view)
 
     d = sub.add_parser("demo", help="build the default terrain, serve it, fly 4 cameras through the service and "
@@ -239,6 +243,13 @@ def _client_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--token", help="bearer token (or set CAVECLOD_TOKEN)")
     p.add_argument("--tls-ca", metavar="F", help="PEM CA certificate: connect with TLS and trust it")
     p.add_argument("--cache-dir", help="vertex buffer cache (default $XDG_CACHE_HOME/caveclod/vertex-buffers)")
+
+
+def _morph_argument(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--morph-ms", type=float, default=DEFAULT_MORPH_MS, metavar="MS",
+                   help=f"geomorphs: a vertex a split brings in grows out of the surface over MS milliseconds "
+                        f"instead of popping in (default {DEFAULT_MORPH_MS:g}; 0: off). Needs the packed "
+                        "vertex download")
 
 
 def _cache_arguments(p: argparse.ArgumentParser, more: str = "") -> None:

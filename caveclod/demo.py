@@ -29,6 +29,7 @@ from pathlib import Path
 
 import numpy as np
 
+from .cli import DEFAULT_MORPH_MS
 from .errors import CaveclodError, FileFormatError, InputError
 
 SERVER_START_SECONDS = 180.0     # the first start compiles the refinement kernels
@@ -57,6 +58,9 @@ def add_arguments(ap: argparse.ArgumentParser) -> None:
     ap.add_argument("--wireframe", action="store_true", help="draw the triangles' edges over the terrain")
     ap.add_argument("--animation-width", type=int, default=640, metavar="PX",
                     help="largest width of the animation's frames (default 640)")
+    ap.add_argument("--morph-ms", type=float, default=DEFAULT_MORPH_MS, metavar="MS",
+                    help=f"geomorph duration: a split's new vertex grows out of the surface over MS ms "
+                         f"(default {DEFAULT_MORPH_MS:g}; 0: off)")
 
 
 def run(args) -> int:
@@ -66,6 +70,8 @@ def run(args) -> int:
         raise InputError(f"--frames must be at least 2, got {args.frames}")
     if args.keep_every < 1:
         raise InputError(f"--keep-every must be at least 1, got {args.keep_every}")
+    if args.morph_ms < 0:
+        raise InputError(f"--morph-ms must be at least 0 (0: no geomorphs), got {args.morph_ms:g}")
     if args.animation_width < 16:
         raise InputError(f"--animation-width must be at least 16 pixels, got {args.animation_width}")
     out = Path(args.out)
@@ -153,7 +159,8 @@ def fly(target: str, mesh: str, out: Path, size: tuple, args) -> tuple[dict, lis
     qw, qh = quadrants(*size, len(CAMERAS))[0][2:]
     try:
         with Client(target, cache_dir=out / "vertex-cache") as client:
-            with client.session(mesh, cameras=len(CAMERAS), width=qw, height=qh) as session:
+            with client.session(mesh, cameras=len(CAMERAS), width=qw, height=qh,
+                                morph_targets=args.morph_ms > 0) as session:
                 info = session.info
                 packed = info.vertex_packing if info.HasField("vertex_packing") else None
                 how = "" if packed is None else (
@@ -164,11 +171,12 @@ def fly(target: str, mesh: str, out: Path, size: tuple, args) -> tuple[dict, lis
                 summary, frames = record(session, out / "frames", size=size, trajectory="flyover",
                                          frames=args.frames, wireframe=args.wireframe, keep_every=args.keep_every,
                                          animation=out / "animation.gif", animation_width=args.animation_width,
-                                         wireframe_still=out / "wireframe.png")
+                                         wireframe_still=out / "wireframe.png", morph_ms=args.morph_ms)
     except SessionEnded as exc:
         raise CaveclodError(f"the session ended: {exc}; see the server log {out / 'server.log'}") from None
     except FlightError as exc:
         raise CaveclodError(str(exc)) from None
+    summary["morph_ms"] = args.morph_ms
     summary["vertex_download"] = {
         "float32_bytes": info.vertex_format.payload_bytes,
         "packed_bytes": packed.packed_bytes if packed is not None else None,

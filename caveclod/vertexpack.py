@@ -20,6 +20,8 @@ browser inflates with ``DecompressionStream("deflate")``). In short:
   two (2**-16 unless the coordinates are too large for 24 bits); decoded
   ``float32(q * texcoord_step)``.
 * colours: the bytes as they are.
+* morph targets (when asked for): ``q = target - i`` for vertex ``i``
+  (neighbours, mostly: small numbers); decoded ``q + i``.
 
 Each component of each attribute, in ``vertex_format.attributes`` order,
 becomes ``d`` deltas (``q[i] - q[i - 1]``, ``q[-1] = 0``), zigzag-coded into
@@ -67,6 +69,7 @@ class Packing:
     normal_bits: int
     texcoord_step: float
     has_color: bool
+    has_morph: bool = False
 
 
 @dataclass(frozen=True)
@@ -80,14 +83,16 @@ class Packed:
     max_normal_degrees: float       # largest angle between a decoded normal and its original
 
 
-def packed_hash(vertex_buffer_hash: str, position_bits: int) -> str:
+def packed_hash(vertex_buffer_hash: str, position_bits: int, morph: bool = False) -> str:
     """Cache key of the decoded buffer (``VertexPacking.vertex_buffer_hash``).
 
     The lower-case hex SHA-256 of ``"caveclod.packed.v1:" + vertex_buffer_hash
-    + ":" + str(position_bits)`` (UTF-8), so that a client computes it before
-    it opens a session and offers a buffer it decoded earlier.
+    + ":" + str(position_bits)`` (+ ``":morph"`` with morph targets; UTF-8),
+    so that a client computes it before it opens a session and offers a
+    buffer it decoded earlier.
     """
-    return hashlib.sha256(f"caveclod.packed.v1:{vertex_buffer_hash}:{position_bits}".encode()).hexdigest()
+    text = f"caveclod.packed.v1:{vertex_buffer_hash}:{position_bits}" + (":morph" if morph else "")
+    return hashlib.sha256(text.encode()).hexdigest()
 
 
 def check_position_bits(bits: int) -> None:
@@ -172,7 +177,7 @@ def _undelta_planes(raw: memoryview, d: int) -> np.ndarray:
     return np.cumsum(delta)
 
 
-def _columns(positions, normals, uvs, colors, packing: Packing) -> list[np.ndarray]:
+def _columns(positions, normals, uvs, colors, morph, packing: Packing) -> list[np.ndarray]:
     """The quantized components, stream order: (d,) int64 each."""
     qp = np.rint((np.asarray(positions, np.float64) - np.asarray(packing.position_origin))
                  / packing.position_step).astype(np.int64)
@@ -182,20 +187,23 @@ def _columns(positions, normals, uvs, colors, packing: Packing) -> list[np.ndarr
     if colors is not None:
         qc = np.asarray(colors, np.uint8).astype(np.int64)
         cols += [qc[:, k] for k in range(4)]
+    if morph is not None:
+        cols.append(np.asarray(morph, np.int64) - np.arange(len(morph)))
     return cols
 
 
-def stream_components(has_color: bool) -> int:
-    """Components in the packed streams: 3 position + 2 normal + 2 texcoord (+ 4 colour)."""
-    return 7 + 4 * has_color
+def stream_components(has_color: bool, has_morph: bool = False) -> int:
+    """Components in the packed streams: 3 position + 2 normal + 2 texcoord (+ 4 colour, + 1 morph target)."""
+    return 7 + 4 * has_color + has_morph
 
 
 # -- pack / unpack ------------------------------------------------------------------------
 
 def pack(positions: np.ndarray, normals: np.ndarray, uvs: np.ndarray, colors: np.ndarray | None,
-         position_bits: int = DEFAULT_POSITION_BITS) -> Packed:
+         position_bits: int = DEFAULT_POSITION_BITS, morph_targets: np.ndarray | None = None) -> Packed:
     """Pack a vertex buffer: positions, normals (d, 3) float32, uvs (d, 2) float32, colors (d, 4) uint8,
-    or None or (0, 4) when the mesh has none (as :func:`caveclod.wire.vertex_blocks` takes them)."""
+    or None or (0, 4) when the mesh has none (as :func:`caveclod.wire.vertex_blocks` takes them), and
+    optionally morph targets (d,) (:func:`caveclod.refine.morphtargets.morph_targets`)."""
     check_position_bits(position_bits)
     if colors is not None and not len(colors):
         colors = None
@@ -203,8 +211,8 @@ def pack(positions: np.ndarray, normals: np.ndarray, uvs: np.ndarray, colors: np
     origin, step = position_quantization(positions, position_bits)
     packing = Packing(vertex_count=d, position_bits=position_bits, position_origin=tuple(float(v) for v in origin),
                       position_step=step, normal_bits=NORMAL_BITS, texcoord_step=texcoord_step(np.asarray(uvs)),
-                      has_color=colors is not None)
-    raw = b"".join(_delta_planes(c) for c in _columns(positions, normals, uvs, colors, packing))
+                      has_color=colors is not None, has_morph=morph_targets is not None)
+    raw = b"".join(_delta_planes(c) for c in _columns(positions, normals, uvs, colors, morph_targets, packing))
     data = zlib.compress(raw, ZLIB_LEVEL)
     decoded = unpack(packing, data)
     p = np.asarray(positions, np.float64)
@@ -224,7 +232,8 @@ def unpack(packing: Packing, data: bytes) -> dict:
     other than the streams' (damaged or from another format).
     """
     d = packing.vertex_count
-    want = 4 * d * stream_components(packing.has_color)
+    k = stream_components(packing.has_color, packing.has_morph)
+    want = 4 * d * k
     try:
         inflater = zlib.decompressobj()
         raw = inflater.decompress(data, want + 1)
@@ -236,7 +245,7 @@ def unpack(packing: Packing, data: bytes) -> dict:
         raise WireError(f"the packed vertex buffer inflates to {len(raw)}{'' if complete else '+'} bytes where "
                         f"{d} vertices need {want}; it is damaged or from another format: open the session again")
     view = memoryview(raw)
-    cols = [_undelta_planes(view[4 * d * k: 4 * d * (k + 1)], d) for k in range(stream_components(packing.has_color))]
+    cols = [_undelta_planes(view[4 * d * j: 4 * d * (j + 1)], d) for j in range(k)]
     origin = np.asarray(packing.position_origin, np.float64)
     out = {
         "position": (origin + np.stack(cols[0:3], axis=1).astype(np.float64) * packing.position_step)
@@ -250,6 +259,12 @@ def unpack(packing: Packing, data: bytes) -> dict:
             raise WireError("the packed vertex buffer's colours fall outside 0..255; it is damaged: open the "
                             "session again")
         out["color"] = c.astype(np.uint8)
+    if packing.has_morph:
+        target = cols[-1] + np.arange(d)
+        if d and (target.min() < 0 or target.max() >= d):
+            raise WireError("the packed vertex buffer's morph targets fall outside the buffer; it is damaged: "
+                            "open the session again")
+        out["morph_target"] = target.astype(np.uint32).reshape(d, 1)
     return out
 
 
@@ -259,6 +274,8 @@ def planar_payload(arrays: dict) -> bytes:
              np.ascontiguousarray(arrays["texcoord"], "<f4")]
     if "color" in arrays:
         parts.append(np.ascontiguousarray(arrays["color"], np.uint8))
+    if "morph_target" in arrays:
+        parts.append(np.ascontiguousarray(arrays["morph_target"], "<u4"))
     return b"".join(p.tobytes() for p in parts)
 
 
@@ -271,7 +288,8 @@ def to_message(packed: Packed, vertex_buffer_hash: str):
     x, y, z = p.position_origin
     return pb.VertexPacking(
         encoding=pb.VERTEX_ENCODING_PACKED, packed_bytes=len(packed.data), packed_crc32=zlib.crc32(packed.data),
-        vertex_buffer_hash=packed_hash(vertex_buffer_hash, p.position_bits), position_bits=p.position_bits,
+        vertex_buffer_hash=packed_hash(vertex_buffer_hash, p.position_bits, p.has_morph),
+        position_bits=p.position_bits,
         position_origin=pb.Vec3(x=x, y=y, z=z), position_step=p.position_step, normal_bits=p.normal_bits,
         texcoord_step=p.texcoord_step, max_position_error=packed.max_position_error,
         max_normal_degrees=packed.max_normal_degrees)
@@ -291,10 +309,22 @@ def from_message(msg, vertex_format) -> Packing:
         raise WireError(f"VertexPacking with position_step {msg.position_step}, texcoord_step {msg.texcoord_step}, "
                         f"normal_bits {msg.normal_bits}: not a packing a server sends; upgrade the client")
     has_color = any(a.semantic == pb.ATTRIBUTE_SEMANTIC_COLOR for a in vertex_format.attributes)
+    has_morph = any(a.semantic == pb.ATTRIBUTE_SEMANTIC_MORPH_TARGET for a in vertex_format.attributes)
     o = msg.position_origin
     return Packing(vertex_count=int(vertex_format.vertex_count), position_bits=msg.position_bits,
                    position_origin=(o.x, o.y, o.z), position_step=msg.position_step, normal_bits=msg.normal_bits,
-                   texcoord_step=msg.texcoord_step, has_color=has_color)
+                   texcoord_step=msg.texcoord_step, has_color=has_color, has_morph=has_morph)
+
+
+def vertex_format(blocks: list, morph: bool):
+    """The VertexFormat of a packed buffer's decoded payload: ``blocks``' (the mesh's float32 planar
+    blocks, :func:`caveclod.wire.vertex_blocks`) plus MORPH_TARGET uint32 when ``morph``."""
+    from . import wire
+    from .v1 import caveclod_pb2 as pb
+    if not morph:
+        return wire.vertex_format(blocks)
+    d = len(blocks[0].data)
+    return wire.vertex_format([*blocks, wire.VertexBlock(pb.ATTRIBUTE_SEMANTIC_MORPH_TARGET, np.zeros((d, 1), "<u4"))])
 
 
 def requested_bits(open_msg) -> int | None:

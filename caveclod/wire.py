@@ -263,7 +263,8 @@ def vertex_blocks(positions: np.ndarray, normals: np.ndarray, uvs: np.ndarray,
     return blocks
 
 
-_SCALARS = {pb.SCALAR_TYPE_FLOAT32: np.dtype("<f4"), pb.SCALAR_TYPE_UINT8: np.dtype("u1")}
+_SCALARS = {pb.SCALAR_TYPE_FLOAT32: np.dtype("<f4"), pb.SCALAR_TYPE_UINT8: np.dtype("u1"),
+            pb.SCALAR_TYPE_UINT32: np.dtype("<u4")}
 
 
 def vertex_format(blocks: list[VertexBlock]) -> pb.VertexFormat:
@@ -272,7 +273,8 @@ def vertex_format(blocks: list[VertexBlock]) -> pb.VertexFormat:
     fmt = pb.VertexFormat(layout=pb.VERTEX_LAYOUT_PLANAR, vertex_count=d)
     offset = 0
     for b in blocks:
-        kind = pb.SCALAR_TYPE_UINT8 if b.data.dtype == np.uint8 else pb.SCALAR_TYPE_FLOAT32
+        kind = {np.dtype("u1"): pb.SCALAR_TYPE_UINT8, np.dtype("<u4"): pb.SCALAR_TYPE_UINT32}.get(
+            b.data.dtype, pb.SCALAR_TYPE_FLOAT32)
         components = b.data.shape[1]
         stride = components * _SCALARS[kind].itemsize
         fmt.attributes.add(semantic=b.semantic, type=kind, components=components,

@@ -80,6 +80,28 @@ def test_position_bits_are_negotiated_and_checked(server):
     assert "Open.position_bits is 30; use 8 to 24" in details
 
 
+def test_morph_targets_come_when_asked_for(server):
+    from caveclod.refine.morphtargets import morph_targets
+    with Client(f"127.0.0.1:{server.port}") as client:
+        with client.session("terrain", width=640, height=360) as plain:
+            assert plain.vertex_buffer.morph_targets is None
+            key = plain.info.vertex_packing.vertex_buffer_hash
+            size = plain.info.vertex_packing.packed_bytes
+        with client.session("terrain", width=640, height=360, morph_targets=True) as s:
+            info = s.info
+            semantics = [a.semantic for a in info.vertex_format.attributes]
+            assert semantics[-1] == pb.ATTRIBUTE_SEMANTIC_MORPH_TARGET
+            want = morph_targets(server.sessions.catalogue.get("terrain").mesh)
+            assert np.array_equal(s.vertex_buffer.morph_targets, want)
+            assert info.vertex_packing.vertex_buffer_hash == vertexpack.packed_hash(
+                info.mesh.vertex_buffer_hash, 20, True) != key
+            assert size < info.vertex_packing.packed_bytes < size + 4 * len(want), "a few bytes a vertex more"
+            assert _fly(s, 2)
+        # float32 has no morph targets: asked for, they are not sent.
+        with client.session("terrain", width=640, height=360, vertex_encoding="float32", morph_targets=True) as f:
+            assert f.vertex_buffer.morph_targets is None and not f.info.HasField("vertex_packing")
+
+
 def test_cache_mode_ignores_packing(server):
     with Client(f"127.0.0.1:{server.port}") as client:
         with client.session("terrain", width=640, height=360, cache_vertices=2000) as s:

@@ -26,7 +26,8 @@ def reference_decode(msg: pb.VertexPacking, vertex_format: pb.VertexFormat, pack
     """The decoded PLANAR payload, following VertexPacking's numbered steps literally."""
     d = vertex_format.vertex_count
     has_color = any(a.semantic == pb.ATTRIBUTE_SEMANTIC_COLOR for a in vertex_format.attributes)
-    k = 11 if has_color else 7
+    has_morph = any(a.semantic == pb.ATTRIBUTE_SEMANTIC_MORPH_TARGET for a in vertex_format.attributes)
+    k = 7 + 4 * has_color + has_morph
     raw = zlib.decompress(packed)
     assert len(raw) == 4 * d * k
     streams = []
@@ -58,6 +59,8 @@ def reference_decode(msg: pb.VertexPacking, vertex_format: pb.VertexFormat, pack
     out = f32(pos) + f32(nrm) + f32(uv)
     if has_color:
         out += bytes(streams[7 + c][i] for i in range(d) for c in range(4))
+    if has_morph:
+        out += struct.pack(f"<{d}I", *(streams[k - 1][i] + i for i in range(d)))
     return out
 
 
@@ -100,17 +103,22 @@ def _check_bounds(packed: vertexpack.Packed, p, n, uv, c, decoded) -> None:
 
 # -- the codec ------------------------------------------------------------------------------
 
-@pytest.mark.parametrize("colors", [False, True])
-def test_the_numpy_decoder_gives_the_reference_decoders_bytes(colors):
+@pytest.mark.parametrize("colors, morph", [(False, False), (True, False), (False, True), (True, True)])
+def test_the_numpy_decoder_gives_the_reference_decoders_bytes(colors, morph):
     p, n, uv, c = _random_buffer(3, 300, offset=-40.0, extent=90.0, uv_scale=7.0, colors=colors)
-    packed = vertexpack.pack(p, n, uv, c, position_bits=17)
+    targets = np.maximum(np.arange(300) - np.random.default_rng(4).integers(0, 30, 300), 0) if morph else None
+    packed = vertexpack.pack(p, n, uv, c, position_bits=17, morph_targets=targets)
     msg = vertexpack.to_message(packed, "ab" * 16)
-    fmt = _format(p, n, uv, c)
+    fmt = vertexpack.vertex_format(wire.vertex_blocks(p, n, uv, c), morph)
     mine = vertexpack.planar_payload(vertexpack.unpack(vertexpack.from_message(msg, fmt), packed.data))
     assert mine == reference_decode(msg, fmt, packed.data)
     assert zlib.crc32(mine) == packed.decoded_crc32
     assert msg.packed_bytes == len(packed.data) and msg.packed_crc32 == zlib.crc32(packed.data)
-    assert msg.vertex_buffer_hash == vertexpack.packed_hash("ab" * 16, 17)
+    assert msg.vertex_buffer_hash == vertexpack.packed_hash("ab" * 16, 17, morph)
+    if morph:
+        decoded = vertexpack.unpack(vertexpack.from_message(msg, fmt), packed.data)
+        assert np.array_equal(decoded["morph_target"].reshape(-1), targets)
+        assert vertexpack.packed_hash("ab" * 16, 17, True) != vertexpack.packed_hash("ab" * 16, 17)
 
 
 @pytest.mark.parametrize("source", ["rough", "scan", "sphere", "holey"])

@@ -304,8 +304,8 @@ UNPACK_IN_PAGE = """async (cases) => {
 
 
 def test_the_pages_vertex_unpacker_makes_pythons_bytes(browser, make_server, textured_path):
-    """The page decodes packed buffers (terrain, a coloured random buffer, bits 8-24) to the very bytes
-    caveclod.vertexpack makes, and refuses damaged ones."""
+    """The page decodes packed buffers (terrain, a coloured random buffer, bits 8-24, with and without
+    morph targets) to the very bytes caveclod.vertexpack makes, and refuses damaged ones."""
     import caveclod
     from caveclod import vertexpack, wire
     server = make_server(web_port=0)
@@ -319,9 +319,11 @@ def test_the_pages_vertex_unpacker_makes_pythons_bytes(browser, make_server, tex
                     (rng.random((d, 2)) * 700 - 30).astype(np.float32), rng.integers(0, 256, (d, 4), dtype=np.uint8)))
     cases, want = [], []
     for p, nrm, uv, col in buffers:
-        for bits in (8, 20, 24):
-            packed = vertexpack.pack(p, nrm, uv, col, bits)
-            fmt = wire.vertex_format(wire.vertex_blocks(p, nrm, uv, np.zeros((0, 4), np.uint8) if col is None else col))
+        for bits, morph in ((8, False), (20, True), (24, False)):
+            targets = np.maximum(np.arange(len(p)) - rng.integers(0, 40, len(p)), 0) if morph else None
+            packed = vertexpack.pack(p, nrm, uv, col, bits, targets)
+            blocks = wire.vertex_blocks(p, nrm, uv, np.zeros((0, 4), np.uint8) if col is None else col)
+            fmt = vertexpack.vertex_format(blocks, morph)
             msg = vertexpack.to_message(packed, "ab" * 16)       # as protobufjs names its fields
             o = msg.position_origin
             packing = {"positionOrigin": {"x": o.x, "y": o.y, "z": o.z}, "positionStep": msg.position_step,

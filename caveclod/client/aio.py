@@ -57,7 +57,7 @@ class AsyncClient:
                       ack_window: int = 0, retries: int = 12, timeout: float = 30.0, cache_vertices: int | None = None,
                       cache_strategy: str | None = None, cache_pq_fraction: float | None = None,
                       frame_encoding: str = "ops", vertex_encoding: str = "packed",
-                      position_bits: int | None = None) -> "AsyncSession":
+                      position_bits: int | None = None, morph_targets: bool = False) -> "AsyncSession":
         """Open a session and wait for its vertex buffer (or, in cache mode,
         its SessionInfo); see :meth:`caveclod.client.Client.session`."""
         protocol = SessionProtocol(mesh, cameras, refine_options(width, height, fov_y, tolerance_px, cull,
@@ -65,7 +65,7 @@ class AsyncClient:
                                    cache=self.cache, ack_window=ack_window,
                                    cache_mode=cache_mode(cache_vertices, cache_strategy, cache_pq_fraction),
                                    frame_encoding=frame_encoding, vertex_encoding=vertex_encoding,
-                                   position_bits=position_bits)
+                                   position_bits=position_bits, morph_targets=morph_targets)
         session = AsyncSession(self, protocol, retries)
         await session._open(timeout)
         return session

@@ -52,6 +52,8 @@ class VertexBuffer:
         payload: the planar payload bytes.
         positions: (d, 3) float32 view. normals: (d, 3) float32.
         uvs: (d, 2) float32. colors: (d, 4) uint8, or None.
+        morph_targets: (d,) uint32 geomorph targets (each vertex's own index
+            where it has none), or None when not asked for or not sent.
     """
 
     hash: str
@@ -60,6 +62,7 @@ class VertexBuffer:
     normals: np.ndarray
     uvs: np.ndarray
     colors: np.ndarray | None
+    morph_targets: np.ndarray | None = None
 
     @property
     def n_vertices(self) -> int:
@@ -141,11 +144,14 @@ class SessionProtocol:
             (32 bytes a vertex, exact). Cache mode ignores it.
         position_bits: bits per position component when packed (8 to 24;
             None: the server's 20).
+        morph_targets: packed only: ask for each vertex's geomorph target
+            (:attr:`VertexBuffer.morph_targets`), for a renderer that morphs.
     """
 
     def __init__(self, mesh: str, cameras: int, options: dict, *, cache: VertexBufferCache | None = None,
                  ack_window: int = 0, client: str = CLIENT_NAME, cache_mode: dict | None = None,
-                 frame_encoding: str = "ops", vertex_encoding: str = "packed", position_bits: int | None = None):
+                 frame_encoding: str = "ops", vertex_encoding: str = "packed", position_bits: int | None = None,
+                 morph_targets: bool = False):
         if frame_encoding not in FRAME_ENCODINGS:
             raise ValueError(f"frame_encoding {frame_encoding!r}: use one of {', '.join(FRAME_ENCODINGS)}")
         if vertex_encoding not in VERTEX_ENCODINGS:
@@ -153,6 +159,7 @@ class SessionProtocol:
         if position_bits is not None:
             vertexpack.check_position_bits(position_bits)
         self.frame_encoding, self.vertex_encoding, self.position_bits = frame_encoding, vertex_encoding, position_bits
+        self.morph_targets = bool(morph_targets) and vertex_encoding == "packed"
         self.mesh, self.n_cameras, self.options = mesh, cameras, dict(options)
         self.cache, self.ack_window, self.client = cache, ack_window, client
         self.cache_mode = dict(cache_mode) if cache_mode is not None else None
@@ -194,7 +201,8 @@ class SessionProtocol:
         (MeshInfo's; when the buffer travels packed, the key of its decoded form)."""
         if self.vertex_encoding == "packed" and vertex_buffer_hash and self.cache_mode is None:
             vertex_buffer_hash = vertexpack.packed_hash(vertex_buffer_hash,
-                                                        self.position_bits or vertexpack.DEFAULT_POSITION_BITS)
+                                                        self.position_bits or vertexpack.DEFAULT_POSITION_BITS,
+                                                        self.morph_targets)
         if self.vertex is not None and self.vertex.hash == vertex_buffer_hash:
             self._known_hash = vertex_buffer_hash
         elif self.cache is not None and vertex_buffer_hash and self.cache.lookup(vertex_buffer_hash) is not None:
@@ -210,7 +218,7 @@ class SessionProtocol:
                       vertex_buffer_hash=self._known_hash, resume_token=self.token, last_frame_seq=self.last_applied,
                       ack_window=self.ack_window, client=self.client,
                       frame_encoding=FRAME_ENCODINGS[self.frame_encoding],
-                      vertex_encoding=VERTEX_ENCODINGS[self.vertex_encoding])
+                      vertex_encoding=VERTEX_ENCODINGS[self.vertex_encoding], morph_targets=self.morph_targets)
         if self.position_bits is not None:
             msg.position_bits = self.position_bits
         wire.set_cache_options(msg, self.cache_mode)
@@ -374,8 +382,9 @@ class SessionProtocol:
             arrays = wire.read_vertex_payload(self.info.vertex_format, payload)
         except wire.WireError as exc:
             raise ProtocolError(str(exc)) from None
+        morph = arrays.get("morph_target")
         self.vertex = VertexBuffer(key, payload, arrays["position"], arrays["normal"], arrays["texcoord"],
-                                   arrays.get("color"))
+                                   arrays.get("color"), None if morph is None else morph.reshape(-1))
         self.ready = True
 
     def _frame_part(self, frame: pb.Frame, nbytes: int) -> tuple[list, FrameUpdate | None]:

@@ -153,7 +153,7 @@ class Client:
                 ack_window: int = 0, retries: int = 12, timeout: float = 30.0, cache_vertices: int | None = None,
                 cache_strategy: str | None = None, cache_pq_fraction: float | None = None,
                 frame_encoding: str = "ops", vertex_encoding: str = "packed",
-                position_bits: int | None = None) -> "Session":
+                position_bits: int | None = None, morph_targets: bool = False) -> "Session":
         """Open a session and wait for its vertex buffer (from the cache when it holds it).
 
         Options left None take the server's defaults (60 degrees, 1 px,
@@ -181,14 +181,17 @@ class Client:
         ``position_bits`` per position component, default 20: each position
         moves by at most about extent * 2**-bits, SessionInfo's
         vertex_packing.max_position_error says exactly), ``"float32"`` as
-        the mesh holds it. Either way :attr:`Session.vertex` holds float32.
+        the mesh holds it. Either way :attr:`Session.vertex_buffer` holds float32.
+        ``morph_targets`` (packed only) also downloads each vertex's geomorph
+        target, for a renderer that morphs splits and collapses
+        (:class:`caveclod.client.geomorph.Geomorphs`).
         """
         protocol = SessionProtocol(mesh, cameras, refine_options(width, height, fov_y, tolerance_px, cull,
                                                                  backface, max_ops, max_faces),
                                    cache=self.cache, ack_window=ack_window,
                                    cache_mode=cache_mode(cache_vertices, cache_strategy, cache_pq_fraction),
                                    frame_encoding=frame_encoding, vertex_encoding=vertex_encoding,
-                                   position_bits=position_bits)
+                                   position_bits=position_bits, morph_targets=morph_targets)
         session = Session(self, protocol, retries)
         session._open(timeout)
         return session

@@ -98,7 +98,7 @@ def fly(session, view: SessionRenderer, path: str, frames: int, *, fps: float = 
             if update is None:
                 raise FlightError(f"no frame answered pose {last} within {timeout:g} s; the server is overloaded "
                                   "or stuck: check its log")
-            view.apply(update)
+            view.apply(update, now=t)             # geomorphs run on path time
             record.frames.append(update)
             record.nbytes += update.nbytes
             record.diverged += len(update.diverged)
@@ -117,6 +117,6 @@ def fly(session, view: SessionRenderer, path: str, frames: int, *, fps: float = 
                                   "client library's (material -1: the camera's vertex slots)")
         if draw:
             t = time.perf_counter()
-            record.image = view.render(poses, wireframe=wireframe)
+            record.image = view.render(poses, wireframe=wireframe, now=t)
             record.draw_ms = 1000.0 * (time.perf_counter() - t)
         yield record

@@ -54,7 +54,11 @@ def cache_options(args) -> dict:
             check_position_bits(bits)
         except ValueError as exc:
             raise InputError(f"--{str(exc).replace('_', '-')}") from None
-    encoding = {"vertex_encoding": getattr(args, "vertex_encoding", "packed"), "position_bits": bits}
+    morph = getattr(args, "morph_ms", 0.0) or 0.0
+    if morph < 0:
+        raise InputError(f"--morph-ms must be at least 0 (0: no geomorphs), got {morph:g}")
+    encoding = {"vertex_encoding": getattr(args, "vertex_encoding", "packed"), "position_bits": bits,
+                "morph_targets": morph > 0 and getattr(args, "vertex_encoding", "packed") == "packed"}
     if n is None:
         if strategy is not None or fraction is not None:
             raise InputError("--cache-strategy and --cache-pq-fraction need --cache-vertices N (slots per camera)")
@@ -76,7 +80,7 @@ def shrink(image: np.ndarray, width: int = ANIMATION_WIDTH) -> np.ndarray:
 def record(session, out: Path, *, size: tuple[int, int], trajectory: str, frames: int, fps: float = 30.0,
            wireframe: bool = False, verify: bool = True, keep_every: int = 1, progress: bool = True,
            animation: Path | None = None, animation_width: int = ANIMATION_WIDTH,
-           wireframe_still: Path | None = None) -> tuple[dict, list]:
+           wireframe_still: Path | None = None, morph_ms: float = 0.0) -> tuple[dict, list]:
     """Fly ``session`` along ``trajectory`` for ``frames`` frames; write the images into ``out``.
 
     Args:
@@ -87,6 +91,7 @@ def record(session, out: Path, *, size: tuple[int, int], trajectory: str, frames
         animation: where the animation goes (default ``out / "animation.gif"``).
         animation_width: the animation's frames are shrunk to at most this width.
         wireframe_still: also draw the last frame with the wireframe overlay, as a PNG here.
+        morph_ms: geomorph duration (the session opened with ``morph_targets=True``); 0: none.
 
     Returns:
         ``(summary, frames)``: the figures ``render.json`` holds, and every
@@ -99,7 +104,7 @@ def record(session, out: Path, *, size: tuple[int, int], trajectory: str, frames
     latency, ops, nbytes, faces, written, small, draw_ms = [], [], [], [], [], [], []
     verified, inserted = 0, 0
     started = time.perf_counter()
-    with SessionRenderer(session, *size) as view:
+    with SessionRenderer(session, *size, morph_ms=morph_ms) as view:
         for rec in fly(session, view, trajectory, frames, fps=fps, wireframe=wireframe, verify=verify):
             latency += [v for v in rec.latency_ms if v is not None]
             ops.append(rec.operations)
@@ -176,7 +181,7 @@ def main(args) -> int:
             with client.session(mesh, cameras=args.cameras, width=qw, height=qh, fov_y=args.fov,
                                 tolerance_px=args.tolerance, **cache) as session:
                 summary, _ = record(session, out, size=size, trajectory=args.trajectory, frames=args.frames,
-                                 fps=args.fps, wireframe=args.wireframe)
+                                 fps=args.fps, wireframe=args.wireframe, morph_ms=args.morph_ms)
     except SessionEnded as exc:
         raise InputError(f"{args.target}: the session ended: {exc}") from None
     except FlightError as exc:

@@ -18,7 +18,7 @@ import moderngl
 import numpy as np
 
 from . import shaders
-from .buffers import IndexBuffer, UploadStats
+from .buffers import IndexBuffer, UploadStats, slot_runs
 from .camera import Camera, quadrants
 from .context import create_context
 from .slots import SlotVertices
@@ -70,6 +70,10 @@ class Renderer:
             :meth:`write_vertices`, and index buffers hold slot numbers.
         colors: cache mode: whether vertices carry colours (the
             VertexFormat lists ATTRIBUTE_SEMANTIC_COLOR).
+        morph: geomorphs: each camera draws from a position buffer of its
+            own, whose moving vertices :meth:`write_positions` updates
+            (:mod:`caveclod.client.geomorph`); normals, uvs and colours stay
+            shared. Not in cache mode.
 
     Frames go in with :meth:`apply` and :meth:`reset` (and in cache mode
     :meth:`write_vertices`), images come out of :meth:`render`;
@@ -79,7 +83,7 @@ class Renderer:
     def __init__(self, width: int, height: int, vertices, materials, *, cameras: int = 1, bounds=None,
                  ctx: moderngl.Context | None = None, textures: dict | None = None,
                  light=LIGHT, ambient: float = AMBIENT, anisotropy: float = 1.0,
-                 cache_vertices: int | None = None, colors: bool = False):
+                 cache_vertices: int | None = None, colors: bool = False, morph: bool = False):
         # Everything is checked before the first GL object is made.
         _check_size(width, height)
         if not (isinstance(cameras, (int, np.integer)) and 1 <= cameras <= MAX_CAMERAS):
@@ -90,6 +94,9 @@ class Renderer:
         else:
             _check_cache(cache_vertices, vertices, bounds)
             with_colors = bool(colors)
+        if morph and cache_vertices is not None:
+            raise ValueError("geomorphs need the resident vertex buffer; cache mode has none")
+        self.morph = bool(morph)
         self.materials = [str(name) for name in materials]
         if not self.materials:
             raise ValueError("a renderer needs at least one material name")
@@ -111,11 +118,19 @@ class Renderer:
             self._slots = []
             self._vertex_content = self._upload_vertices(vertices)
             self._contents = [self._vertex_content] * self.cameras      # every camera draws the one buffer
+            # (with geomorphs, each its own positions)
         else:
             self._slots = [SlotVertices(self.ctx, self.cache_vertices, with_colors, self.stats)
                            for _ in range(self.cameras)]
             self._vertex_content = []
             self._contents = [slots.content for slots in self._slots]
+        self._positions: list = []                     # geomorphs: each camera's position buffer
+        if self.morph:
+            for c in range(self.cameras):
+                buffer = self.ctx.buffer(np.ascontiguousarray(vertices.positions, np.float32))
+                self._positions.append(buffer)
+                self.stats.vertex_bytes += buffer.size
+                self._contents[c] = [(buffer, "3f", "in_position"), *self._vertex_content[1:]]
         self._textures = self._upload_textures(images, anisotropy)
         light = np.asarray(light, dtype=np.float64)
         for program in self._programs.values():
@@ -160,6 +175,37 @@ class Renderer:
         self._camera_buffers(camera)
         arrays = (positions, normals, uvs) if colors is None else (positions, normals, uvs, colors)
         self._slots[camera].write(slots, arrays, first_slot)
+
+    def write_positions(self, camera: int, vertices, positions) -> None:
+        """Geomorphs: move ``vertices`` (k,) of ``camera`` to ``positions`` (k, 3) (the rows of
+        :meth:`caveclod.client.geomorph.Geomorphs.moving`). Each run of consecutive vertices is one write."""
+        if not self.morph:
+            raise ValueError("write_positions() needs Renderer(..., morph=True)")
+        self._camera_buffers(camera)
+        v = np.asarray(vertices, np.int64)
+        if not len(v):
+            return
+        if v.min() < 0 or v.max() >= self.n_vertices:
+            raise ValueError(f"vertex {int(v.max()) if v.max() >= self.n_vertices else int(v.min())} is outside "
+                             f"the vertex buffer of {self.n_vertices}")
+        order = np.argsort(v, kind="stable")
+        v = v[order]
+        last = np.r_[v[1:] != v[:-1], True]                      # a vertex given twice: the last row wins
+        v, order = v[last], order[last]
+        rows = np.ascontiguousarray(np.asarray(positions, np.float32).reshape(-1, 3)[order])
+        data = rows.reshape(-1).view(np.uint8)
+        runs = slot_runs(v, 0, len(v))
+        for first, a, b in runs:
+            self._positions[camera].write(data[a * 12: b * 12], offset=first * 12)
+        self.stats.vertex_writes += len(runs)
+        self.stats.vertex_bytes += rows.nbytes
+
+    def camera_positions(self, camera: int) -> np.ndarray:
+        """Geomorphs: (d, 3) float32 the positions ``camera`` draws, read back from the GPU."""
+        if not self.morph:
+            raise ValueError("camera_positions() needs Renderer(..., morph=True)")
+        self._camera_buffers(camera)
+        return np.frombuffer(self._positions[camera].read(), np.float32).reshape(-1, 3)
 
     def slot_vertices(self, camera: int) -> Vertices:
         """Cache mode: the camera's N slots read back from the GPU (unwritten slots are undefined)."""
@@ -236,6 +282,8 @@ class Renderer:
                 buffer.release()
         for slots in self._slots:
             slots.release()
+        for buffer in self._positions:
+            buffer.release()
         self._release_framebuffer()
         for resource in [*self._textures, *(buffer for buffer, *_ in self._vertex_content), *self._programs.values()]:
             resource.release()

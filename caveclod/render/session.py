@@ -15,6 +15,13 @@ The client library checks every frame's CRCs; the GPU buffers receive the
 exact slot writes it applied, so after each frame they hold the same
 triangles (:meth:`SessionRenderer.mismatches` reads them back to prove it).
 
+With geomorphs (``morph_ms > 0`` and a session opened with
+``morph_targets=True``), splits and collapses change the shape over
+``morph_ms`` instead of popping (:mod:`caveclod.client.geomorph`): the GPU
+then holds each camera's *display* buffers (the client's, with the
+triangles of collapses still under way) and its own positions, and
+:meth:`SessionRenderer.render` takes the time to draw them at.
+
 A cache-mode session (``cache_vertices=N``) has no vertex buffer: the
 renderer gets N vertex slots per camera, and each frame's vertex writes go
 into them before its index writes, as the client library applies them.
@@ -24,6 +31,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from ..client.geomorph import Geomorphs, points_of
+from ..wire import Surface
 from .camera import Camera
 from .renderer import Renderer, Vertices
 
@@ -38,11 +47,14 @@ class SessionRenderer:
             cache mode whose SessionInfo has.
         width, height: image size in pixels; the cameras share it as quadrants.
         fov_y: vertical field of view in degrees (default: the session's).
+        morph_ms: geomorph duration; 0 (or a session without morph targets): none.
         **renderer_options: passed to :class:`Renderer` (``ctx``, ``textures``, ...).
     """
 
-    def __init__(self, session, width: int, height: int, *, fov_y: float | None = None, **renderer_options):
+    def __init__(self, session, width: int, height: int, *, fov_y: float | None = None, morph_ms: float = 0.0,
+                 **renderer_options):
         self.session = session
+        self.morphs = None                     # per camera: Geomorphs, when morphing
         info = session.info
         self.fov_y = float(fov_y if fov_y is not None else (info.options.fov_y_deg or 60.0))
         lo = (info.mesh.bounds_min.x, info.mesh.bounds_min.y, info.mesh.bounds_min.z)
@@ -54,8 +66,14 @@ class SessionRenderer:
                                      cache_vertices=int(info.cache_vertices), colors=colors, **renderer_options)
         else:
             vb = session.vertex_buffer
+            morph = morph_ms > 0 and vb.morph_targets is not None
             self.renderer = Renderer(width, height, Vertices(vb.positions, vb.normals, vb.uvs, vb.colors), names,
-                                     cameras=int(info.cameras), bounds=(lo, hi), **renderer_options)
+                                     cameras=int(info.cameras), bounds=(lo, hi), morph=morph, **renderer_options)
+            if morph:
+                points = points_of(vb.positions, vb.morph_targets)
+                self.morphs = [Geomorphs(vb.positions, vb.morph_targets, len(names), morph_ms / 1000.0, points)
+                               for _ in range(int(info.cameras))]
+        self.time = 0.0                        # the clock frames are applied at (apply's `now`)
         self._epoch = session.protocol.epoch
         self._replay()
 
@@ -63,8 +81,11 @@ class SessionRenderer:
     def cameras(self) -> int:
         return self.renderer.cameras
 
-    def apply(self, update) -> None:
-        """Apply one :class:`caveclod.client.FrameUpdate` (None: nothing) to the GPU buffers."""
+    def apply(self, update, now: float | None = None) -> None:
+        """Apply one :class:`caveclod.client.FrameUpdate` (None: nothing) to the GPU buffers; ``now``:
+        seconds on the geomorphs' clock (default: the last time given, or 0)."""
+        if now is not None:
+            self.time = float(now)
         if self.session.protocol.epoch != self._epoch:
             # The server started the session over (its token expired during
             # a reconnect): the client's buffers were emptied, so are ours.
@@ -78,23 +99,46 @@ class SessionRenderer:
                 self.renderer.reset(c)
             for w in cam.vertex_writes:          # cache mode: before the index writes that use them
                 self.renderer.write_vertices(c, w.slots, *w.blocks)
-            for s in cam.surfaces:
-                self.renderer.apply(c, s.material, s.count, s.tris, s.slots)
+            if self.morphs is None:
+                for s in cam.surfaces:
+                    self.renderer.apply(c, s.material, s.count, s.tris, s.slots)
+            else:
+                self._display(c, self.morphs[c].apply(cam.surfaces, cam.keyframe, self.time))
+
+    def advance(self, now: float) -> None:
+        """Geomorphs: bring every camera's display and positions to time ``now`` (before drawing)."""
+        if self.morphs is None:
+            return
+        for c, morphs in enumerate(self.morphs):
+            self._display(c, morphs.tick(now))
+            self.renderer.write_positions(c, *morphs.moving(now))
+
+    def _display(self, camera: int, changes) -> None:
+        for m, count, slots, tris in changes.writes:
+            self.renderer.apply(camera, m, count, tris, slots)
 
     def views(self, poses) -> list[Camera]:
         """One :class:`Camera` per pose ``(eye, target, up)``, with the session's field of view."""
         return [Camera(p[0], p[1], p[2], self.fov_y) for p in poses]
 
-    def render(self, poses, wireframe: bool = False) -> np.ndarray:
-        """(height, width, 3) uint8 image of every camera at its pose (one per camera)."""
+    def render(self, poses, wireframe: bool = False, now: float | None = None) -> np.ndarray:
+        """(height, width, 3) uint8 image of every camera at its pose (one per camera), the geomorphs
+        at ``now`` (default: the time of the last frame applied)."""
+        self.advance(self.time if now is None else float(now))
         return self.renderer.render(self.views(poses), wireframe=wireframe)
 
     def mismatches(self) -> list[tuple[int, int]]:
-        """(camera, material) pairs whose GPU buffer, read back, differs from the client library's;
+        """(camera, material) pairs whose GPU buffer, read back, differs from the client library's
+        (with geomorphs: from the display, whose logical copy differs from the client library's);
         in cache mode also (camera, -1) where a slot the client holds differs on the GPU."""
         protocol = self.session.protocol
-        out = [(c, m) for c in range(self.cameras) for m in range(len(self.renderer.materials))
-               if not np.array_equal(self.renderer.index_buffer(c, m), protocol.buffers.buffer(c, m))]
+        if self.morphs is None:
+            out = [(c, m) for c in range(self.cameras) for m in range(len(self.renderer.materials))
+                   if not np.array_equal(self.renderer.index_buffer(c, m), protocol.buffers.buffer(c, m))]
+        else:                # the GPU holds the display; the morphs' own copy is the client's buffer
+            out = [(c, m) for c in range(self.cameras) for m in range(len(self.renderer.materials))
+                   if not np.array_equal(self.renderer.index_buffer(c, m), self.morphs[c].display(m))
+                   or not np.array_equal(self.morphs[c].rows[m], protocol.buffers.buffer(c, m))]
         if protocol.slots is not None:
             for c in range(self.cameras):
                 held = protocol.slots[c].held          # other slots are stale on both sides: never drawn
@@ -124,7 +168,11 @@ class SessionRenderer:
             if slots is not None and slots[c].n_held:
                 held = np.flatnonzero(slots[c].held)
                 self.renderer.write_vertices(c, held, *(a[held] for a in slots[c].arrays.values()))
+            held = []
             for m in range(len(self.renderer.materials)):
                 buf = buffers.buffer(c, m)
                 if len(buf):
                     self.renderer.apply(c, m, len(buf), buf, None, 0)
+                    held.append(Surface(m, len(buf), np.arange(len(buf)), buf))
+            if self.morphs is not None:           # what is held now appears as it is
+                self.morphs[c].apply(held, True, self.time)

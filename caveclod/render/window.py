@@ -121,7 +121,7 @@ def main(args) -> int:
             mesh = pick_mesh(client, args.mesh, args.target)
             with client.session(mesh, cameras=args.cameras, width=qw, height=qh, fov_y=args.fov,
                                 tolerance_px=args.tolerance, **cache) as session:
-                view = SessionRenderer(session, *size, ctx=ctx)
+                view = SessionRenderer(session, *size, ctx=ctx, morph_ms=args.morph_ms)
                 drawn, image = _loop(glfw, window, ctx, session, view, args)
                 if args.screenshot and image is not None:
                     save_png(args.screenshot, image)
@@ -187,7 +187,8 @@ def _loop(glfw, window, ctx, session, view, args) -> tuple[int, object]:
                     session.send_pose(c, eye, target, up)
             sent_at, sent_pose = now, poses[0]
         while (update := session.next_frame(timeout=0)) is not None:
-            view.apply(update)
+            view.apply(update, now=now - t0)
+        view.advance(now - t0)
         view.renderer.draw(view.views(poses), wireframe=state["wireframe"], target=ctx.screen)
         drawn += 1
         if args.screenshot and (args.frames is None or drawn == args.frames):

@@ -42,7 +42,7 @@ class ServedMesh:
         self._lock = threading.Lock()
         self._crc: int | None = None
         self._info: pb.MeshInfo | None = None
-        self._packed: dict = {}             # position_bits -> (Packed, VertexPacking message)
+        self._packed: dict = {}             # (position_bits, morph) -> (Packed, VertexPacking, VertexFormat)
 
     @cached_property
     def blocks(self) -> list[wire.VertexBlock]:
@@ -91,27 +91,36 @@ class ServedMesh:
         """The vertex payload as VertexChunk ServerMessages."""
         return wire.vertex_chunks(self.blocks, max_bytes)
 
-    def packed(self, position_bits: int):
-        """(Packed, VertexPacking message) of the vertex buffer at ``position_bits`` (caveclod.vertexpack).
+    @cached_property
+    def morph_targets(self) -> np.ndarray:
+        """(d,) uint32 geomorph targets (:mod:`caveclod.refine.morphtargets`; computed once, shared)."""
+        from ..refine.morphtargets import morph_targets
+        return morph_targets(self.mesh)
 
-        Packed on the first Open that asks (0.1-0.3 s per million vertices,
-        off the event loop) and kept: a few bytes per vertex per bits value.
+    def packed(self, position_bits: int, morph: bool = False) -> tuple:
+        """(Packed, VertexPacking, VertexFormat) of the vertex buffer packed at ``position_bits``,
+        with morph targets when ``morph`` (caveclod.vertexpack).
+
+        Packed on the first Open that asks (0.2-0.5 s per million vertices,
+        off the event loop) and kept: a few bytes per vertex per variant.
         """
         from .. import vertexpack
+        key = (position_bits, bool(morph))
         with self._lock:
-            found = self._packed.get(position_bits)
+            found = self._packed.get(key)
         if found is None:
             m = self.mesh
             packed = vertexpack.pack(m.vertex_positions, m.vertex_normals, m.vertex_uvs, m.vertex_colors,
-                                     position_bits)
-            found = (packed, vertexpack.to_message(packed, m.vertex_buffer_hash))
+                                     position_bits, self.morph_targets if morph else None)
+            found = (packed, vertexpack.to_message(packed, m.vertex_buffer_hash),
+                     vertexpack.vertex_format(self.blocks, morph))
             with self._lock:        # two first Opens may pack at once: the same bytes, keep one
-                found = self._packed.setdefault(position_bits, found)
+                found = self._packed.setdefault(key, found)
         return found
 
-    def packed_chunks(self, position_bits: int, max_bytes: int = wire.MAX_CHUNK_BYTES):
+    def packed_chunks(self, position_bits: int, morph: bool = False, max_bytes: int = wire.MAX_CHUNK_BYTES):
         """The packed vertex buffer as VertexChunk ServerMessages (``packed`` first)."""
-        data = self.packed(position_bits)[0].data
+        data = self.packed(position_bits, morph)[0].data
         return wire.vertex_chunks([wire.VertexBlock(0, np.frombuffer(data, np.uint8))], max_bytes)
 
 

@@ -97,12 +97,13 @@ class LodService:
 
     def _open(self, opened: pb.Open) -> tuple:
         """(session, generation, resumed, packed) of an Open, in a thread: ``packed`` is
-        ServedMesh.packed's (Packed, VertexPacking) when the buffer travels packed, else None
-        (packing takes 0.1-0.3 s per million vertices, once per mesh and bits)."""
+        ServedMesh.packed's (Packed, VertexPacking, VertexFormat) when the buffer travels packed,
+        else None (packing takes 0.2-0.5 s per million vertices, once per mesh and variant)."""
         session, generation, resumed = self.sessions.open(opened)
         bits = vertexpack.requested_bits(opened)       # None in cache mode; its range checked by open
         try:
-            packed = None if bits is None or session.cache is not None else session.served.packed(bits)
+            packed = None if bits is None or session.cache is not None else \
+                session.served.packed(bits, opened.morph_targets)
         except BaseException:
             self.sessions.stream_ended(session, generation, End(grpc.StatusCode.INTERNAL,
                                                                 "packing the vertex buffer failed", not resumed))
@@ -122,13 +123,14 @@ class LodService:
     def _start(self, session, opened: pb.Open, resumed: bool, packed: tuple | None):
         """SessionInfo, then the vertex chunks unless the client holds the buffer (serialized).
 
-        ``packed``: (Packed, VertexPacking) when the buffer travels packed."""
+        ``packed``: (Packed, VertexPacking, VertexFormat) when the buffer travels packed."""
         served = session.served
         # In cache mode the client holds slots, never the buffer: no chunks.
         key = served.mesh.vertex_buffer_hash if packed is None else packed[1].vertex_buffer_hash
         cached = session.cache is None and opened.vertex_buffer_hash == key
         info = wire.session_info(
-            token=session.token, resumed=resumed, mesh=served.info, vertex_format=served.vertex_format,
+            token=session.token, resumed=resumed, mesh=served.info,
+            vertex_format=served.vertex_format if packed is None else packed[2],
             vertex_buffer_cached=cached,
             vertex_payload_crc32=served.payload_crc32 if packed is None else packed[0].decoded_crc32,
             view_options=session.view_options, budgets=session.budgets, cameras=session.n_cameras,
@@ -142,7 +144,8 @@ class LodService:
         self.metrics.bytes_out(len(data))
         yield data
         if not cached and session.cache is None:
-            chunks = served.vertex_chunks() if packed is None else served.packed_chunks(packed[1].position_bits)
+            chunks = served.vertex_chunks() if packed is None else \
+                served.packed_chunks(packed[1].position_bits, packed[0].packing.has_morph)
             for chunk in chunks:
                 data = chunk.SerializeToString()
                 self.metrics.bytes_out(len(data))

@@ -46,12 +46,14 @@ class AttributeSemantic(int, metaclass=_enum_type_wrapper.EnumTypeWrapper):
     ATTRIBUTE_SEMANTIC_NORMAL: _ClassVar[AttributeSemantic]
     ATTRIBUTE_SEMANTIC_TEXCOORD: _ClassVar[AttributeSemantic]
     ATTRIBUTE_SEMANTIC_COLOR: _ClassVar[AttributeSemantic]
+    ATTRIBUTE_SEMANTIC_MORPH_TARGET: _ClassVar[AttributeSemantic]
 
 class ScalarType(int, metaclass=_enum_type_wrapper.EnumTypeWrapper):
     __slots__ = ()
     SCALAR_TYPE_UNSPECIFIED: _ClassVar[ScalarType]
     SCALAR_TYPE_FLOAT32: _ClassVar[ScalarType]
     SCALAR_TYPE_UINT8: _ClassVar[ScalarType]
+    SCALAR_TYPE_UINT32: _ClassVar[ScalarType]
 VERTEX_ENCODING_UNSPECIFIED: VertexEncoding
 VERTEX_ENCODING_FLOAT32: VertexEncoding
 VERTEX_ENCODING_PACKED: VertexEncoding
@@ -74,9 +76,11 @@ ATTRIBUTE_SEMANTIC_POSITION: AttributeSemantic
 ATTRIBUTE_SEMANTIC_NORMAL: AttributeSemantic
 ATTRIBUTE_SEMANTIC_TEXCOORD: AttributeSemantic
 ATTRIBUTE_SEMANTIC_COLOR: AttributeSemantic
+ATTRIBUTE_SEMANTIC_MORPH_TARGET: AttributeSemantic
 SCALAR_TYPE_UNSPECIFIED: ScalarType
 SCALAR_TYPE_FLOAT32: ScalarType
 SCALAR_TYPE_UINT8: ScalarType
+SCALAR_TYPE_UINT32: ScalarType
 
 class ClientMessage(_message.Message):
     __slots__ = ("open", "pose", "ack", "keyframe_request", "close")
@@ -93,7 +97,7 @@ class ClientMessage(_message.Message):
     def __init__(self, open: _Optional[_Union[Open, _Mapping]] = ..., pose: _Optional[_Union[CameraPose, _Mapping]] = ..., ack: _Optional[_Union[Ack, _Mapping]] = ..., keyframe_request: _Optional[_Union[KeyframeRequest, _Mapping]] = ..., close: _Optional[_Union[Close, _Mapping]] = ...) -> None: ...
 
 class Open(_message.Message):
-    __slots__ = ("mesh", "options", "cameras", "vertex_buffer_hash", "resume_token", "last_frame_seq", "ack_window", "client", "cache_vertices", "cache_strategy", "cache_pq_fraction", "frame_encoding", "vertex_encoding", "position_bits")
+    __slots__ = ("mesh", "options", "cameras", "vertex_buffer_hash", "resume_token", "last_frame_seq", "ack_window", "client", "cache_vertices", "cache_strategy", "cache_pq_fraction", "frame_encoding", "vertex_encoding", "position_bits", "morph_targets")
     MESH_FIELD_NUMBER: _ClassVar[int]
     OPTIONS_FIELD_NUMBER: _ClassVar[int]
     CAMERAS_FIELD_NUMBER: _ClassVar[int]
@@ -108,6 +112,7 @@ class Open(_message.Message):
     FRAME_ENCODING_FIELD_NUMBER: _ClassVar[int]
     VERTEX_ENCODING_FIELD_NUMBER: _ClassVar[int]
     POSITION_BITS_FIELD_NUMBER: _ClassVar[int]
+    MORPH_TARGETS_FIELD_NUMBER: _ClassVar[int]
     mesh: str
     options: RefineOptions
     cameras: int
@@ -122,7 +127,8 @@ class Open(_message.Message):
     frame_encoding: FrameEncoding
     vertex_encoding: VertexEncoding
     position_bits: int
-    def __init__(self, mesh: _Optional[str] = ..., options: _Optional[_Union[RefineOptions, _Mapping]] = ..., cameras: _Optional[int] = ..., vertex_buffer_hash: _Optional[str] = ..., resume_token: _Optional[str] = ..., last_frame_seq: _Optional[int] = ..., ack_window: _Optional[int] = ..., client: _Optional[str] = ..., cache_vertices: _Optional[int] = ..., cache_strategy: _Optional[_Union[CacheStrategy, str]] = ..., cache_pq_fraction: _Optional[float] = ..., frame_encoding: _Optional[_Union[FrameEncoding, str]] = ..., vertex_encoding: _Optional[_Union[VertexEncoding, str]] = ..., position_bits: _Optional[int] = ...) -> None: ...
+    morph_targets: bool
+    def __init__(self, mesh: _Optional[str] = ..., options: _Optional[_Union[RefineOptions, _Mapping]] = ..., cameras: _Optional[int] = ..., vertex_buffer_hash: _Optional[str] = ..., resume_token: _Optional[str] = ..., last_frame_seq: _Optional[int] = ..., ack_window: _Optional[int] = ..., client: _Optional[str] = ..., cache_vertices: _Optional[int] = ..., cache_strategy: _Optional[_Union[CacheStrategy, str]] = ..., cache_pq_fraction: _Optional[float] = ..., frame_encoding: _Optional[_Union[FrameEncoding, str]] = ..., vertex_encoding: _Optional[_Union[VertexEncoding, str]] = ..., position_bits: _Optional[int] = ..., morph_targets: _Optional[bool] = ...) -> None: ...
 
 class RefineOptions(_message.Message):
     __slots__ = ("viewport_width", "viewport_height", "fov_y_deg", "tolerance_px", "cull", "backface", "max_ops", "max_faces")

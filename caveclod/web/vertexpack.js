@@ -8,6 +8,7 @@
 export class PackedVertexError extends Error {}
 
 const COLOR = 4; // AttributeSemantic.ATTRIBUTE_SEMANTIC_COLOR
+const MORPH_TARGET = 5; // AttributeSemantic.ATTRIBUTE_SEMANTIC_MORPH_TARGET
 
 async function inflate(bytes) {
   // zlib format (RFC 1950): the Compression Streams API's "deflate".
@@ -39,12 +40,13 @@ function decodeStream(raw, s, d, f, out, stride, offset) {
 export async function unpackVertices(packing, format, packed) {
   const d = Number(format.vertexCount);
   const hasColor = format.attributes.some((a) => a.semantic === COLOR);
-  const k = hasColor ? 11 : 7;
+  const hasMorph = format.attributes.some((a) => a.semantic === MORPH_TARGET);
+  const k = 7 + (hasColor ? 4 : 0) + (hasMorph ? 1 : 0);
   const raw = await inflate(packed);
   if (raw.length !== 4 * d * k) {
     throw new PackedVertexError(`the packed vertex buffer inflates to ${raw.length} bytes where ${d} vertices need ${4 * d * k}; it is damaged: reload the page`);
   }
-  const out = new Uint8Array(d * (32 + (hasColor ? 4 : 0)));
+  const out = new Uint8Array(d * (32 + (hasColor ? 4 : 0) + (hasMorph ? 4 : 0)));
   const pos = new Float32Array(out.buffer, 0, 3 * d);
   const nrm = new Float32Array(out.buffer, 12 * d, 3 * d);
   const uv = new Float32Array(out.buffer, 24 * d, 2 * d);
@@ -72,6 +74,17 @@ export async function unpackVertices(packing, format, packed) {
   if (hasColor) {
     const col = new Uint8Array(out.buffer, 32 * d, 4 * d);
     for (let c = 0; c < 4; c++) decodeStream(raw, 7 + c, d, (q) => q, col, 4, c);
+  }
+  if (hasMorph) {
+    // The target's index minus the vertex's own; out of range: damaged (the CRC check says so too).
+    const morph = new Uint32Array(out.buffer, (32 + (hasColor ? 4 : 0)) * d, d);
+    const rel = new Int32Array(d);
+    decodeStream(raw, k - 1, d, (q) => q, rel, 1, 0);
+    for (let i = 0; i < d; i++) {
+      const t = rel[i] + i;
+      if (t < 0 || t >= d) throw new PackedVertexError("the packed vertex buffer's morph targets fall outside the buffer; it is damaged: reload the page");
+      morph[i] = t;
+    }
   }
   return out;
 }

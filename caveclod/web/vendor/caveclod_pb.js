@@ -171,6 +171,7 @@
                 Open.prototype.frameEncoding = 0;
                 Open.prototype.vertexEncoding = 0;
                 Open.prototype.positionBits = null;
+                Open.prototype.morphTargets = false;
     
                 var $oneOfFields;
     
@@ -227,6 +228,8 @@
                         writer.uint32(104).int32(message.vertexEncoding);
                     if (message.positionBits != null && $Object.hasOwnProperty.call(message, "positionBits"))
                         writer.uint32(112).uint32(message.positionBits);
+                    if (message.morphTargets != null && $Object.hasOwnProperty.call(message, "morphTargets") && message.morphTargets !== false)
+                        writer.uint32(120).bool(message.morphTargets);
                     if (message.$unknowns != null && $Object.hasOwnProperty.call(message, "$unknowns"))
                         for (var i = 0; i < message.$unknowns.length; ++i)
                             writer.raw(message.$unknowns[i]);
@@ -375,6 +378,15 @@
                                     break;
                                 message.positionBits = reader.uint32();
                                 message._positionBits = "positionBits";
+                                continue;
+                            }
+                        case 15: {
+                                if (wireType !== 0)
+                                    break;
+                                if (value = reader.bool())
+                                    message.morphTargets = value;
+                                else
+                                    delete message.morphTargets;
                                 continue;
                             }
                         }
@@ -2403,6 +2415,7 @@
                 values[valuesById[2] = "ATTRIBUTE_SEMANTIC_NORMAL"] = 2;
                 values[valuesById[3] = "ATTRIBUTE_SEMANTIC_TEXCOORD"] = 3;
                 values[valuesById[4] = "ATTRIBUTE_SEMANTIC_COLOR"] = 4;
+                values[valuesById[5] = "ATTRIBUTE_SEMANTIC_MORPH_TARGET"] = 5;
                 return values;
             })();
     
@@ -2411,6 +2424,7 @@
                 values[valuesById[0] = "SCALAR_TYPE_UNSPECIFIED"] = 0;
                 values[valuesById[1] = "SCALAR_TYPE_FLOAT32"] = 1;
                 values[valuesById[2] = "SCALAR_TYPE_UINT8"] = 2;
+                values[valuesById[3] = "SCALAR_TYPE_UINT32"] = 3;
                 return values;
             })();
     

@@ -1,0 +1,204 @@
+"""Geomorphs: morph targets from the hierarchy, the client's ramps, and the renderer drawing them.
+
+The property that matters: at the instant of a frame that splits, the
+surface drawn with the new vertices at their ramps' start is the surface
+drawn just before (the split does not show), and once every ramp is over the
+surface is exactly the mesh the server sent.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+import caveclod
+from caveclod.client.geomorph import Geomorphs
+from caveclod.kernels.nearest import build_bvh, nearest_dist2
+from caveclod.refine.morphtargets import morph_targets
+from caveclod.wire import Surface
+
+import meshes
+
+SAMPLES = np.array([[1, 1, 1], [4, 1, 1], [1, 4, 1], [1, 1, 4]], np.float64) / np.array([[3], [6], [6], [6]])
+
+
+def _keyframe(cam) -> list:
+    return [Surface(m, int(cam.cnt[m]), np.arange(cam.cnt[m]), cam.index_buffer(m).copy())
+            for m in range(cam.n_materials)]
+
+
+def _drawn(cam, morphs, now):
+    """(V (d, 3) float64 drawn positions, T (k, 3) int64 drawn triangles) of the camera at ``now``."""
+    if morphs is None:
+        tris = [np.asarray(t, np.int64).reshape(-1, 3) for t in cam.triangles().values()]
+        return np.asarray(cam.mesh.vertex_positions, np.float64), np.concatenate(tris)
+    tris = np.concatenate([morphs.display(m).astype(np.int64) for m in range(morphs.materials)])
+    return morphs.drawn_positions(now), tris
+
+
+def _distance(a, b) -> float:
+    """Largest distance from sample points of surface ``a`` to surface ``b``."""
+    (Va, Ta), (Vb, Tb) = a, b
+    pts = np.einsum("sc,kcd->ksd", SAMPLES, Va[Ta]).reshape(-1, 3)
+    return float(np.sqrt(nearest_dist2(pts, Vb, Tb, *build_bvh(Vb, Tb)).max()))
+
+
+def _zoom(mesh, k: int, frames: int):
+    """Views flying straight down towards the mesh: refinement only splits."""
+    lo, hi = mesh.bounds()
+    centre = (lo + hi) / 2
+    ext = float(np.linalg.norm(hi - lo))
+    for f in range(frames):
+        eye = centre + np.array([0.3, -0.4, 1.0]) * ext * (3.0 - 2.6 * f / frames)
+        yield caveclod.View(eye=tuple(eye), target=tuple(centre), up=(0.0, 0.0, 1.0), width=640, height=480,
+                            tolerance_px=2.0, cull=False)
+
+
+def _surfaces(delta) -> list:
+    return [Surface(m, d.count, d.slots, d.tris) for m, d in delta.surfaces.items()]
+
+
+def _mesh(source):
+    if source == "sphere":
+        return caveclod.build(meshes.uv_sphere(count=(48, 24)))
+    return caveclod.build(source, size=48)
+
+
+@pytest.mark.parametrize("source", ["rough", "scan", "sphere"])
+def test_a_split_starts_inside_the_surface_drawn_before_and_ends_at_the_mesh_sent(source):
+    mesh = _mesh(source)
+    ext = float(np.linalg.norm(np.ptp(mesh.vertex_positions, axis=0)))
+    cam = mesh.new_camera()
+    morphs = Geomorphs(mesh.vertex_positions, morph_targets(mesh), cam.n_materials, duration=0.5)
+    morphs.apply(_keyframe(cam), True, 0.0)
+    grown = 0
+    for f, view in enumerate(_zoom(mesh, 0, 24)):
+        now = f * 0.1                                   # a frame every 0.1 s: several morphs overlap
+        morphs.tick(now)
+        before = _drawn(cam, morphs, now)
+        morphs.apply(_surfaces(cam.update(view)), False, now)
+        after = _drawn(cam, morphs, now)
+        grown += len(morphs.active)
+        # The new triangles lie in the old surface at the frame's instant, and the old in the new.
+        assert _distance(after, before) <= 1e-5 * ext and _distance(before, after) <= 1e-5 * ext, f
+    assert grown > 100, "the zoom must split"
+    # Every morph over: the drawn surface is the mesh the server sent, vertex for vertex.
+    morphs.tick(now + 0.5)
+    assert not morphs.active
+    for m in range(cam.n_materials):
+        assert np.array_equal(morphs.display(m), cam.index_buffer(m))
+    assert np.array_equal(morphs.drawn_positions(now + 0.5), mesh.vertex_positions.astype(np.float64))
+
+
+@pytest.mark.parametrize("source", ["rough", "scan"])
+def test_a_flight_with_collapses_jumps_less_and_ends_at_the_mesh_sent(source):
+    """Splits and collapses: the display is always made of valid triangles, the morphs' copy of the
+    buffers is the camera's, the surface jumps far less at frames than without morphs, and when the
+    morphs are over the display is the camera's buffers exactly."""
+    from caveclod.paths import flyover
+    mesh = _mesh(source)
+    lo, hi = mesh.bounds()
+    jumps = {}
+    for duration in (None, 0.3):
+        cam = mesh.new_camera()
+        morphs = None if duration is None else Geomorphs(mesh.vertex_positions, morph_targets(mesh),
+                                                         cam.n_materials, duration)
+        if morphs is not None:
+            morphs.apply(_keyframe(cam), True, 0.0)
+        worst = []
+        for f in range(90):
+            now = f / 30
+            view = caveclod.View.from_pose(flyover(lo, hi, 0, f / 1.5), tolerance_px=2.0)
+            if morphs is not None:
+                morphs.tick(now)
+            before = _drawn(cam, morphs, now)
+            delta = cam.update(view)
+            if morphs is not None:
+                morphs.apply(_surfaces(delta), False, now)
+                for m in range(cam.n_materials):
+                    assert np.array_equal(morphs.rows[m], cam.index_buffer(m))
+                    shown = morphs.display(m)
+                    assert len(shown) >= cam.cnt[m] and (shown < len(mesh.vertex_positions)).all()
+            after = _drawn(cam, morphs, now)
+            worst.append(max(_distance(after, before), _distance(before, after)))
+        jumps[duration] = np.asarray(worst)
+        if morphs is not None:
+            morphs.tick(now + duration)
+            assert not morphs.active
+            for m in range(cam.n_materials):
+                assert np.array_equal(morphs.display(m), cam.index_buffer(m))
+    plain, morphed = jumps[None], jumps[0.3]
+    assert plain.max() > 0, "the flight must change the mesh"
+    assert morphed.max() <= 0.5 * plain.max() and np.percentile(morphed, 90) <= 0.5 * np.percentile(plain, 90)
+
+
+def test_refcounts_follow_the_camera_and_keyframes_start_over():
+    from caveclod.paths import flyover
+    mesh = caveclod.build("rough", size=32)
+    cam = mesh.new_camera()
+    morphs = Geomorphs(mesh.vertex_positions, morph_targets(mesh), cam.n_materials, duration=0.2)
+    morphs.apply(_keyframe(cam), True, 0.0)
+    lo, hi = mesh.bounds()
+    for f in range(60):                                 # splits and collapses
+        view = caveclod.View.from_pose(flyover(lo, hi, 0, f / 2), tolerance_px=1.0)
+        morphs.apply(_surfaces(cam.update(view)), False, f / 30)
+        used = np.concatenate([t.reshape(-1) for t in cam.triangles().values()]).astype(np.int64)
+        assert np.array_equal(morphs.refs, np.bincount(used, minlength=len(morphs.refs)))
+    assert morphs.active, "a flight at 30 Hz with 0.2 s morphs has some under way"
+    ch = morphs.apply(_keyframe(cam), True, 2.0)        # a keyframe: the camera starts over
+    assert ch.reset and not morphs.active
+    for m in range(cam.n_materials):
+        assert np.array_equal(morphs.display(m), cam.index_buffer(m))
+    moved, where = morphs.moving(2.0)                   # what moved goes home
+    assert np.array_equal(where, mesh.vertex_positions[moved])
+    assert len(morphs.moving(2.5)[0]) == 0
+
+
+def test_bad_input_is_refused():
+    p = np.zeros((4, 3), np.float32)
+    with pytest.raises(ValueError, match="positive duration"):
+        Geomorphs(p, np.arange(4), 1, 0.0)
+    with pytest.raises(ValueError, match="indices into the vertex buffer"):
+        Geomorphs(p, np.array([0, 1, 2, 9]), 1, 0.5)
+
+
+# -- the renderer -------------------------------------------------------------------------
+
+def test_the_renderer_draws_the_display_and_the_moving_positions(gl):
+    """Mid-morph the camera's positions on the GPU are the morphs'; once the morphs are over, the image is
+    the image of a renderer without geomorphs, pixel for pixel."""
+    from caveclod.render import Renderer, Vertices
+    mesh = caveclod.build("rough", size=32)
+    lo, hi = mesh.bounds()
+    verts = Vertices(mesh.vertex_positions, mesh.vertex_normals, mesh.vertex_uvs)
+    cam = mesh.new_camera()
+    morphs = Geomorphs(mesh.vertex_positions, morph_targets(mesh), cam.n_materials, duration=1.0)
+    centre = (lo + hi) / 2
+    pose = (tuple(centre + (hi - lo) * [0.2, -0.9, 0.9]), tuple(centre), (0.0, 0.0, 1.0))
+    with Renderer(160, 120, verts, mesh.materials, bounds=(lo, hi), ctx=gl, morph=True) as r, \
+            Renderer(160, 120, verts, mesh.materials, bounds=(lo, hi), ctx=gl) as plain:
+        first = _keyframe(cam)
+        for target in (r, plain):
+            for s in first:
+                target.apply(0, s.material, s.count, s.tris, s.slots)
+        morphs.apply(first, True, 0.0)
+        surfaces = _surfaces(cam.update(caveclod.View.from_pose(pose, width=160, height=120, tolerance_px=0.5)))
+        for s in surfaces:
+            plain.apply(0, s.material, s.count, s.tris, s.slots)
+        images = []
+        for t, ch in ((10.0, morphs.apply(surfaces, False, 10.0)), (10.5, None), (11.0, None)):
+            ch = ch if ch is not None else morphs.tick(t)
+            for m, count, slots, tris in ch.writes:
+                r.apply(0, m, count, tris, slots)
+            r.write_positions(0, *morphs.moving(t))
+            assert np.array_equal(r.camera_positions(0), morphs.drawn_positions(t).astype(np.float32))
+            for m in range(cam.n_materials):
+                assert np.array_equal(r.index_buffer(0, m), morphs.display(m))
+            images.append(r.render([pose]))
+        start, middle, done = images
+        want = plain.render([pose])
+        assert np.array_equal(done, want)
+        assert not np.array_equal(middle, want) and not np.array_equal(middle, start)
+    with pytest.raises(ValueError, match="morph=True"):
+        with Renderer(16, 16, verts, mesh.materials, bounds=(lo, hi), ctx=gl) as plain:
+            plain.write_positions(0, [0], [[0, 0, 0]])
