@@ -76,6 +76,36 @@ def test_gpu_buffers_equal_the_client_library_after_every_frame(server, gl, tmp_
             view.release()
 
 
+def test_geomorphs_through_a_session_run_on_path_time_and_mirror_the_display(server, gl, tmp_path):
+    """A flight with --morph-ms: morphs are under way between frames (on the path's clock, 0.1 s a
+    frame here), the GPU holds the display buffers and the camera's moving positions, and once the
+    morphs are over the GPU holds the client library's buffers exactly."""
+    with Client(f"127.0.0.1:{server.port}", cache_dir=tmp_path) as client:
+        with client.session("terrain", cameras=2, width=160, height=90, tolerance_px=0.5,
+                            morph_targets=True) as s:
+            view = SessionRenderer(s, 320, 90, ctx=gl, morph_ms=400)
+            busy = 0
+            for rec in fly(s, view, "flyover", 30, fps=10.0, verify=True):
+                assert not view.mismatches()
+                busy += sum(len(m.active) > 0 for m in view.morphs)
+                for c, morphs in enumerate(view.morphs):
+                    np.testing.assert_array_equal(view.renderer.camera_positions(c),
+                                                  morphs.drawn_positions(rec.t).astype(np.float32))
+            assert busy >= 10, "morphs must be under way in many frames"
+            view.render([p for p in path_poses("flyover", *_bounds(s), 2, 3.0)], now=rec.t + 0.4)
+            for c in range(2):
+                assert not view.morphs[c].active
+                for m in range(4):
+                    np.testing.assert_array_equal(view.renderer.index_buffer(c, m), s.buffer(c, m))
+                np.testing.assert_array_equal(view.renderer.camera_positions(c), s.vertex_buffer.positions)
+            view.release()
+
+
+def _bounds(s):
+    lo, hi = s.info.mesh.bounds_min, s.info.mesh.bounds_max
+    return (lo.x, lo.y, lo.z), (hi.x, hi.y, hi.z)
+
+
 def test_a_renderer_made_mid_session_starts_from_what_the_client_holds(server, gl, tmp_path):
     with Client(f"127.0.0.1:{server.port}", cache_dir=tmp_path) as client:
         with client.session("terrain", cameras=1, width=160, height=90) as s:

@@ -123,11 +123,50 @@ class Geomorphs:
         b = own if m.end is None else self.point_at(m.end, now, _depth + 1)
         return a + (b - a) * u
 
+    def points_at(self, points, now: float) -> np.ndarray:
+        """(k, 3) float64 where ``points`` are drawn at ``now``: :meth:`point_at` for many, evaluated
+        level by level (an anchor before its followers) in numpy."""
+        points = np.asarray(points, np.int64)
+        own = self.positions[self._members[self._start[points]]].astype(np.float64) if len(points) else \
+            np.zeros((0, 3))
+        if not self.active:
+            return own
+        act = np.fromiter(self.active, np.int64, len(self.active))
+        morphs = [self.active[p] for p in act.tolist()]
+        t0 = np.array([m.t0 for m in morphs])
+        start = np.array([-1 if m.start is None else m.start for m in morphs], np.int64)
+        end = np.array([-1 if m.end is None else m.end for m in morphs], np.int64)
+        fixed = np.array([m.fixed if m.fixed is not None else (0.0, 0.0, 0.0) for m in morphs], np.float64)
+        u = np.clip((now - t0) / self.duration, 0.0, 1.0)[:, None]
+        home = self.positions[self._members[self._start[act]]].astype(np.float64)
+        slot = {p: i for i, p in enumerate(act.tolist())}
+        si = np.array([slot.get(int(x), -1) for x in start], np.int64)      # an active anchor: its row
+        ei = np.array([slot.get(int(x), -1) for x in end], np.int64)
+        a = np.where((start < 0)[:, None], fixed, self.positions[self._members[self._start[np.maximum(start, 0)]]])
+        b = np.where((end < 0)[:, None], home, self.positions[self._members[self._start[np.maximum(end, 0)]]])
+        where = a + (b - a) * u
+        done = (si < 0) & (ei < 0)
+        for _ in range(64):                  # anchors of anchors: as deep as the cascades go
+            if done.all():
+                break
+            ready = ~done & ((si < 0) | done[np.maximum(si, 0)]) & ((ei < 0) | done[np.maximum(ei, 0)])
+            if not ready.any():
+                break                        # a cycle (damage): those points stay where they are now
+            r = np.flatnonzero(ready)
+            ar = np.where((si[r] < 0)[:, None], a[r], where[np.maximum(si[r], 0)])
+            br = np.where((ei[r] < 0)[:, None], b[r], where[np.maximum(ei[r], 0)])
+            where[r] = ar + (br - ar) * u[r]
+            done[r] = True
+        rows = np.array([slot.get(int(p), -1) for p in points], np.int64)
+        return np.where((rows < 0)[:, None], own, where[np.maximum(rows, 0)]) if len(points) else own
+
     def drawn_positions(self, now: float) -> np.ndarray:
         """(d, 3) float64 every vertex where it is drawn at ``now`` (for measuring; renderers use :meth:`moving`)."""
         out = self.positions.astype(np.float64)
-        for p in self.active:
-            out[self._vertices([p])] = self.point_at(p, now)
+        if self.active:
+            pts = np.fromiter(self.active, np.int64, len(self.active))
+            counts = self._start[pts + 1] - self._start[pts]
+            out[self._vertices(pts)] = np.repeat(self.points_at(pts, now), counts, axis=0)
         return out
 
     def moving(self, now: float) -> tuple[np.ndarray, np.ndarray]:
@@ -137,10 +176,9 @@ class Geomorphs:
         self._moved = set(self.active)
         if not pts:
             return np.zeros(0, np.int64), np.zeros((0, 3), np.float32)
-        pts = sorted(pts)
-        where = np.array([self.point_at(p, now) for p in pts], np.float64)
-        counts = self._start[np.array(pts) + 1] - self._start[np.array(pts)]
-        return self._vertices(pts), np.repeat(where, counts, axis=0).astype(np.float32)
+        pts = np.array(sorted(pts), np.int64)
+        counts = self._start[pts + 1] - self._start[pts]
+        return self._vertices(pts), np.repeat(self.points_at(pts, now), counts, axis=0).astype(np.float32)
 
     # -- frames in -------------------------------------------------------------------
     def apply(self, surfaces, keyframe: bool, now: float) -> Changes:
@@ -189,14 +227,15 @@ class Geomorphs:
         done = sorted((m.t0, p) for p, m in self.active.items() if now - m.t0 >= over)
         if not done:
             return out
-        touched = set()
+        arrived = {}                         # going point -> the anchor that takes its place
         for _, p in done:
-            m = self.active.pop(p, None)
-            if m is None:
-                continue
+            m = self.active.pop(p)
             self._moved.add(p)
-            if m.end is not None:            # arrived on its anchor: the anchor takes its place
-                self._hand_on(p, m.end, touched)
+            if m.end is not None:
+                arrived[p] = m.end
+        touched = set()
+        if arrived:
+            self._hand_on(arrived, touched)
         self._emit(out, [], touched)
         return out
 
@@ -295,33 +334,53 @@ class Geomorphs:
             else:
                 self.kept[m].append(np.asarray(tri, np.int64))
 
-    def _hand_on(self, p: int, anchor: int, touched: set) -> None:
-        """Point ``p`` arrived on ``anchor``: followers follow the anchor, triangles use its vertices."""
-        for q, m in self.active.items():
-            if m.start == p:
-                m.start = anchor
-            if m.end == p:
-                m.end = anchor
-        verts = set(self._vertices([p]).tolist())
-        swap = {v: self._anchor_vertex(v, anchor) for v in verts}
+    def _hand_on(self, arrived: dict, touched: set) -> None:
+        """Going points arrived on their anchors (``{point: anchor}``): their followers follow the
+        anchors, their triangles use the anchors' vertices, and a held or kept triangle with nothing
+        left on its way is released (held) or dropped (kept)."""
+        def final(p):                        # an anchor that arrived too hands on to its own
+            for _ in range(64):
+                if p not in arrived:
+                    return p
+                p = arrived[p]
+            return p
+        arrived = {p: final(a) for p, a in arrived.items()}
+        for m in self.active.values():
+            if m.start in arrived:
+                m.start = arrived[m.start]
+            if m.end in arrived:
+                m.end = arrived[m.end]
+        swap = {int(v): self._anchor_vertex(int(v), a) for p, a in arrived.items() for v in self._vertices([p])}
+        going = self._going_points()
         for mat in range(self.materials):
             for slot, tri in list(self.held[mat].items()):
-                if any(int(v) in verts for v in tri):
-                    new = np.array([swap.get(int(v), int(v)) for v in tri], np.int64)
-                    if self._going(new):
-                        self.held[mat][slot] = new
-                    else:                    # nothing left to morph: the slot shows what the server sent
-                        del self.held[mat][slot]
-                        self.snaps += not np.array_equal(new, self.rows[mat][slot])
-                    touched.add((mat, slot))
-            kept = []
-            for tri in self.kept[mat]:
+                if not any(int(v) in swap for v in tri):
+                    continue
                 new = np.array([swap.get(int(v), int(v)) for v in tri], np.int64)
-                if self._going(new):
-                    kept.append(new)
-                else:                        # collapsed to nothing, or a face the server no longer has
-                    self.snaps += len(set(new.tolist())) == 3
-            self.kept[mat] = kept
+                if going[self.point[new]].any():
+                    self.held[mat][slot] = new
+                else:                        # nothing left to morph: the slot shows what the server sent
+                    del self.held[mat][slot]
+                    self.snaps += not np.array_equal(new, self.rows[mat][slot])
+                touched.add((mat, slot))
+            if self.kept[mat]:
+                kept = np.array(self.kept[mat], np.int64).reshape(-1, 3)
+                flat = kept.reshape(-1)
+                hit = np.isin(flat, np.fromiter(swap, np.int64, len(swap)))
+                if hit.any():
+                    flat = flat.copy()
+                    flat[hit] = [swap[int(v)] for v in flat[hit]]
+                    kept = flat.reshape(-1, 3)
+                    live = going[self.point[kept]].any(axis=1)
+                    whole = (kept[:, 0] != kept[:, 1]) & (kept[:, 1] != kept[:, 2]) & (kept[:, 0] != kept[:, 2])
+                    self.snaps += int((~live & whole).sum())    # a face the server no longer has
+                    self.kept[mat] = list(kept[live])
+
+    def _going_points(self) -> np.ndarray:
+        """(e,) bool: the points on their way onto an anchor."""
+        going = np.zeros(len(self.point_target), bool)
+        going[[p for p, m in self.active.items() if m.end is not None]] = True
+        return going
 
     def _going(self, tri) -> bool:
         """Whether a vertex of ``tri`` is on its way onto an anchor."""

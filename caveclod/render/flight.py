@@ -116,7 +116,7 @@ def fly(session, view: SessionRenderer, path: str, frames: int, *, fps: float = 
                 raise FlightError(f"frame {k}: the GPU buffers of (camera, material) {bad} differ from the "
                                   "client library's (material -1: the camera's vertex slots)")
         if draw:
-            t = time.perf_counter()
+            started = time.perf_counter()
             record.image = view.render(poses, wireframe=wireframe, now=t)
-            record.draw_ms = 1000.0 * (time.perf_counter() - t)
+            record.draw_ms = 1000.0 * (time.perf_counter() - started)
         yield record
