@@ -28,7 +28,6 @@ from __future__ import annotations
 
 import argparse
 import json
-import math
 import sys
 import time
 from pathlib import Path
@@ -36,7 +35,7 @@ from pathlib import Path
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).parent))
-from vertex_download import built  # noqa: E402
+from vertex_download import built, screen_factors  # noqa: E402
 
 from service import RESULTS  # noqa: E402
 
@@ -64,28 +63,13 @@ def drawn(cam, morphs, positions: np.ndarray, now: float) -> tuple[np.ndarray, n
     return morphs.drawn_positions(now), tris, moving
 
 
-def frustum_factors(view, points: np.ndarray) -> np.ndarray:
-    """(q,) kappa / distance of each point in ``view``'s frustum, 0 outside it."""
-    eye, target, up = (np.asarray(v, np.float64) for v in (view.eye, view.target, view.up))
-    forward = (target - eye) / np.linalg.norm(target - eye)
-    right = np.cross(forward, up)
-    right /= np.linalg.norm(right)
-    upv = np.cross(right, forward)
-    rel = points - eye
-    z = rel @ forward
-    tan_y = math.tan(math.radians(view.fov_y) / 2)
-    tan_x = tan_y * view.width / view.height
-    inside = (z > 1e-9) & (np.abs(rel @ right) <= tan_x * z) & (np.abs(rel @ upv) <= tan_y * z)
-    return np.where(inside, view.height / (2 * tan_y) / np.maximum(np.linalg.norm(rel, axis=1), 1e-12), 0.0)
-
-
 def one_way(V_a, T_a, changed_a, V_b, T_b, view) -> float:
     """Largest pixel distance from sample points of ``T_a``'s changed triangles to surface b."""
     from caveclod.kernels.nearest import build_bvh, nearest_dist2
     if not changed_a.any() or not len(T_b):
         return 0.0
     pts = np.einsum("sc,kcd->ksd", SAMPLES, V_a[T_a[changed_a]]).reshape(-1, 3)
-    f = frustum_factors(view, pts)
+    f = screen_factors(view, pts)
     pts, f = pts[f > 0], f[f > 0]
     if not len(pts):
         return 0.0

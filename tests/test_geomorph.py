@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from hypothesis import given, settings, strategies as st
 
 import caveclod
 from caveclod.client.geomorph import Geomorphs
@@ -18,6 +19,9 @@ from caveclod.refine.morphtargets import morph_targets
 from caveclod.wire import Surface
 
 import meshes
+
+_RANDOM_MESH = caveclod.build("rough", size=24)
+_RANDOM_TARGETS = morph_targets(_RANDOM_MESH)
 
 SAMPLES = np.array([[1, 1, 1], [4, 1, 1], [1, 4, 1], [1, 1, 4]], np.float64) / np.array([[3], [6], [6], [6]])
 
@@ -202,3 +206,40 @@ def test_the_renderer_draws_the_display_and_the_moving_positions(gl):
     with pytest.raises(ValueError, match="morph=True"):
         with Renderer(16, 16, verts, mesh.materials, bounds=(lo, hi), ctx=gl) as plain:
             plain.write_positions(0, [0], [[0, 0, 0]])
+
+
+@settings(max_examples=15, deadline=None)
+@given(seed=st.integers(0, 2**31), duration=st.sampled_from([0.05, 0.2, 0.7]),
+       step=st.sampled_from([1 / 30, 0.1, 0.4]), keyframe_at=st.integers(-1, 25))
+def test_random_flights_keep_the_display_valid_and_end_at_the_mesh_sent(seed, duration, step, keyframe_at):
+    """Random jumps of the eye (splits, collapses, cascades, points coming back), random clocks and
+    a keyframe somewhere: the display is always valid triangles over the buffer with the camera's
+    buffers inside it, and once the morphs are over it is the camera's buffers exactly."""
+    rng = np.random.default_rng(seed)
+    mesh = _RANDOM_MESH
+    lo, hi = mesh.bounds()
+    cam = mesh.new_camera()
+    morphs = Geomorphs(mesh.vertex_positions, _RANDOM_TARGETS, cam.n_materials, duration)
+    morphs.apply(_keyframe(cam), True, 0.0)
+    now = 0.0
+    for f in range(30):
+        now += step * rng.uniform(0.5, 1.5)
+        eye = lo + (hi - lo) * rng.uniform([-0.2, -0.2, 0.3], [1.2, 1.2, 2.0])
+        view = caveclod.View(eye=tuple(eye), target=tuple(lo + (hi - lo) * rng.uniform(0, 1, 3)),
+                             up=(0.0, 0.0, 1.0), width=320, height=240, tolerance_px=float(rng.choice([0.5, 2, 8])))
+        delta = cam.update(view)
+        if f == keyframe_at:
+            morphs.apply(_keyframe(cam), True, now)
+        else:
+            morphs.apply(_surfaces(delta), False, now)
+        morphs.moving(now)
+        for m in range(cam.n_materials):
+            assert np.array_equal(morphs.rows[m], cam.index_buffer(m))
+            shown = morphs.display(m)
+            assert len(shown) >= cam.cnt[m] and (shown < len(mesh.vertex_positions)).all()
+    morphs.tick(now + duration)
+    assert not morphs.active
+    for m in range(cam.n_materials):
+        assert np.array_equal(morphs.display(m), cam.index_buffer(m))
+    moved, where = morphs.moving(now + duration)
+    assert np.array_equal(where, mesh.vertex_positions[moved])
