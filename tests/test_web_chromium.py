@@ -140,6 +140,8 @@ def test_a_terrain_flyover_in_quadrants(make_server, browser, cameras):
         assert stats["frames"] >= 60 and stats["crcChecks"] >= 30 and stats["divergences"] == 0, stats
         assert stats["badFrames"] == 0 and stats["keyframeRequests"] == 0 and stats["facesDrawn"] > 100
         assert stats["cameras"] == cameras and 0 < stats["latencyMsP50"] <= stats["latencyMsP99"]
+        # Geomorphs (the page's default) ran: points grew and shrank between frames.
+        assert stats["morphsStarted"] > 0, stats
         # The vertex buffer came packed (the page's default), under a quarter of its float32 bytes.
         payload = server.sessions.catalogue.get("terrain").vertex_format.payload_bytes
         assert stats["vertexPacked"] and 0 < 4 * stats["vertexDownloadBytes"] < payload, stats
@@ -343,3 +345,80 @@ def test_the_pages_vertex_unpacker_makes_pythons_bytes(browser, make_server, tex
             assert isinstance(g, str) and g.startswith("PackedVertexError"), g
         else:
             assert g == w, g
+
+
+GEOMORPH_IN_PAGE = """async ([positions, targets, materials, duration, steps]) => {
+  const { Geomorphs, pointsOf } = await import('/static/geomorph.js');
+  const pos = Float32Array.from(positions), tg = Uint32Array.from(targets);
+  const g = new Geomorphs(pos, tg, materials, duration, pointsOf(pos, tg));
+  const out = [];
+  for (const [kind, now, surfaces] of steps) {
+    if (kind === 'frame') {
+      g.apply(surfaces.map(([m, count, slots, tris]) => ({ material: m, count, slots: Uint32Array.from(slots), tris: Uint32Array.from(tris) })), false, now);
+    } else if (kind === 'key') {
+      g.apply(surfaces.map(([m, count, slots, tris]) => ({ material: m, count, slots: Uint32Array.from(slots), tris: Uint32Array.from(tris) })), true, now);
+    } else {
+      g.tick(now);
+    }
+    const mv = g.moving(now);
+    out.push([Array.from({ length: materials }, (_, m) => Array.from(g.display(m))), Array.from(mv.vertices), Array.from(mv.positions), g.active.size, g.snaps]);
+  }
+  return out;
+}"""
+
+
+def test_the_pages_geomorphs_agree_with_pythons(browser, make_server, terrain_path):
+    """The page's geomorph.js, fed the frames of a flight with splits, collapses and a keyframe, draws
+    the display buffers and moving positions that caveclod.client.geomorph draws, step for step."""
+    import caveclod
+    from caveclod.client.geomorph import Geomorphs
+    from caveclod.paths import flyover
+    from caveclod.refine.morphtargets import morph_targets
+    from caveclod.wire import Surface
+    server = make_server(web_port=0)
+    mesh = caveclod.load(terrain_path)
+    lo, hi = mesh.bounds()
+    targets = morph_targets(mesh)
+    cam = mesh.new_camera()
+    morphs = Geomorphs(mesh.vertex_positions, targets, cam.n_materials, 0.3)
+
+    def key():
+        return [(m, int(cam.cnt[m]), list(range(int(cam.cnt[m]))), cam.index_buffer(m).ravel().tolist())
+                for m in range(cam.n_materials)]
+    steps, want = [], []
+
+    def step(kind, now, surfaces):
+        steps.append((kind, now, surfaces))
+        objs = [Surface(m, c, np.asarray(sl, np.int64), np.asarray(t, np.int64).reshape(-1, 3))
+                for m, c, sl, t in surfaces]
+        if kind == "tick":
+            morphs.tick(now)
+        else:
+            morphs.apply(objs, kind == "key", now)
+        v, p = morphs.moving(now)
+        want.append(([morphs.display(m).ravel().tolist() for m in range(cam.n_materials)],
+                     dict(zip(v.tolist(), map(tuple, p.tolist()))), len(morphs.active), morphs.snaps))
+    step("key", 0.0, key())
+    for f in range(1, 70):
+        now = f / 30
+        view = caveclod.View.from_pose(flyover(lo, hi, 0, f / 1.5), width=640, height=360, tolerance_px=1.0)
+        delta = cam.update(view)
+        if f == 40:                                     # a keyframe in the middle: the camera starts over
+            step("key", now, key())
+            continue
+        step("frame", now, [(m, int(d.count), d.slots.tolist(), np.asarray(d.tris).ravel().tolist())
+                            for m, d in delta.surfaces.items()])
+        if f % 3 == 0:
+            step("tick", now + 0.01, [])
+    with Page(browser, _base(server) + "?mesh=terrain&trajectory=rotate&morph=0") as page:
+        got = page.page.evaluate(GEOMORPH_IN_PAGE, [mesh.vertex_positions.ravel().tolist(), targets.tolist(),
+                                                    cam.n_materials, 0.3, steps])
+    busy = 0
+    for i, ((display, verts, where, active, snaps), (w_display, w_moving, w_active, w_snaps)) in \
+            enumerate(zip(got, want)):
+        assert display == w_display, f"step {i}: display buffers differ"
+        moving = dict(zip(verts, map(tuple, np.asarray(where, np.float32).reshape(-1, 3).tolist())))
+        assert moving == w_moving, f"step {i}: moving positions differ"
+        assert (active, snaps) == (w_active, w_snaps), i
+        busy += active > 0
+    assert busy > 20, "the flight must morph"

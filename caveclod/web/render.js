@@ -103,31 +103,63 @@ export class Renderer {
   }
 
   /** Upload the vertex buffer once (`payload`: the session's whole vertex payload, laid out as `format` says;
-   *  `materials`: MeshInfo.materials, whose names pick the colours). */
-  setVertexBuffer(format, payload, lo, hi, materials) {
+   *  `materials`: MeshInfo.materials, whose names pick the colours). With `morphCameras` (geomorphs), each
+   *  camera draws from a position buffer of its own (writePositions), the other attributes shared. */
+  setVertexBuffer(format, payload, lo, hi, materials, morphCameras = 0) {
     this.colours = materials.length ? materials.map((m, i) => materialColour(m.name, i)) : [materialColour("", 0)];
     const gl = this.gl;
-    if (this.vao) gl.deleteVertexArray(this.vao);
-    this.vao = gl.createVertexArray();
-    gl.bindVertexArray(this.vao);
+    for (const v of this.vaos || []) gl.deleteVertexArray(v);
+    for (const b of this.positions || []) gl.deleteBuffer(b);
     const buffer = gl.createBuffer();
     gl.bindBuffer(gl.ARRAY_BUFFER, buffer);
     gl.bufferData(gl.ARRAY_BUFFER, payload, gl.STATIC_DRAW);
-    gl.vertexAttrib4f(gl.getAttribLocation(this.program, "a_color"), 1, 1, 1, 1); // no colours: the material's alone
-    for (const a of format.attributes) {
-      const name = SEMANTIC[a.semantic];
-      const loc = name ? gl.getAttribLocation(this.program, name) : -1;
-      if (loc < 0) continue;
-      const type = a.type === FLOAT32 ? gl.FLOAT : a.type === UINT8 ? gl.UNSIGNED_BYTE : null;
-      if (type === null) continue;
-      gl.enableVertexAttribArray(loc);
-      gl.vertexAttribPointer(loc, a.components, type, a.normalized, a.stride, Number(a.offset));
+    const d = Number(format.vertexCount);
+    this.positions = [];
+    for (let c = 0; c < morphCameras; c++) {
+      const own = gl.createBuffer();
+      gl.bindBuffer(gl.ARRAY_BUFFER, own);
+      gl.bufferData(gl.ARRAY_BUFFER, new Float32Array(payload.buffer, payload.byteOffset, 3 * d), gl.DYNAMIC_DRAW);
+      this.positions.push(own);
     }
+    this.vaos = [];
+    for (let c = 0; c < Math.max(1, morphCameras); c++) {
+      const vao = gl.createVertexArray();
+      gl.bindVertexArray(vao);
+      gl.vertexAttrib4f(gl.getAttribLocation(this.program, "a_color"), 1, 1, 1, 1); // no colours: the material's alone
+      for (const a of format.attributes) {
+        const name = SEMANTIC[a.semantic];
+        const loc = name ? gl.getAttribLocation(this.program, name) : -1;
+        if (loc < 0) continue;
+        const type = a.type === FLOAT32 ? gl.FLOAT : a.type === UINT8 ? gl.UNSIGNED_BYTE : null;
+        if (type === null) continue;
+        const own = morphCameras && name === "a_position";
+        gl.bindBuffer(gl.ARRAY_BUFFER, own ? this.positions[c] : buffer);
+        gl.enableVertexAttribArray(loc);
+        gl.vertexAttribPointer(loc, a.components, type, a.normalized, own ? 12 : a.stride, own ? 0 : Number(a.offset));
+      }
+      this.vaos.push(vao);
+    }
+    this.vao = this.vaos[0];
     gl.bindVertexArray(null);
     this.origin = [0, 1, 2].map((i) => 0.5 * (lo[i] + hi[i]));
     this.diagonal = Math.hypot(hi[0] - lo[0], hi[1] - lo[1], hi[2] - lo[2]) || 1;
     for (const row of this.elements) for (const e of row) gl.deleteBuffer(e.buffer);
     this.elements = [];
+  }
+
+  /** Geomorphs: move `vertices` (ascending Int32Array) of camera `c` to `positions` (3 floats each), a write per run. */
+  writePositions(c, vertices, positions) {
+    if (!vertices.length || !this.positions[c]) return;
+    const gl = this.gl;
+    gl.bindVertexArray(null);
+    gl.bindBuffer(gl.ARRAY_BUFFER, this.positions[c]);
+    let i = 0;
+    while (i < vertices.length) {
+      let j = i + 1;
+      while (j < vertices.length && vertices[j] === vertices[j - 1] + 1) j++;
+      gl.bufferSubData(gl.ARRAY_BUFFER, 12 * vertices[i], positions, 3 * i, 3 * (j - i));
+      i = j;
+    }
   }
 
   /** Bring the GPU's copy of each index buffer up to date: only the rows the frames wrote. */
@@ -163,12 +195,12 @@ export class Renderer {
     gl.enable(gl.DEPTH_TEST);
     gl.enable(gl.SCISSOR_TEST);
     gl.useProgram(this.program);
-    gl.bindVertexArray(this.vao);
     gl.uniform3fv(this.uniforms.u_origin, this.origin);
     gl.uniform3fv(this.uniforms.u_light, [0.37, 0.45, 0.81]);
     quadrants(poses.length, canvas.width, canvas.height).forEach(([x, y, w, h], c) => {
       const pose = poses[c];
       if (!pose) return;
+      gl.bindVertexArray(this.vaos[Math.min(c, this.vaos.length - 1)]);
       gl.viewport(x, y, w, h);
       gl.scissor(x, y, w, h);
       gl.clearColor(0.52 + 0.04 * c, 0.66, 0.82, 1);   // a sky, a shade apart per camera

@@ -85,6 +85,7 @@ export class Session {
    * @param {string} [o.tokenValue] the bearer token (--token-file), or none
    * @param {string} [o.encoding] "ops" (default) or "raw"
    * @param {string} [o.vertices] "packed" (default: quantized and deflated, 1-7 bytes a vertex) or "float32"
+   * @param {boolean} [o.morphTargets] ask for each vertex's geomorph target (packed only)
    * @param {function} o.onReady (info, payload Uint8Array) once the vertex buffer is whole
    * @param {function} o.onFrame (update) after each complete frame
    * @param {function} o.onEnd ({code, message}) when the session has ended for good
@@ -152,6 +153,7 @@ export class Session {
       mesh: this.mesh, options: this.options, cameras: this.cameras, client: CLIENT_NAME,
       frameEncoding: this.encoding, resumeToken: this.token, lastFrameSeq: this.lastApplied,
       vertexEncoding: this.vertexEncoding, vertexBufferHash: this.payload && this.info ? this.bufferKey() : "",
+      morphTargets: Boolean(this.morphTargets) && this.vertexEncoding === pb.VertexEncoding.VERTEX_ENCODING_PACKED,
     };
   }
 
@@ -392,7 +394,7 @@ export class Session {
     const c = cf.camera;
     if (c >= this.cameras) throw new ProtocolError(`a frame for camera ${c}; the session has ${this.cameras}`);
     if (!update.cameras.has(c)) {
-      update.cameras.set(c, { keyframe: cf.keyframe, poseSeq: cf.poseSeq });
+      update.cameras.set(c, { keyframe: cf.keyframe, poseSeq: cf.poseSeq, surfaces: [] });
       if (cf.keyframe) {
         for (const b of this.buffers[c]) { b.resize(0); b.grown = true; }
         this.asked.delete(c);
@@ -423,6 +425,7 @@ export class Session {
         }
         buffer.resize(sd.count);
         buffer.write(slots, tris);
+        update.cameras.get(c).surfaces.push({ material: m, count: sd.count, slots, tris }); // for geomorphs
         if (sd.crc32 !== null && sd.crc32 !== undefined) update.crcs.set(`${c}/${m}`, [c, m, sd.crc32 >>> 0]);
       }
     } catch (err) {

@@ -9,11 +9,15 @@
 //   &tolerance=PX       screen-space error in pixels (default: the server's)
 //   &token=T            the server's bearer token (--token-file)
 //   &encoding=raw|ops   the frame encoding (default ops)
+//   &vertices=packed|float32  how the vertex buffer downloads (default packed)
+//   &morph=MS           geomorphs: splits and collapses change shape over MS
+//                       milliseconds (default 500; 0: off; needs packed)
 //   &hz=N               poses a second per camera (default 30)
 
+import { Geomorphs, pointsOf } from "./geomorph.js";
 import { PATHS } from "./paths.js";
 import { Renderer } from "./render.js";
-import { Session } from "./session.js";
+import { IndexBuffer, Session } from "./session.js";
 
 const pb = globalThis.protobuf.roots.default.caveclod.v1;
 const params = new URLSearchParams(location.search);
@@ -26,7 +30,9 @@ const stats = (window.caveclodStats = {
   frames: 0, divergences: 0, crcChecks: 0, facesDrawn: 0, latencyMsP50: 0, latencyMsP99: 0, bytesReceived: 0,
   connected: false, error: null, badFrames: 0, keyframeRequests: 0, posesSent: 0, resumes: 0, status: null,
   fps: 0, mesh: null, cameras: 0, ready: false, ended: false,
+  morphing: 0, morphsStarted: 0, // geomorphs under way now, and started so far
 });
+const MORPH_TARGET = 5; // AttributeSemantic.ATTRIBUTE_SEMANTIC_MORPH_TARGET
 
 function showError(message) {
   stats.error = message;
@@ -109,16 +115,50 @@ async function main() {
   let lo = null, hi = null, fly = null;
   const poses = new Array(cameras).fill(null);
   const url = `${location.protocol === "https:" ? "wss" : "ws"}://${location.host}/v1/session`;
+  const morphMs = Math.max(0, parseFloat(params.get("morph") ?? "500") || 0);
+  // Geomorphs (caveclod/web/geomorph.js): per camera, the display buffers drawn instead of the
+  // session's, and the positions of the vertices on their way.
+  let morphs = null, display = null;
+  const applyDisplay = (c, changes) => {
+    if (changes.reset) for (const b of display[c]) { b.resize(0); b.grown = true; }
+    for (const w of changes.writes) {
+      const b = display[c][w.material];
+      b.resize(w.count);
+      b.write(w.slots, w.tris);
+    }
+  };
   const session = new Session({
     url, mesh, cameras, options, tokenValue: token(), encoding: params.get("encoding") || "ops",
-    vertices: params.get("vertices") || "packed",
+    vertices: params.get("vertices") || "packed", morphTargets: morphMs > 0,
     onReady(info, payload) {
       const b = (v) => [v.x, v.y, v.z];
       lo = b(info.mesh.boundsMin);
       hi = b(info.mesh.boundsMax);
-      renderer.setVertexBuffer(info.vertexFormat, payload, lo, hi, info.mesh.materials);
+      const morphAttr = info.vertexFormat.attributes.find((a) => a.semantic === MORPH_TARGET);
+      if (morphMs > 0 && morphAttr && !morphs) {
+        const d = Number(info.vertexFormat.vertexCount), materials = info.mesh.materials.length || 1;
+        const positions = new Float32Array(payload.buffer, payload.byteOffset, 3 * d);
+        const targets = new Uint32Array(payload.buffer, payload.byteOffset + Number(morphAttr.offset), d);
+        const points = pointsOf(positions, targets);
+        morphs = Array.from({ length: cameras }, () => new Geomorphs(positions, targets, materials, morphMs / 1000, points));
+        display = Array.from({ length: cameras }, () => Array.from({ length: materials }, () => new IndexBuffer()));
+        session.buffers.forEach((row, c) => { // what the session holds already appears as it is
+          const held = row.map((buf, m) => ({ material: m, count: buf.count, slots: Uint32Array.from({ length: buf.count }, (_, i) => i), tris: buf.rows.subarray(0, 3 * buf.count) }));
+          applyDisplay(c, morphs[c].apply(held, true, performance.now() / 1000));
+        });
+      }
+      renderer.setVertexBuffer(info.vertexFormat, payload, lo, hi, info.mesh.materials, morphs ? cameras : 0);
       if (!trajectory && !fly) fly = new FlyCamera(lo, hi);
       stats.ready = true;
+    },
+    onFrame(update) {
+      if (!morphs) return;
+      const t = performance.now() / 1000;
+      for (const [c, cu] of update.cameras) {
+        const started = morphs[c].active.size;
+        applyDisplay(c, morphs[c].apply(cu.surfaces, cu.keyframe, t));
+        stats.morphsStarted += Math.max(0, morphs[c].active.size - started);
+      }
     },
     onEnd(status) {
       syncStats();
@@ -145,7 +185,19 @@ async function main() {
         poses.forEach((pose, c) => { if (!samePose(pose, session.latest[c])) session.sendPose(c, pose); });
       }
     }
-    if (session.buffers && renderer.vao) {
+    if (morphs && renderer.vao) {
+      const t = now / 1000;
+      let active = 0;
+      morphs.forEach((g, c) => {
+        applyDisplay(c, g.tick(t));
+        const moving = g.moving(t);
+        renderer.writePositions(c, moving.vertices, moving.positions);
+        active += g.active.size;
+      });
+      stats.morphing = active;
+      renderer.sync(display);
+      renderer.draw(poses, display.map((row) => row.map((b) => b.count)), FOV_Y);
+    } else if (session.buffers && renderer.vao) {
       renderer.sync(session.buffers);
       renderer.draw(poses, session.buffers.map((row) => row.map((b) => b.count)), FOV_Y);
     }
