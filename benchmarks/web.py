@@ -41,7 +41,8 @@ def run_config(browser, base: str, server_pid: int, cameras: int, encoding: str,
     errors: list[str] = []
     page.on("console", lambda m: m.type == "error" and errors.append(m.text))
     try:
-        page.goto(f"{base}?trajectory=flyover&cameras={cameras}&encoding={encoding}")
+        # Geomorphs off (the page's default is on): these figures are the protocol's and the page's frame path.
+        page.goto(f"{base}?trajectory=flyover&cameras={cameras}&encoding={encoding}&morph=0")
         deadline = time.monotonic() + 60
         while not page.evaluate("window.caveclodStats.frames") and time.monotonic() < deadline:
             time.sleep(0.1)
