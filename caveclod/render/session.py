@@ -29,6 +29,8 @@ into them before its index writes, as the client library applies them.
 
 from __future__ import annotations
 
+import time
+
 import numpy as np
 
 from ..client.geomorph import Geomorphs, points_of
@@ -73,7 +75,8 @@ class SessionRenderer:
                 points = points_of(vb.positions, vb.morph_targets)
                 self.morphs = [Geomorphs(vb.positions, vb.morph_targets, len(names), morph_ms / 1000.0, points)
                                for _ in range(int(info.cameras))]
-        self.time = 0.0                        # the clock frames are applied at (apply's `now`)
+        self._started = time.monotonic()
+        self.time = 0.0                        # the geomorphs' clock when a frame was last applied
         self._epoch = session.protocol.epoch
         self._replay()
 
@@ -83,9 +86,9 @@ class SessionRenderer:
 
     def apply(self, update, now: float | None = None) -> None:
         """Apply one :class:`caveclod.client.FrameUpdate` (None: nothing) to the GPU buffers; ``now``:
-        seconds on the geomorphs' clock (default: the last time given, or 0)."""
-        if now is not None:
-            self.time = float(now)
+        seconds on the geomorphs' clock (default: seconds since this renderer was made; give path
+        time instead to render a flight frame by frame)."""
+        self.time = self.clock() if now is None else float(now)
         if self.session.protocol.epoch != self._epoch:
             # The server started the session over (its token expired during
             # a reconnect): the client's buffers were emptied, so are ours.
@@ -105,6 +108,10 @@ class SessionRenderer:
             else:
                 self._display(c, self.morphs[c].apply(cam.surfaces, cam.keyframe, self.time))
 
+    def clock(self) -> float:
+        """Seconds since this renderer was made: the geomorphs' clock when none is given."""
+        return time.monotonic() - self._started
+
     def advance(self, now: float) -> None:
         """Geomorphs: bring every camera's display and positions to time ``now`` (before drawing)."""
         if self.morphs is None:
@@ -123,8 +130,8 @@ class SessionRenderer:
 
     def render(self, poses, wireframe: bool = False, now: float | None = None) -> np.ndarray:
         """(height, width, 3) uint8 image of every camera at its pose (one per camera), the geomorphs
-        at ``now`` (default: the time of the last frame applied)."""
-        self.advance(self.time if now is None else float(now))
+        at ``now`` (default: :meth:`clock`)."""
+        self.advance(self.clock() if now is None else float(now))
         return self.renderer.render(self.views(poses), wireframe=wireframe)
 
     def mismatches(self) -> list[tuple[int, int]]:
