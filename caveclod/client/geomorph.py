@@ -31,9 +31,12 @@ given time. Hoppe's geomorphs, per camera and incremental:
   that arrives hands its followers on to its own anchor. A going point that
   comes back moves home from where it is.
 
-At the frame's instant the drawn surface is the surface drawn just before
-(tests/test_geomorph.py checks it on every frame of flights), and once the
-morphs are over it is exactly the mesh the server sent. A keyframe is not
+Where a frame only splits, the surface drawn at its instant is the surface
+drawn just before (tests/test_geomorph.py checks every frame of zooms);
+where it also collapses, a triangle changed two ways in one update has no
+old form to morph from and shows at once (rare: the tests bound the jumps
+of flights against those without morphs). Once the morphs are over the
+display is exactly the mesh the server sent. A keyframe is not
 morphed (the camera starts over). Numpy only (no GL), so renderers and the
 benchmark share it; a renderer gives each camera its own position buffer
 (:meth:`Geomorphs.moving` rows) and draws :meth:`Geomorphs.display`.
