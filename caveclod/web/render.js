@@ -147,7 +147,8 @@ export class Renderer {
     this.elements = [];
   }
 
-  /** Geomorphs: move `vertices` (ascending Int32Array) of camera `c` to `positions` (3 floats each), a write per run. */
+  /** Geomorphs: move `vertices` (Int32Array) of camera `c` to `positions` (3 floats each); each run of
+   *  consecutive vertices is one write. */
   writePositions(c, vertices, positions) {
     if (!vertices.length || !this.positions[c]) return;
     const gl = this.gl;

@@ -30,7 +30,7 @@ const stats = (window.caveclodStats = {
   frames: 0, divergences: 0, crcChecks: 0, facesDrawn: 0, latencyMsP50: 0, latencyMsP99: 0, bytesReceived: 0,
   connected: false, error: null, badFrames: 0, keyframeRequests: 0, posesSent: 0, resumes: 0, status: null,
   fps: 0, mesh: null, cameras: 0, ready: false, ended: false,
-  morphing: 0, morphsStarted: 0, // geomorphs under way now, and started so far
+  morphing: 0, morphsStarted: 0, // geomorphs under way now; frames' net additions to them so far
 });
 const MORPH_TARGET = 5; // AttributeSemantic.ATTRIBUTE_SEMANTIC_MORPH_TARGET
 
