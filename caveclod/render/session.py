@@ -95,6 +95,8 @@ class SessionRenderer:
             self._epoch = self.session.protocol.epoch
             for c in range(self.cameras):
                 self.renderer.reset(c)
+                if self.morphs is not None:       # nothing of the old session morphs on
+                    self.morphs[c].apply([], True, self.time)
         if update is None:
             return
         for c, cam in sorted(update.cameras.items()):
