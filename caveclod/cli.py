@@ -208,7 +208,7 @@ def _parser() -> argparse.ArgumentParser:
     r.add_argument("--wireframe", action="store_true", help="overlay the triangles' edges")
     r.add_argument("--out", required=True, metavar="DIR", help="directory for the frames")
     _cache_arguments(r)
-    _morph_argument(r)
+    morph_argument(r)
     r.set_defaults(run=_render)
 
     v = sub.add_parser("view", help="an interactive window flying one camera through a server (needs a display)",
@@ -222,7 +222,7 @@ def _parser() -> argparse.ArgumentParser:
     v.add_argument("--frames", type=int, default=None, help="quit after this many drawn frames (default: run until closed)")
     v.add_argument("--screenshot", metavar="FILE", help="write the last drawn frame as PNG on exit")
     _cache_arguments(v)
-    _morph_argument(v)
+    morph_argument(v)
     v.set_defaults(run=_view)
 
     d = sub.add_parser("demo", help="build the default terrain, serve it, fly 4 cameras through the service and "
@@ -245,7 +245,9 @@ def _client_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--cache-dir", help="vertex buffer cache (default $XDG_CACHE_HOME/caveclod/vertex-buffers)")
 
 
-def _morph_argument(p: argparse.ArgumentParser) -> None:
+def morph_argument(p: argparse.ArgumentParser) -> None:
+    """``--morph-ms`` of the commands that draw (render, view, demo); checked by
+    :func:`caveclod.render.record.morph_ms`."""
     p.add_argument("--morph-ms", type=float, default=DEFAULT_MORPH_MS, metavar="MS",
                    help=f"geomorphs: a vertex a split brings in grows out of the surface over MS milliseconds "
                         f"instead of popping in (default {DEFAULT_MORPH_MS:g}; 0: off). Needs the packed "

@@ -29,7 +29,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .cli import DEFAULT_MORPH_MS
+from .cli import morph_argument
 from .errors import CaveclodError, FileFormatError, InputError
 
 SERVER_START_SECONDS = 180.0     # the first start compiles the refinement kernels
@@ -58,20 +58,17 @@ def add_arguments(ap: argparse.ArgumentParser) -> None:
     ap.add_argument("--wireframe", action="store_true", help="draw the triangles' edges over the terrain")
     ap.add_argument("--animation-width", type=int, default=640, metavar="PX",
                     help="largest width of the animation's frames (default 640)")
-    ap.add_argument("--morph-ms", type=float, default=DEFAULT_MORPH_MS, metavar="MS",
-                    help=f"geomorph duration: a split's new vertex grows out of the surface over MS ms "
-                         f"(default {DEFAULT_MORPH_MS:g}; 0: off)")
+    morph_argument(ap)
 
 
 def run(args) -> int:
-    from .render.record import parse_size
+    from .render.record import morph_ms, parse_size
     size = parse_size(args.image)
+    morph_ms(args)
     if args.frames < 2:
         raise InputError(f"--frames must be at least 2, got {args.frames}")
     if args.keep_every < 1:
         raise InputError(f"--keep-every must be at least 1, got {args.keep_every}")
-    if args.morph_ms < 0:
-        raise InputError(f"--morph-ms must be at least 0 (0: no geomorphs), got {args.morph_ms:g}")
     if args.animation_width < 16:
         raise InputError(f"--animation-width must be at least 16 pixels, got {args.animation_width}")
     out = Path(args.out)

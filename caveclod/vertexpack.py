@@ -48,6 +48,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from . import wire
+from .v1 import caveclod_pb2 as pb
 from .wire import WireError
 
 DEFAULT_POSITION_BITS = 20
@@ -283,7 +285,6 @@ def planar_payload(arrays: dict) -> bytes:
 
 def to_message(packed: Packed, vertex_buffer_hash: str):
     """The ``VertexPacking`` message of ``packed``; ``vertex_buffer_hash`` is the mesh's (MeshInfo's)."""
-    from .v1 import caveclod_pb2 as pb
     p = packed.packing
     x, y, z = p.position_origin
     return pb.VertexPacking(
@@ -301,7 +302,6 @@ def from_message(msg, vertex_format) -> Packing:
     Raises WireError for an encoding this client does not know or values no
     server sends (a step that is not positive, normal bits out of range).
     """
-    from .v1 import caveclod_pb2 as pb
     if msg.encoding != pb.VERTEX_ENCODING_PACKED:
         raise WireError(f"vertex encoding {msg.encoding} is unknown to this client; upgrade it, or ask for "
                         "vertex_encoding FLOAT32")
@@ -319,8 +319,6 @@ def from_message(msg, vertex_format) -> Packing:
 def vertex_format(blocks: list, morph: bool):
     """The VertexFormat of a packed buffer's decoded payload: ``blocks``' (the mesh's float32 planar
     blocks, :func:`caveclod.wire.vertex_blocks`) plus MORPH_TARGET uint32 when ``morph``."""
-    from . import wire
-    from .v1 import caveclod_pb2 as pb
     if not morph:
         return wire.vertex_format(blocks)
     d = len(blocks[0].data)
@@ -332,7 +330,6 @@ def requested_bits(open_msg) -> int | None:
 
     Raises ValueError naming the field for position_bits out of range.
     """
-    from .v1 import caveclod_pb2 as pb
     if open_msg.vertex_encoding != pb.VERTEX_ENCODING_PACKED or open_msg.HasField("cache_vertices"):
         return None
     bits = open_msg.position_bits if open_msg.HasField("position_bits") else DEFAULT_POSITION_BITS

@@ -147,7 +147,7 @@ def test_refcounts_follow_the_camera_and_keyframes_start_over():
         view = caveclod.View.from_pose(flyover(lo, hi, 0, f / 2), tolerance_px=1.0)
         morphs.apply(_surfaces(cam.update(view)), False, f / 30)
         used = np.concatenate([t.reshape(-1) for t in cam.triangles().values()]).astype(np.int64)
-        assert np.array_equal(morphs.refs, np.bincount(used, minlength=len(morphs.refs)))
+        assert np.array_equal(morphs.point_refs, np.bincount(morphs.point[used], minlength=len(morphs.point_refs)))
     assert morphs.active, "a flight at 30 Hz with 0.2 s morphs has some under way"
     ch = morphs.apply(_keyframe(cam), True, 2.0)        # a keyframe: the camera starts over
     assert ch.reset and not morphs.active

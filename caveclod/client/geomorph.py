@@ -96,8 +96,7 @@ class Geomorphs:
             raise ValueError(f"morph targets must be ({d},) indices into the vertex buffer")
         self.materials, self.duration = int(materials), float(duration)
         self.point, self.point_target, self._start, self._members = points or points_of(self.positions, self.targets)
-        self.refs = np.zeros(d, np.int32)                            # logical triangles using each vertex
-        self.point_refs = np.zeros(len(self.point_target), np.int32)  # ... each point
+        self.point_refs = np.zeros(len(self.point_target), np.int32)  # logical triangle corners at each point
         self.rows = [np.zeros((0, 3), np.int64) for _ in range(materials)]    # the logical buffers
         self.held = [dict() for _ in range(materials)]      # slot -> (3,) display triangle
         self.kept = [[] for _ in range(materials)]          # display triangles after the buffer
@@ -203,7 +202,6 @@ class Geomorphs:
                 shown = self.held[m].pop(slot, None)
                 lost_display.append((m, rows[slot] if shown is None else np.asarray(shown, np.int64)))
             for arr, sign in ((rows[lost].reshape(-1), -1), (tris.reshape(-1), 1)):
-                np.add.at(self.refs, arr, sign)
                 np.add.at(self.point_refs, self.point[arr], sign)
                 touched.append(self.point[arr])
             grown = np.zeros((count, 3), np.int64)
@@ -247,7 +245,6 @@ class Geomorphs:
         """A keyframe: the camera starts over, nothing morphs."""
         self._moved |= set(self.active)
         self.active.clear()
-        self.refs[:] = 0
         self.point_refs[:] = 0
         for m in range(self.materials):
             self.rows[m] = np.zeros((0, 3), np.int64)
@@ -261,7 +258,6 @@ class Geomorphs:
             rows = np.zeros((int(s.count), 3), np.int64)
             rows[np.asarray(s.slots, np.int64)] = tris
             self.rows[s.material] = rows
-            np.add.at(self.refs, tris.reshape(-1), 1)
             np.add.at(self.point_refs, self.point[tris.reshape(-1)], 1)
             out.writes.append((s.material, int(s.count), np.asarray(s.slots, np.int64), tris.astype(np.uint32)))
         return out

@@ -44,7 +44,7 @@ import grpc
 import numpy as np
 
 from ..errors import InputError
-from ..vertexpack import MAX_POSITION_BITS, MIN_POSITION_BITS
+from ..vertexpack import check_position_bits
 from ..paths import pose as path_pose
 from .aio import AsyncClient, AsyncSession
 from .session import SessionEnded
@@ -325,11 +325,12 @@ def main(args) -> int:
         print("caveclod: error: --cache-strategy and --cache-pq-fraction need --cache-vertices N (slots per camera)",
               file=sys.stderr)
         return 2
-    bits = getattr(args, "position_bits", None)
-    if bits is not None and not MIN_POSITION_BITS <= bits <= MAX_POSITION_BITS:
-        print(f"caveclod: error: --position-bits must be {MIN_POSITION_BITS} to {MAX_POSITION_BITS}, got {bits}",
-              file=sys.stderr)
-        return 2
+    if getattr(args, "position_bits", None) is not None:
+        try:
+            check_position_bits(args.position_bits)
+        except ValueError as exc:
+            print(f"caveclod: error: --{str(exc).replace('_', '-')}", file=sys.stderr)
+            return 2
     if args.cache_vertices is not None and args.cache_vertices < 1:
         print(f"caveclod: error: --cache-vertices must be at least 1 (slots per camera), got {args.cache_vertices}",
               file=sys.stderr)

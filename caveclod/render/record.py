@@ -44,6 +44,14 @@ def parse_size(text: str) -> tuple[int, int]:
     return w, h
 
 
+def morph_ms(args) -> float:
+    """``--morph-ms`` checked: milliseconds, 0 (or absent) for no geomorphs."""
+    morph = getattr(args, "morph_ms", 0.0) or 0.0
+    if morph < 0:
+        raise InputError(f"--morph-ms must be at least 0 (0: no geomorphs), got {morph:g}")
+    return morph
+
+
 def cache_options(args) -> dict:
     """``client.session`` keywords for ``--cache-vertices N [--cache-strategy S] [--cache-pq-fraction F]``
     and ``--vertex-encoding E [--position-bits B]``."""
@@ -54,9 +62,7 @@ def cache_options(args) -> dict:
             check_position_bits(bits)
         except ValueError as exc:
             raise InputError(f"--{str(exc).replace('_', '-')}") from None
-    morph = getattr(args, "morph_ms", 0.0) or 0.0
-    if morph < 0:
-        raise InputError(f"--morph-ms must be at least 0 (0: no geomorphs), got {morph:g}")
+    morph = morph_ms(args)
     encoding = {"vertex_encoding": getattr(args, "vertex_encoding", "packed"), "position_bits": bits,
                 "morph_targets": morph > 0 and getattr(args, "vertex_encoding", "packed") == "packed"}
     if n is None:
