@@ -76,7 +76,8 @@ def slot_terms(slots: np.ndarray, blocks: list) -> np.ndarray:
         b = np.ascontiguousarray(b)
         if b.dtype.byteorder == ">":                     # the wire is little-endian
             b = b.astype(b.dtype.newbyteorder("<"))
-        parts.append(b.view(np.uint8).reshape(k, -1))
+        # Row width from the shape, not -1: a write of no slots (every part hidden) is (0, w) too.
+        parts.append(b.view(np.uint8).reshape(k, b.dtype.itemsize * int(np.prod(b.shape[1:]))))
     return rows_crc32(np.concatenate(parts, axis=1))
 
 

@@ -53,6 +53,10 @@ def test_slots_checksum_is_the_sum_of_per_slot_crcs(colors):
             held[s] = b"".join(b[j].tobytes() for b in blocks)
         want = sum(zlib.crc32(np.uint32(s).astype("<u4").tobytes() + row) for s, row in held.items()) % 2**32
         assert sums.value == want
+    # No slots at all (a cache-mode keyframe of a camera whose parts are all hidden) changes nothing.
+    before = sums.value
+    sums.write(np.zeros(0, np.uint32), _vertices(rng, 0, colors))
+    assert sums.value == before
     sums.reset()
     assert sums.value == 0 and not sums.terms.any()
 
