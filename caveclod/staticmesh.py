@@ -200,6 +200,15 @@ class StaticMesh:
             self.__dict__["_material_face_counts"] = counts
         return counts
 
+    def parts(self):
+        """The connected parts of the base mesh (:class:`caveclod.refine.parts.Parts`); computed once."""
+        parts = self.__dict__.get("_parts")
+        if parts is None:
+            from .refine.parts import mesh_parts
+            parts = mesh_parts(self)
+            self.__dict__["_parts"] = parts
+        return parts
+
     def node_positions(self, nodes: np.ndarray) -> np.ndarray:
         """(k,) position ids of ``nodes`` (leaves or internal)."""
         nodes = np.asarray(nodes)

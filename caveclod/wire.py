@@ -57,13 +57,13 @@ def from_vec3(v: pb.Vec3) -> tuple[float, float, float]:
     return (v.x, v.y, v.z)
 
 
-OPTION_DEFAULTS = {"fov_y": 60.0, "tolerance_px": 1.0, "cull": True, "backface": False}
+OPTION_DEFAULTS = {"fov_y": 60.0, "tolerance_px": 1.0, "cull": True, "backface": False, "prune": True}
 _OPTION_FIELDS = (("fov_y", "fov_y_deg"), ("tolerance_px", "tolerance_px"), ("cull", "cull"),
-                  ("backface", "backface"), ("max_ops", "max_ops"), ("max_faces", "max_faces"))
+                  ("backface", "backface"), ("max_ops", "max_ops"), ("max_faces", "max_faces"), ("prune", "prune"))
 
 
 def options_to_dict(msg: pb.RefineOptions) -> dict:
-    """RefineOptions as ``{width, height, fov_y, tolerance_px, cull, backface, max_ops, max_faces}``.
+    """RefineOptions as ``{width, height, fov_y, tolerance_px, cull, backface, max_ops, max_faces, prune}``.
 
     Unset optional fields are ``None`` (the receiver fills in defaults);
     nothing is validated here.

@@ -170,13 +170,14 @@ def full_view(case) -> View:
     return View(eye=tuple(eye), target=tuple(case.centre), up=(0, 0, 1), tolerance_px=0.0, cull=False)
 
 
-def far_view(case, cull=False) -> View:
+def far_view(case, cull=False, prune=False) -> View:
+    """A view that needs no detail anywhere: the base mesh (``prune``: nothing at all)."""
     if cull:   # looking away from the mesh: everything is culled
         eye = case.centre + case.radius * np.array([0.0, -3.0, 0.5])
         target = eye + np.array([0.0, -1.0, 0.0])
-        return View(eye=tuple(eye), target=tuple(target), up=(0, 0, 1), tolerance_px=1.0, cull=True)
+        return View(eye=tuple(eye), target=tuple(target), up=(0, 0, 1), tolerance_px=1.0, cull=True, prune=prune)
     eye = case.centre + case.radius * np.array([1e4, 2e3, 3e3])
-    return View(eye=tuple(eye), target=tuple(case.centre), up=(0, 0, 1), tolerance_px=1e6, cull=False)
+    return View(eye=tuple(eye), target=tuple(case.centre), up=(0, 0, 1), tolerance_px=1e6, cull=False, prune=prune)
 
 
 def record_rows(cam) -> np.ndarray:
@@ -390,6 +391,16 @@ def test_far_camera_gives_the_base_mesh(lib, name, cull):
     until_still(cam, far_view(case, cull), max_updates=case.coarsen_updates)
     assert np.array_equal(cam.active_nodes(), roots)
     assert_same_triangles(cam.triangles(), case.base_by_material(), "coarsest state after a walk")
+    # Parts may vanish: far away (not merely looked away from) every part does, then comes back whole.
+    delta = cam.update(far_view(case, cull, prune=True))
+    cam.validate()
+    if cull:
+        assert delta.operations == 0 and cam.n_faces == len(mesh.base_faces)
+    else:
+        assert delta.parts_hidden == mesh.parts().count and cam.n_faces == 0 and len(cam.active_nodes()) == 0
+        assert cam.update(far_view(case, cull)).parts_shown == mesh.parts().count
+        cam.validate()
+        assert_same_triangles(cam.triangles(), case.base_by_material(), "base mesh shown again")
 
 
 def test_refinement_is_history_free(lib):

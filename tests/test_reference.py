@@ -13,6 +13,7 @@ found: growing buffers in the middle of an update changes its decisions.
 
 from __future__ import annotations
 
+import dataclasses
 import inspect
 
 import numpy as np
@@ -36,6 +37,7 @@ MESHES = {
     "noisy_box": lambda: build_static_mesh(noisy_box()),
     "holey_scan": lambda: build_static_mesh(holey_scan()),
     "bad_topology": lambda: build_static_mesh(with_bad_topology(holey_scan(seed=3))),
+    "debris": lambda: caveclod.build("debris", size=2, seed=3),      # 40 parts that vanish and come back
 }
 TOLERANCES = (0.0, 0.25, 1.0, 3.0, 10.0, 1e12)
 
@@ -125,6 +127,10 @@ class Pair:
         where = f"update {self.steps} ({view})"
         assert (delta.splits, delta.collapses) == want, f"{where}: compiled (splits, collapses) " \
             f"{(delta.splits, delta.collapses)}, reference {want}"
+        parts = (delta.parts_shown, delta.parts_hidden)
+        assert parts == (self.ref.parts_shown, self.ref.parts_hidden), f"{where}: compiled (parts shown, hidden) " \
+            f"{parts}, reference {(self.ref.parts_shown, self.ref.parts_hidden)}"
+        assert np.flatnonzero(self.cam.part_hidden).tolist() == sorted(self.ref.hidden), f"{where}: hidden parts differ"
         self.splits += delta.splits
         self.collapses += delta.collapses
         delta.apply(self.mirror)
@@ -225,13 +231,18 @@ def test_refine_all_then_coarsen_all_agree():
     pair = Pair(mesh)
     d = pair.update(everything(mesh))
     assert len(pair.ref.faces) == mesh.n_faces and d.collapses == 0
-    nothing = View(eye=(5000.0, 5000.0, 20000.0), target=(5000.0, 5001.0, 0.0), tolerance_px=1e12)
+    nothing = View(eye=(5000.0, 5000.0, 20000.0), target=(5000.0, 5001.0, 0.0), tolerance_px=1e12, prune=False)
     # One pass need not collapse everything (a parent joins the list only
     # once its children collapse); a few more passes reach the base mesh.
     for _ in range(40):
         if not pair.update(nothing).operations:
             break
     assert len(pair.ref.faces) == len(mesh.base_faces)
+    # Pruning allowed, the terrain (one part, far below the tolerance) vanishes; then comes back.
+    d = pair.update(dataclasses.replace(nothing, prune=True))
+    assert (d.parts_hidden, pair.cam.n_faces, len(pair.ref.faces)) == (1, 0, 0)
+    d = pair.update(everything(mesh))
+    assert d.parts_shown == 1 and len(pair.ref.faces) == mesh.n_faces
 
 
 @pytest.mark.parametrize("budget", [dict(max_ops=1), dict(max_ops=7), dict(max_faces=300),

@@ -364,5 +364,188 @@ def _boulder_radius(d: np.ndarray, rng: np.random.Generator) -> np.ndarray:
     return r
 
 
-BUILTINS = {"default": default_terrain, "rough": rough_terrain, "scan": range_scan}
+# --------------------------------------------------------------------------
+# debris field
+
+DEBRIS_CREASE_ANGLE = 60.0
+"""The debris field's crease angle: boulders' lumps stay smooth, blocks' edges are seams."""
+
+_DEBRIS_PER_SIZE = 20          # parts per unit of --size: 256 gives 5,120 parts
+_DEBRIS_SPACING = 8.0          # metres of field per sqrt(part)
+_DEBRIS_ATLAS = 64             # charts per side of the shared UV atlas
+_ROCKS = ("granite", "basalt", "sandstone", "limestone", "slate")
+_BLOCKS = ("concrete", "brick", "rusty_metal", "timber")
+_DEBRIS_MATERIALS = _ROCKS + _BLOCKS + ("tarp",)
+
+
+def debris_field(size: int = 256, seed: int = 13) -> SourceMesh:
+    """A field of ``20 * size`` separate small parts: what a scanned quarry, a
+    rubble site or a city's street furniture looks like to a mesh builder.
+
+    Boulders (70 %: lumpy icospheres, 80 or 320 faces, radii from 0.1 to 5 m,
+    a third scanned from above with their bottoms missing, so open borders),
+    blocks (25 %: boxes of 1 to 15 m with hard edges, each side its own UV
+    chart, so normal and texture seams) and sheets (5 %: bent open 8 x 8
+    grids). Each part has its own charts in one shared atlas (a fragmented
+    atlas), one of ten materials, a random orientation, and stands on a
+    gently sloping field ``8 sqrt(parts)`` metres across: the extent is
+    thousands of times the smallest part.
+    """
+    size = _checked_size(size)
+    rng = np.random.default_rng(seed)
+    n = _DEBRIS_PER_SIZE * size
+    kind = rng.choice(3, n, p=(0.70, 0.25, 0.05))
+    side = _DEBRIS_SPACING * np.sqrt(n)
+    where = np.c_[rng.uniform(0, side, n), rng.uniform(0, side, n)]
+    where = np.c_[where, 0.02 * where[:, 0] + 0.01 * where[:, 1]]
+    pieces = []
+    for k, make in ((0, _boulders), (1, _blocks), (2, _sheets)):
+        ids = np.flatnonzero(kind == k)
+        if len(ids):
+            pieces.append(make(ids, where[ids], rng))
+    # Concatenate (positions, vertex -> position, faces by vertex, per-vertex uv, face material).
+    P, VP, F, UV, M = [], [], [], [], []
+    np_, nv = 0, 0
+    for pos, vpos, faces, uv, mat in pieces:
+        P.append(pos)
+        VP.append(vpos + np_)
+        F.append(faces + nv)
+        UV.append(uv)
+        M.append(mat)
+        np_ += len(pos)
+        nv += len(vpos)
+    source = SourceMesh(positions=np.concatenate(P), vertex_position=np.concatenate(VP).astype(np.int64),
+                        faces=np.concatenate(F).astype(np.int64), face_material=np.concatenate(M).astype(np.int32),
+                        materials=list(_DEBRIS_MATERIALS), vertex_uv=np.concatenate(UV).astype(np.float32),
+                        crease_angle=DEBRIS_CREASE_ANGLE,
+                        notes=[f"debris field: {n:,} parts ({int((kind == 0).sum()):,} boulders, "
+                               f"{int((kind == 1).sum()):,} blocks, {int((kind == 2).sum()):,} sheets)"])
+    return _drop_unused(source)
+
+
+def _rotations(n: int, rng: np.random.Generator) -> np.ndarray:
+    """(n, 3, 3) uniformly random rotations (QR of Gaussian matrices, signs fixed)."""
+    q, r = np.linalg.qr(rng.normal(size=(n, 3, 3)))
+    q *= np.sign(np.diagonal(r, axis1=1, axis2=2))[:, None, :]
+    q[np.linalg.det(q) < 0, :, 0] *= -1.0
+    return q
+
+
+def _chart_uv(ids: np.ndarray, local: np.ndarray, charts: int = 1, chart: np.ndarray | None = None) -> np.ndarray:
+    """UVs in part ``ids``' own cell of the shared atlas; ``local`` (..., 2) in [0, 1],
+    ``chart`` (...) which of the part's ``charts`` sub-cells (side by side)."""
+    cell = 1.0 / _DEBRIS_ATLAS
+    slot = (ids * 7919) % (_DEBRIS_ATLAS * _DEBRIS_ATLAS)        # scattered over the atlas
+    u0, v0 = (slot % _DEBRIS_ATLAS) * cell, (slot // _DEBRIS_ATLAS) * cell
+    shape = (-1,) + (1,) * (local.ndim - 2)
+    c = 0 if chart is None else chart
+    u = u0.reshape(shape) + cell * (c + 0.05 + 0.9 * local[..., 0]) / charts
+    v = v0.reshape(shape) + cell * (0.05 + 0.9 * local[..., 1])
+    return np.stack([u, v], axis=-1)
+
+
+def _boulders(ids, where, rng):
+    import trimesh
+    P, V, F, UV, M = [], [], [], [], []
+    fine = rng.random(len(ids)) < 0.5
+    for sub, pick in ((1, ~fine), (2, fine)):
+        sel = ids[pick]
+        if not len(sel):
+            continue
+        sphere = trimesh.creation.icosphere(subdivisions=sub)
+        d = np.asarray(sphere.vertices)                                  # (v, 3) unit directions
+        m = len(sel)
+        r = np.ones((m, len(d)))
+        for _ in range(5):                                               # lumps
+            c = rng.normal(size=(m, 3))
+            c /= np.linalg.norm(c, axis=1, keepdims=True)
+            r += rng.uniform(-0.15, 0.2, (m, 1)) * np.exp((c @ d.T - 1.0) / rng.uniform(0.1, 0.4, (m, 1)))
+        radius = np.clip(rng.lognormal(np.log(0.5), 0.7, m), 0.1, 5.0)
+        local = d[None] * (r * radius[:, None])[..., None]               # (m, v, 3)
+        pos = np.einsum("mij,mvj->mvi", _rotations(m, rng), local) + where[pick][:, None, :]
+        pos[..., 2] += 0.6 * radius[:, None]                             # half sunk in the ground
+        uv = _chart_uv(sel, 0.5 + 0.5 * d[None, :, :2] * np.ones((m, 1, 1)))
+        faces = np.asarray(sphere.faces)
+        # A third were scanned from above: faces looking down were never captured.
+        normal_z = np.cross(d[faces[:, 1]] - d[faces[:, 0]], d[faces[:, 2]] - d[faces[:, 0]])[:, 2]
+        base = len(d) * np.arange(m)[:, None, None]
+        all_faces = faces[None] + base                                   # (m, f, 3)
+        keep = ~((rng.random(m) < 1 / 3)[:, None] & (normal_z[None] < -0.02))
+        done = sum(len(x) for x in P)                                    # one vertex per position
+        P.append(pos.reshape(-1, 3))
+        V.append(done + np.arange(m * len(d)))
+        F.append(done + all_faces[keep])
+        UV.append(uv.reshape(-1, 2))
+        M.append(np.repeat(rng.integers(0, len(_ROCKS), m), keep.sum(axis=1)))
+    return _join(P, V, F, UV, M)
+
+
+def _blocks(ids, where, rng):
+    import trimesh
+    box = trimesh.creation.box().subdivide()                               # unit cube, 48 faces
+    p = np.asarray(box.vertices)
+    faces = np.asarray(box.faces)
+    fn = np.cross(p[faces[:, 1]] - p[faces[:, 0]], p[faces[:, 2]] - p[faces[:, 0]])
+    axis = np.abs(fn).argmax(axis=1)
+    chart = axis * 2 + (fn[np.arange(len(fn)), axis] > 0)                  # six sides, six charts
+    # One vertex per (position, side): every box edge is a UV seam.
+    used, vertex = np.unique(faces * 6 + chart[:, None], return_inverse=True)
+    vpos, vchart = used // 6, used % 6
+    vax = vchart // 2
+    plane = np.stack([p[vpos, (vax + 1) % 3], p[vpos, (vax + 2) % 3]], axis=1) + 0.5   # (v, 2) in [0, 1]
+    m = len(ids)
+    dims = rng.uniform(1.0, 15.0, (m, 3)) * rng.uniform(0.3, 1.0, (m, 3))
+    yaw = rng.uniform(0, 2 * np.pi, m)
+    rot = np.zeros((m, 3, 3))
+    rot[:, 0, 0], rot[:, 0, 1], rot[:, 1, 0], rot[:, 1, 1], rot[:, 2, 2] = \
+        np.cos(yaw), -np.sin(yaw), np.sin(yaw), np.cos(yaw), 1.0
+    pos = np.einsum("mij,mvj->mvi", rot, p[None] * dims[:, None, :]) + where[:, None, :]
+    pos[..., 2] += 0.5 * dims[:, None, 2]                                  # standing on the ground
+    uv = _chart_uv(ids, plane[None] * np.ones((m, 1, 1)), charts=6, chart=vchart[None])
+    all_faces = vertex.reshape(-1, 3)[None] + len(vpos) * np.arange(m)[:, None, None]
+    return _join([pos.reshape(-1, 3)], [(vpos[None] + len(p) * np.arange(m)[:, None]).ravel()],
+                 [all_faces.reshape(-1, 3)], [uv.reshape(-1, 2)],
+                 [np.repeat(len(_ROCKS) + rng.integers(0, len(_BLOCKS), m), len(faces))])
+
+
+def _sheets(ids, where, rng):
+    m, k = len(ids), 9
+    t = np.linspace(0.0, 1.0, k)
+    u, v = np.meshgrid(t, t)
+    local = np.stack([u.ravel(), v.ravel()], axis=1)                    # (k*k, 2)
+    length = rng.uniform(1.0, 6.0, (m, 1))
+    bend = rng.uniform(-0.4, 0.4, (m, 1))
+    flat = np.stack([(local[None, :, 0] - 0.5) * length, (local[None, :, 1] - 0.5) * length,
+                     bend * length * np.sin(np.pi * local[None, :, 0]) + 0.05], axis=-1)
+    yaw = rng.uniform(0, 2 * np.pi, m)
+    c, s = np.cos(yaw)[:, None], np.sin(yaw)[:, None]
+    pos = np.stack([c * flat[..., 0] - s * flat[..., 1], s * flat[..., 0] + c * flat[..., 1], flat[..., 2]], -1)
+    pos += where[:, None, :]
+    ids_grid = np.arange(k * k).reshape(k, k)
+    a, b, cc, d = ids_grid[:-1, :-1], ids_grid[:-1, 1:], ids_grid[1:, 1:], ids_grid[1:, :-1]
+    faces = np.concatenate([np.stack([a, b, cc], -1).reshape(-1, 3), np.stack([a, cc, d], -1).reshape(-1, 3)])
+    all_faces = faces[None] + k * k * np.arange(m)[:, None, None]
+    uv = _chart_uv(ids, local[None] * np.ones((m, 1, 1)))
+    return _join([pos.reshape(-1, 3)], [np.arange(m * k * k)], [all_faces.reshape(-1, 3)], [uv.reshape(-1, 2)],
+                 [np.full(m * len(faces), len(_DEBRIS_MATERIALS) - 1)])
+
+
+def _join(P, V, F, UV, M):
+    """One kind's (positions, vertex -> position, faces, uvs, face materials) from lists of pieces."""
+    return (np.concatenate(P), np.concatenate(V), np.concatenate(F), np.concatenate(UV), np.concatenate(M))
+
+
+def _drop_unused(source: SourceMesh) -> SourceMesh:
+    """Keep only the vertices and positions some face uses (open boulders dropped faces)."""
+    used_v, faces = np.unique(source.faces, return_inverse=True)
+    used_p, vpos = np.unique(source.vertex_position[used_v], return_inverse=True)
+    source.positions = np.asarray(source.positions, np.float64)[used_p]
+    source.vertex_position = vpos.astype(np.int64)
+    source.faces = faces.reshape(-1, 3).astype(np.int64)
+    source.vertex_uv = source.vertex_uv[used_v]
+    source.validate()
+    return source
+
+
+BUILTINS = {"default": default_terrain, "rough": rough_terrain, "scan": range_scan, "debris": debris_field}
 """Built-in sources by name: ``(size, seed) -> SourceMesh``."""

@@ -92,7 +92,7 @@ DAMAGED = 4
 MIXED, SPLITS_ONLY, COLLAPSES_ONLY = 0, 1, 2   # what a pass may do
 
 # View parameter layout (caveclod.refine.view).
-P_EYE, P_PLANES, P_KAPPA, P_TOL, P_CULL, P_BACKFACE = 0, 3, 23, 24, 25, 26
+P_EYE, P_PLANES, P_KAPPA, P_TOL, P_CULL, P_BACKFACE, P_PRUNE = 0, 3, 23, 24, 25, 26, 27
 
 NEVER = -np.inf      # an expiry that has passed: evaluate the entry
 FOREVER = np.inf     # an answer no camera motion changes

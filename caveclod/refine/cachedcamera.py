@@ -186,7 +186,7 @@ class CachedCamera:
         eye = centre - f * (2.0 * reach + 1.0)
         away = eye - f * (reach + 1.0)          # far enough from the eye to differ at any extent (1 ulp of 1e16 is 2)
         return view_params(tuple(map(float, eye)), tuple(map(float, away)), view.up, view.fov_y, view.width,
-                           view.height, t, True, False)
+                           view.height, t, True, False, view.prune)
 
     def _outside(self) -> tuple[np.ndarray, float]:
         """(centre of the mesh's box, R): every node's bounding sphere lies within R of the centre."""
@@ -282,6 +282,8 @@ def _merge(camera, deltas: list) -> Delta:
         out.surfaces[m] = SurfaceDelta(slots, camera.index_buffer(m)[slots].copy(), count)
     out.splits = sum(d.splits for d in deltas)
     out.collapses = sum(d.collapses for d in deltas)
+    out.parts_shown = sum(d.parts_shown for d in deltas)
+    out.parts_hidden = sum(d.parts_hidden for d in deltas)
     out.budget_exhausted = deltas[-1].budget_exhausted
     out.tested = sum(d.tested for d in deltas)
     return out

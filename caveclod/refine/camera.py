@@ -14,8 +14,9 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from ..errors import CaveclodError, InputError
+from ..kernels import parts as KP
 from ..kernels import refine as K
-from .view import P_BACKFACE, P_CULL, P_EYE, P_KAPPA, P_PLANES, P_TOL, View
+from .view import P_BACKFACE, P_CULL, P_EYE, P_KAPPA, P_PLANES, P_PRUNE, P_TOL, View
 
 UNLIMITED = np.iinfo(np.int64).max
 REBASE_TURNS = 100.0        # radians the odometer may turn before expiries are rebased
@@ -52,6 +53,8 @@ class Delta:
             updates with the same view go on refining.
         tested: active nodes whose answer was worked out; the others were
             skipped because no motion since could have changed it.
+        parts_shown, parts_hidden: whole parts that came back or vanished
+            (:mod:`caveclod.kernels.parts`).
     """
 
     surfaces: dict = field(default_factory=dict)
@@ -60,10 +63,12 @@ class Delta:
     seconds: float = 0.0
     budget_exhausted: bool = False
     tested: int = 0
+    parts_shown: int = 0
+    parts_hidden: int = 0
 
     @property
     def operations(self) -> int:
-        return self.splits + self.collapses
+        return self.splits + self.collapses + self.parts_shown + self.parts_hidden
 
     def apply(self, buffers: dict) -> dict:
         """Apply to ``buffers`` {material: (k, 3) uint32} and return them."""
@@ -115,6 +120,12 @@ class CameraState:
         self._layout(np.maximum(base_count + base_count // 4, 4))
         self._sent = np.zeros(self.n_materials, np.int64)   # buffer lengths the last delta announced
         self._add_base(a)
+        parts = mesh.parts()
+        self._parts_static = (a["base_faces"], a["base_face_nodes"], a["base_face_nbrs"], parts.sphere,
+                              parts.root_start, parts.roots, parts.face_start, parts.faces)
+        self.part_hidden = np.zeros(parts.count, np.uint8)    # 1 while the part is hidden
+        self.part_exp = np.full(parts.count, -np.inf)         # expiry of each part's answer on odo[0]
+        self._part_counts = np.zeros(2, np.int64)             # parts shown, hidden by this update
         self.queue = np.empty(32, np.int32)                # collapse candidates of a pass
         self.counts = np.zeros(4, np.int64)
         self._resume = np.zeros(4, np.int64)      # where an interrupted pass goes on
@@ -236,6 +247,8 @@ class CameraState:
             raise InputError("the view has NaN or infinite numbers; send a finite pose")
         self._advance_odometer(vp)
         self.counts[:] = 0
+        self._part_counts[:] = 0
+        self._show_parts(vp)
         if self.max_ops == UNLIMITED and self.max_faces == UNLIMITED:
             self._pass(vp, K.MIXED)
         else:
@@ -245,10 +258,12 @@ class CameraState:
             self._pass(vp, K.SPLITS_ONLY)
             if self.counts[0] + self.counts[1] < self.max_ops:
                 self._pass(vp, K.COLLAPSES_ONLY)
+        self._hide_parts(vp)
         delta = self._collect_delta()
-        if not self.counts[0] + self.counts[1]:
-            self._trim()              # at rest: a moving camera would only grow again
         delta.splits, delta.collapses = int(self.counts[0]), int(self.counts[1])
+        delta.parts_shown, delta.parts_hidden = int(self._part_counts[0]), int(self._part_counts[1])
+        if not delta.operations:
+            self._trim()              # at rest: a moving camera would only grow again
         delta.budget_exhausted = bool(self.counts[2])
         delta.tested = int(self.counts[3])
         delta.seconds = time.perf_counter() - t0
@@ -262,8 +277,9 @@ class CameraState:
         last = self._last_view
         now = vp.tolist()
         self._last_view = now
-        if last is None or any(last[k] != now[k] for k in (P_KAPPA, P_TOL, P_CULL, P_BACKFACE)):
+        if last is None or any(last[k] != now[k] for k in (P_KAPPA, P_TOL, P_CULL, P_BACKFACE, P_PRUNE)):
             self.texp[:] = -np.inf
+            self.part_exp[:] = -np.inf
             return
         self.odo[0] += math.dist(now[P_EYE:P_EYE + 3], last[P_EYE:P_EYE + 3])
         self.odo[1] += max(math.dist(now[b:b + 3], last[b:b + 3]) for b in range(P_PLANES, P_PLANES + 20, 4))
@@ -276,6 +292,7 @@ class CameraState:
                 up = down.astype(np.float64) > shifted
                 down[up] = np.nextafter(down[up], np.float32(-np.inf))
                 exp[:n] = down
+            self.part_exp -= self.odo[0]          # float64: exact enough as it is
             self.odo[:] = 0.0
 
     def _pass(self, vp: np.ndarray, mode: int) -> None:
@@ -303,6 +320,36 @@ class CameraState:
         finally:
             if self._resume[2]:
                 self._abandon_pass()
+
+    def _show_parts(self, vp: np.ndarray) -> None:
+        """Bring back the hidden parts the view no longer finds small, growing arrays when asked."""
+        if not len(self.part_hidden):
+            return
+        shown = self._part_counts[0:1]
+        while True:
+            status, what = KP.show_parts(
+                self._static[0], self._static[3], self._static[8], self._static[9], self._static[10],
+                self._static[11], *self._parts_static, self.part_hidden, self.part_exp, self.state, self.face_rec,
+                self.off, self.cnt, self.cap, self.rec_tri, self.rec_nbr, self.rec_face, self.dirty, self.active,
+                self.texp, self.aexp, self.n_active, vp, self.odo, self.expiries, shown)
+            if status == K.OK:
+                return
+            if status == K.NEED_RECORDS:
+                self._grow_records(int(what))
+            elif status == K.NEED_LIST:
+                self._grow_list()
+            elif status == K.DAMAGED:
+                raise self.mesh.mark_damaged(f"base face {int(what)} has a corner without a vertex of its group")
+            else:  # pragma: no cover - the kernel has no other status
+                raise CaveclodError(f"part kernel returned status {status}")
+
+    def _hide_parts(self, vp: np.ndarray) -> None:
+        """Hide the parts the view finds small that are at their base mesh."""
+        if len(self.part_hidden):
+            KP.hide_parts(self._parts_static[0], self._static[8], self._parts_static[3], *self._parts_static[4:],
+                          self.part_hidden, self.part_exp, self.state, self.face_rec, self.off, self.cnt,
+                          self.rec_tri, self.rec_nbr, self.rec_face, self.dirty, vp, self.odo, self.expiries,
+                          self._part_counts[1:2])
 
     def _abandon_pass(self) -> None:
         """Close an interrupted pass (growth failed): keep the listed nodes.
@@ -336,11 +383,20 @@ class CameraState:
         return delta
 
     def keyframe(self) -> Delta:
-        """A delta that rebuilds every buffer from nothing (for a new client)."""
+        """A delta that rebuilds every buffer from nothing (for a new client).
+
+        Later deltas go on from it (:meth:`mark_sent`)."""
         delta = Delta()
         for s, tri in self.triangles().items():
             delta.surfaces[s] = SurfaceDelta(np.arange(len(tri), dtype=np.uint32), tri.copy(), len(tri))
+        self.mark_sent()
         return delta
+
+    def mark_sent(self) -> None:
+        """The client now holds every buffer whole, as it is (a keyframe went out, built
+        from :meth:`index_buffer`): later deltas announce each buffer's length from here,
+        so a buffer that a hidden part empties is announced even if it held nothing before."""
+        self._sent[:] = self.cnt
 
     def reorder_for_vertex_cache(self, material: int) -> np.ndarray | None:
         """Put one material's index buffer in vertex-cache order (:mod:`caveclod.kernels.cacheorder`);
@@ -398,11 +454,17 @@ class CameraState:
         return int(self.cnt.sum())
 
     @property
+    def hidden_parts(self) -> int:
+        """Parts hidden for being smaller than the tolerance."""
+        return int(self.part_hidden.sum())
+
+    @property
     def nbytes(self) -> int:
         """Bytes this camera owns (the static mesh is shared, not counted)."""
         arrays = (self.state, self.face_rec, self.rec_tri, self.rec_nbr, self.rec_face, self.dirty, self._slack,
                   self.active, self.texp, self.aexp, self.n_active, self.queue,
-                  self.off, self.cnt, self.cap, self._sent, self.counts, self._resume, self.odo)
+                  self.off, self.cnt, self.cap, self._sent, self.counts, self._resume, self.odo,
+                  self.part_hidden, self.part_exp, self._part_counts)
         return int(sum(x.nbytes for x in arrays))
 
     def validate(self) -> None:

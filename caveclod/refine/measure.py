@@ -143,3 +143,41 @@ def surface_errors(mesh, triangles, original, view: View) -> np.ndarray:
     V = np.asarray(mesh.vertex_positions, np.float64)
     points = np.einsum("sc,kcd->ksd", SURFACE_SAMPLES, V[tri]).reshape(-1, 3)
     return pixel_errors(mesh, original, view, points=points)
+
+
+def hidden_positions(camera) -> np.ndarray:
+    """(e,) bool: the original positions of the parts ``camera`` hides for being
+    smaller than the tolerance (:mod:`caveclod.kernels.parts`). :func:`pixel_errors`
+    has nothing drawn to measure them against; :func:`hidden_part_pixels` measures them."""
+    from .parts import position_part
+    part = position_part(camera.mesh)
+    return (part >= 0) & (camera.part_hidden[np.maximum(part, 0)] != 0)
+
+
+def hidden_part_pixels(camera, view: View) -> np.ndarray:
+    """(h,) float64 the size in pixels of each part ``camera`` hides, from its original positions.
+
+    Twice the largest distance of a position from the middle of the part's
+    box, converted to pixels at that position's own distance from the eye as
+    :func:`pixel_errors` converts: every position of the part lies within
+    half this many pixels of one point. Hiding promises less than the
+    tolerance, wherever the part lies.
+    """
+    from .parts import position_part
+    part = position_part(camera.mesh)
+    keep = (part >= 0) & (camera.part_hidden[np.maximum(part, 0)] != 0)
+    k = part[keep]
+    P = np.asarray(camera.mesh.positions, np.float64)[keep]
+    if len(k) == 0:
+        return np.zeros(0)
+    ids, k = np.unique(k, return_inverse=True)
+    lo = np.full((len(ids), 3), np.inf)
+    hi = np.full((len(ids), 3), -np.inf)
+    np.minimum.at(lo, k, P)
+    np.maximum.at(hi, k, P)
+    vp = view.params()
+    eye = vp[P_EYE:P_EYE + 3]
+    size = 2.0 * np.linalg.norm(P - 0.5 * (lo + hi)[k], axis=1) * vp[P_KAPPA] / np.linalg.norm(P - eye, axis=1)
+    out = np.zeros(len(ids))
+    np.maximum.at(out, k, size)
+    return out

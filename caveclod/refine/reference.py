@@ -25,6 +25,14 @@ the specification of one update:
    need detail and its collapse is legal; its own candidates are pushed in
    turn.
 5. Once the operation budget is spent, nodes are kept as they are.
+6. Parts (connected components of the base mesh) that project smaller than
+   the tolerance vanish: before the walk, each hidden part that is no longer
+   small comes back (its roots active and listed, its base faces added);
+   after it, each visible part that is small and whose roots are all active
+   (it is at its base mesh) is hidden (roots hidden, base faces removed).
+   Small: ``(|c - eye| - r) - 2 r kappa / tol > 0`` for the sphere (c, r)
+   around the part's original positions, when the view allows pruning and
+   the tolerance is positive.
 
 Node ids: leaves ``0 .. e-1`` are positions; internal node ``x`` has its
 static data at index ``x - e``. A split of ``s`` into ``t`` (stationary, at
@@ -49,7 +57,7 @@ from __future__ import annotations
 
 import math
 
-INACTIVE, ACTIVE, SPLIT = "inactive", "active", "split"
+INACTIVE, ACTIVE, SPLIT, HIDDEN = "inactive", "active", "split", "hidden"
 
 
 class ReferenceCamera:
@@ -72,6 +80,7 @@ class ReferenceCamera:
         self.active = []                      # the active-node list, in visiting order
         self.in_list = set()                  # nodes currently in self.active
         self.splits = self.collapses = 0
+        self.parts_shown = self.parts_hidden = 0
         for x in range(self.n_nodes):         # the roots form the base mesh's front
             if self.parent[x] < 0:
                 self.state[x] = ACTIVE
@@ -79,6 +88,8 @@ class ReferenceCamera:
                 self.in_list.add(x)
         for f, nodes, nbrs in self.base:
             self._add_face(f, [self.position(x) for x in nodes], list(nbrs))
+        self._find_parts(mesh)
+        self.hidden = set()                   # parts hidden for being small
 
     def _read_static(self, mesh):
         def ints(name):
@@ -108,6 +119,54 @@ class ReferenceCamera:
         for p in range(self.e):
             for i in range(start[p], start[p + 1]):
                 self.vertex_of.setdefault((vsg[i], p), i)
+
+    def _find_parts(self, mesh):
+        """Parts: base faces joined through shared nodes, numbered in order of
+        their first base face; each part's roots, base faces and sphere."""
+        part_of = {}                          # node -> part, by flooding from each base face in order
+        faces_at = {}
+        for i, (_, nodes, _) in enumerate(self.base):
+            for x in nodes:
+                faces_at.setdefault(x, []).append(i)
+        self.part_faces, self.part_roots = [], []
+        for i, (_, nodes, _) in enumerate(self.base):
+            if nodes[0] in part_of:
+                continue
+            k = len(self.part_faces)
+            todo, seen = [i], {i}
+            while todo:
+                j = todo.pop()
+                for x in self.base[j][1]:
+                    part_of[x] = k
+                    for g in faces_at[x]:
+                        if g not in seen:
+                            seen.add(g)
+                            todo.append(g)
+            self.part_faces.append(sorted(seen))
+            self.part_roots.append(sorted({x for j in seen for x in self.base[j][1]}))
+        # The sphere around each part's original positions (leaves): the box's
+        # middle, then the farthest position's distance from it.
+        pos = [[float(v) for v in row] for row in mesh.positions]
+        lo = [[math.inf] * 3 for _ in self.part_faces]
+        hi = [[-math.inf] * 3 for _ in self.part_faces]
+        leaf_part = []
+        for x in range(self.e):
+            top = x
+            while self.parent[top] >= 0:
+                top = self.parent[top]
+            k = part_of.get(top, -1)
+            leaf_part.append(k)
+            if k >= 0:
+                for j in range(3):
+                    lo[k][j] = min(lo[k][j], pos[x][j])
+                    hi[k][j] = max(hi[k][j], pos[x][j])
+        centre = [[0.5 * (a + b) for a, b in zip(lo[k], hi[k])] for k in range(len(lo))]
+        radius = [0.0] * len(lo)
+        for x, k in enumerate(leaf_part):
+            if k >= 0:
+                dx, dy, dz = (pos[x][j] - centre[k][j] for j in range(3))
+                radius[k] = max(radius[k], math.sqrt(dx * dx + dy * dy + dz * dz))
+        self.part_sphere = [(*centre[k], radius[k]) for k in range(len(lo))]
 
     # -- small facts ----------------------------------------------------------
     def position(self, x):
@@ -425,10 +484,52 @@ class ReferenceCamera:
             self.collapse(c)
             push(self.candidates_of(c))
 
+    # -- parts that vanish --------------------------------------------------------
+    def part_small(self, k):
+        """Whether part ``k`` projects smaller than the tolerance (rule 6)."""
+        v = self.view
+        if not v["prune"] or v["tolerance"] <= 0.0:
+            return False
+        cx, cy, cz, r = self.part_sphere[k]
+        ex, ey, ez = v["eye"]
+        dx, dy, dz = cx - ex, cy - ey, cz - ez
+        length = math.sqrt(dx * dx + dy * dy + dz * dz)
+        return (length - r) - 2.0 * r * v["kappa"] / v["tolerance"] > 0.0
+
+    def show_parts(self):
+        for k in sorted(self.hidden):
+            if not self.part_small(k):
+                self.hidden.discard(k)
+                for i in self.part_faces[k]:
+                    f, nodes, nbrs = self.base[i]
+                    self._add_face(f, [self.position(x) for x in nodes], list(nbrs))
+                for x in self.part_roots[k]:
+                    self.state[x] = ACTIVE
+                    self.append(x)
+                self.parts_shown += 1
+
+    def hide_parts(self):
+        for k in range(len(self.part_faces)):
+            if k in self.hidden or not self.part_small(k):
+                continue
+            if any(self.node_state(x) != ACTIVE for x in self.part_roots[k]):
+                continue                          # not at its base mesh yet
+            self.hidden.add(k)
+            for i in self.part_faces[k]:
+                self._remove_face(self.base[i][0])
+            for x in self.part_roots[k]:
+                self.state[x] = HIDDEN
+                if x in self.in_list:
+                    self.in_list.discard(x)
+                    self.active.remove(x)
+            self.parts_hidden += 1
+
     def update(self, view):
         """Refine for ``view`` (a :class:`caveclod.refine.view.View`); returns (splits, collapses)."""
         self.set_view(view)
         self.splits = self.collapses = 0
+        self.parts_shown = self.parts_hidden = 0
+        self.show_parts()
         if self.max_ops == math.inf and self.max_faces == math.inf:
             self.adapt()
         else:
@@ -437,11 +538,12 @@ class ReferenceCamera:
             self.adapt(collapses=False)
             if self.ops() < self.max_ops:
                 self.adapt(splits=False)
+        self.hide_parts()
         return self.splits, self.collapses
 
     def set_view(self, view):
         """Read the criteria :meth:`need_refine` uses from ``view``'s parameter vector."""
-        from .view import P_BACKFACE, P_CULL, P_EYE, P_KAPPA, P_PLANES, P_TOL
+        from .view import P_BACKFACE, P_CULL, P_EYE, P_KAPPA, P_PLANES, P_PRUNE, P_TOL
         vp = [float(v) for v in view.params()]
         self.view = {
             "eye": vp[P_EYE:P_EYE + 3],
@@ -450,6 +552,7 @@ class ReferenceCamera:
             "tolerance": vp[P_TOL],
             "cull": vp[P_CULL] != 0.0,
             "backface": vp[P_BACKFACE] != 0.0,
+            "prune": vp[P_PRUNE] != 0.0,
         }
 
     # -- what the camera shows ----------------------------------------------------

@@ -5,6 +5,7 @@ from __future__ import annotations
 import numpy as np
 
 from ..kernels import refine as K
+from ..kernels.parts import HIDDEN
 
 
 def _fail(msg: str):
@@ -37,6 +38,14 @@ def validate_camera(cam) -> None:
     roots = np.flatnonzero(parent < 0)
     if (state[roots] == K.INACTIVE).any():
         _fail("a root is inactive")
+    # Hidden parts: all their roots HIDDEN, nothing else is.
+    parts = mesh.parts()
+    part_of_root = np.repeat(np.arange(parts.count), np.diff(parts.root_start))
+    hidden_root = state[parts.roots] == HIDDEN
+    if not np.array_equal(hidden_root, cam.part_hidden[part_of_root] != 0):
+        _fail("a hidden part's root is not hidden, or a visible part's root is")
+    if int(np.count_nonzero(state == HIDDEN)) != int(hidden_root.sum()):
+        _fail("a node outside the hidden parts' roots is hidden")
     listed = cam.active[: cam.n_active[0]]
     if len(np.unique(listed)) != len(listed):
         _fail("a node is listed twice in the active list")
@@ -49,11 +58,14 @@ def validate_camera(cam) -> None:
     if not np.array_equal(inlist, (cam.state & K.IN_LIST) != 0):
         _fail("IN_LIST bits disagree with the active list")
 
-    # Faces: active exactly when their creator is split (base faces always).
+    # Faces: active exactly when their creator is split (base faces: while their part is shown).
     creator = np.asarray(mesh.face_creator)
     want = np.ones(len(creator), bool)
     made = creator >= 0
     want[made] = state[creator[made]] == K.SPLIT
+    part_of_face = np.repeat(np.arange(parts.count), np.diff(parts.face_start))
+    base = np.asarray(mesh.base_faces)[parts.faces]
+    want[base] = cam.part_hidden[part_of_face] == 0
     indexed = cam.face_rec >= 0
     if not np.array_equal(want, indexed):
         _fail("a face is active while its creator is not split, or the reverse")

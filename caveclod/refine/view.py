@@ -21,7 +21,8 @@ P_KAPPA = 23         # pixels per unit of error at unit distance
 P_TOL = 24           # tolerance in pixels
 P_CULL = 25          # 1.0: frustum culling on
 P_BACKFACE = 26      # 1.0: back-face culling on
-P_SIZE = 27
+P_PRUNE = 27         # 1.0: parts smaller than the tolerance may vanish
+P_SIZE = 28
 
 
 @dataclass(frozen=True)
@@ -36,6 +37,10 @@ class View:
             every node the culling keeps.
         cull: coarsen what lies outside the view frustum.
         backface: coarsen regions whose normal cone faces wholly away.
+        prune: hide a whole connected part while it projects smaller than
+            the tolerance (its bounding sphere's diameter under
+            ``tolerance_px``), so that a mesh of many small parts seen from
+            afar draws almost nothing (:mod:`caveclod.kernels.parts`).
     """
 
     eye: tuple = (0.0, -1.0, 1.0)
@@ -47,6 +52,7 @@ class View:
     tolerance_px: float = 1.0
     cull: bool = True
     backface: bool = False
+    prune: bool = True
 
     def __post_init__(self):
         # Plain floats throughout: a server builds a View for every pose it
@@ -90,13 +96,13 @@ class View:
         if cached is not None:
             return cached
         vp = view_params(self.eye, self.target, self.up, self.fov_y, self.width, self.height, self.tolerance_px,
-                         self.cull, self.backface)
+                         self.cull, self.backface, self.prune)
         object.__setattr__(self, "_params", vp)
         return vp
 
 
 def view_params(eye: tuple, target: tuple, up: tuple, fov_y: float, width: int, height: int,
-                tolerance_px: float, cull: bool, backface: bool) -> np.ndarray:
+                tolerance_px: float, cull: bool, backface: bool, prune: bool = True) -> np.ndarray:
     """The (P_SIZE,) float64 vector the refinement kernels read, of a pose
     already checked (:func:`check_pose`) and options already validated (a
     :class:`View`'s). A server calls it directly for every update, without
@@ -114,7 +120,8 @@ def view_params(eye: tuple, target: tuple, up: tuple, fov_y: float, width: int, 
     for n in normals:
         n = _unit(n)
         out += [n[0], n[1], n[2], -(n[0] * ex + n[1] * ey + n[2] * ez)]
-    out += [height / (2.0 * ty), float(tolerance_px), 1.0 if cull else 0.0, 1.0 if backface else 0.0]
+    out += [height / (2.0 * ty), float(tolerance_px), 1.0 if cull else 0.0, 1.0 if backface else 0.0,
+            1.0 if prune else 0.0]
     vp = np.array(out)
     vp.flags.writeable = False
     return vp

@@ -115,7 +115,7 @@ class Sessions:
         from ..refine.view import View
         opts = wire.options_to_dict(o)
         view = {k: opts[k] if opts[k] is not None else wire.OPTION_DEFAULTS.get(k)
-                for k in ("fov_y", "width", "height", "tolerance_px", "cull", "backface")}
+                for k in ("fov_y", "width", "height", "tolerance_px", "cull", "backface", "prune")}
         try:
             View(**view)
         except InputError as exc:

@@ -380,6 +380,8 @@ class Session:
             out.surfaces.append(wire.Surface(m, len(buf), np.arange(len(buf), dtype=np.uint32), buf, wire.buffer_crc32(buf)))
             if self.held is not None:
                 self.held[c].replace(m, buf)
+        if touched and cached is None:
+            cam.mark_sent()                      # the next delta's counts go on from the keyframe's
         if self.current[c] is not None:
             out.pose_seq = self.current[c].seq
         return out

@@ -457,6 +457,7 @@
                 RefineOptions.prototype.backface = null;
                 RefineOptions.prototype.maxOps = null;
                 RefineOptions.prototype.maxFaces = null;
+                RefineOptions.prototype.prune = null;
     
                 var $oneOfFields;
     
@@ -496,6 +497,12 @@
                     set: $util.oneOfSetter($oneOfFields)
                 });
     
+                // Virtual OneOf for proto3 optional field
+                $Object.defineProperty(RefineOptions.prototype, "_prune", {
+                    get: $util.oneOfGetter($oneOfFields = ["prune"]),
+                    set: $util.oneOfSetter($oneOfFields)
+                });
+    
                 RefineOptions.encode = function (message, writer, _depth) {
                     if (!writer)
                         writer = $Writer.create();
@@ -519,6 +526,8 @@
                         writer.uint32(56).uint64(message.maxOps);
                     if (message.maxFaces != null && $Object.hasOwnProperty.call(message, "maxFaces"))
                         writer.uint32(64).uint64(message.maxFaces);
+                    if (message.prune != null && $Object.hasOwnProperty.call(message, "prune"))
+                        writer.uint32(72).bool(message.prune);
                     if (message.$unknowns != null && $Object.hasOwnProperty.call(message, "$unknowns"))
                         for (var i = 0; i < message.$unknowns.length; ++i)
                             writer.raw(message.$unknowns[i]);
@@ -610,6 +619,13 @@
                                     break;
                                 message.maxFaces = reader.uint64();
                                 message._maxFaces = "maxFaces";
+                                continue;
+                            }
+                        case 9: {
+                                if (wireType !== 0)
+                                    break;
+                                message.prune = reader.bool();
+                                message._prune = "prune";
                                 continue;
                             }
                         }

@@ -1,0 +1,256 @@
+"""Parts that vanish: whole connected parts hidden while they are smaller than the tolerance.
+
+A *part* is a connected component of the base mesh (faces joined through
+shared root nodes). Half-edge collapses only merge the two ends of an edge,
+so a part's subtree never reaches another part: no split of one part forces
+a split in another, and a part can be hidden or shown without touching the
+rest of the camera's state.
+
+A visible part is hidden when the bounding sphere of its original positions
+(centre ``c``, radius ``r``) projects smaller than the tolerance:
+
+    g = (|c - eye| - r) - 2 r kappa / tol > 0
+
+(its diameter ``2 r`` seen at its nearest distance is under ``tol`` pixels,
+the same screen-space measure as a node's error, Kram & Shaw section 3) and
+every root of the part is active, i.e. the part is at its base mesh: its
+base faces are removed and its roots marked HIDDEN. A hidden part is shown
+again (roots active, base faces back) as soon as ``g <= 0``. ``g`` moves by
+at most the eye's displacement, so each answer carries an expiry on the
+camera's travelled distance (``odo[0]``) like the active list's entries: a
+camera at rest reads one float per part.
+
+Hiding runs after an update's refinement pass (a part that just coarsened
+to its base vanishes in the same update) and showing before it (a part that
+comes back is refined in the same update). Hidden roots keep their
+active-list entries until the next pass drops them; a shown root that still
+has one is marked RECHECK so that its stale expiries are not trusted.
+"""
+
+import math
+
+import numba as nb
+import numpy as np
+
+from .refine import (ACTIVE, DAMAGED, FOREVER, IN_LIST, NEED_LIST, NEED_RECORDS, NEVER, OK, P_EYE, P_KAPPA, P_PRUNE,
+                     P_TOL, RECHECK, STATE_MASK, _add_face, _remove_face, node_position)
+
+HIDDEN = 3            # node state of a hidden part's roots (STATE_MASK's free value)
+
+
+@nb.njit(cache=True, nogil=True, inline="always")
+def _find(up, x):
+    """Union-find representative of ``x``, halving the path on the way."""
+    while up[x] != x:
+        up[x] = up[up[x]]
+        x = up[x]
+    return x
+
+
+@nb.njit(cache=True, nogil=True)
+def label_parts(face_nodes, n_nodes):
+    """Connected components of the base mesh through shared nodes.
+
+    Args:
+        face_nodes: (k, 3) int32 root nodes of each base face.
+        n_nodes: number of nodes (ids index a scratch array).
+
+    Returns:
+        (k,) int32 part of each base face, numbered 0.. in order of each
+        part's first face.
+    """
+    up = np.arange(n_nodes).astype(np.int32)      # union-find over nodes
+    for i in range(face_nodes.shape[0]):
+        a = _find(up, face_nodes[i, 0])
+        for k in range(1, 3):
+            b = _find(up, face_nodes[i, k])
+            if a != b:
+                if a < b:
+                    up[b] = a
+                else:
+                    up[a] = b
+                    a = b
+    label = np.full(n_nodes, -1, np.int32)
+    out = np.empty(face_nodes.shape[0], np.int32)
+    m = 0
+    for i in range(face_nodes.shape[0]):
+        root = _find(up, face_nodes[i, 0])
+        if label[root] < 0:
+            label[root] = m
+            m += 1
+        out[i] = label[root]
+    return out
+
+
+@nb.njit(cache=True, nogil=True, inline="always")
+def part_test(k, sphere, vp):
+    """Whether part ``k`` is small enough to hide for the view ``vp``, and the
+    eye distance for which the answer holds: returns (small, margin)."""
+    if vp[P_PRUNE] == 0.0 or vp[P_TOL] <= 0.0:
+        return False, FOREVER
+    dx = sphere[k, 0] - vp[P_EYE]
+    dy = sphere[k, 1] - vp[P_EYE + 1]
+    dz = sphere[k, 2] - vp[P_EYE + 2]
+    r = sphere[k, 3]
+    length = math.sqrt(dx * dx + dy * dy + dz * dz)
+    g = (length - r) - 2.0 * r * vp[P_KAPPA] / vp[P_TOL]
+    return g > 0.0, abs(g)
+
+
+@nb.njit(cache=True, nogil=True)
+def show_parts(e, npos, mat, fsgid, pos_vstart, vertex_sgid, base_faces, base_nodes, base_nbrs,
+               sphere, root_start, roots, face_start, faces, hidden, pexp,
+               state, face_rec, off, cnt, cap, rec_tri, rec_nbr, rec_face, dirty,
+               active, texp, aexp, n_active, vp, odo, expire, shown):
+    """Show the hidden parts that are no longer small (before a pass).
+
+    ``faces`` lists rows of the base arrays (``base_faces``, ``base_nodes``
+    (k, 3), ``base_nbrs`` (k, 3)) part by part (CSR ``face_start``), ``roots``
+    the part's root nodes (CSR ``root_start``). ``hidden`` (m,) uint8 and
+    ``pexp`` (m,) float64 are the camera's part state; ``shown`` (1,) int64
+    counts the parts shown.
+
+    Returns (status, material): OK, NEED_RECORDS for a material or NEED_LIST
+    (grow, call again: a part is shown whole or not at all, faces already
+    back are skipped), or DAMAGED with the face whose corner has no vertex.
+    """
+    t = odo[0]
+    n = n_active[0]
+    for k in range(hidden.shape[0]):
+        if hidden[k] == 0 or (expire and t < pexp[k]):
+            continue
+        small, margin = part_test(k, sphere, vp)
+        if small:
+            pexp[k] = t + margin if expire else NEVER
+            continue
+        r0, r1 = root_start[k], root_start[k + 1]
+        if n + (r1 - r0) > active.shape[0]:
+            n_active[0] = n
+            return NEED_LIST, -1
+        for i in range(face_start[k], face_start[k + 1]):
+            f = base_faces[faces[i]]
+            s = mat[f]
+            if face_rec[f] < 0 and cnt[s] >= cap[s]:
+                n_active[0] = n
+                return NEED_RECORDS, s
+            if face_rec[f] < 0:
+                b = faces[i]
+                if not _add_face(f, node_position(e, npos, base_nodes[b, 0]), node_position(e, npos, base_nodes[b, 1]),
+                                 node_position(e, npos, base_nodes[b, 2]), base_nbrs[b, 0], base_nbrs[b, 1],
+                                 base_nbrs[b, 2], 0, mat, fsgid, pos_vstart, vertex_sgid, face_rec, off, cnt,
+                                 rec_tri, rec_nbr, rec_face, dirty):
+                    n_active[0] = n
+                    return DAMAGED, f
+        for i in range(r0, r1):
+            x = roots[i]
+            if state[x] & IN_LIST:
+                state[x] = (state[x] & ~STATE_MASK & 0xFF) | ACTIVE | RECHECK
+            else:
+                state[x] = ACTIVE | IN_LIST
+                active[n] = x
+                texp[n] = NEVER
+                aexp[n] = NEVER
+                n += 1
+        hidden[k] = 0
+        pexp[k] = t + margin if expire else NEVER
+        shown[0] += 1
+    n_active[0] = n
+    return OK, -1
+
+
+@nb.njit(cache=True, nogil=True)
+def hide_parts(base_faces, mat, sphere, root_start, roots, face_start, faces, hidden, pexp,
+               state, face_rec, off, cnt, rec_tri, rec_nbr, rec_face, dirty, vp, odo, expire, hid):
+    """Hide the visible parts that are small and at their base mesh (after a pass).
+
+    Arrays as :func:`show_parts`; ``hid`` (1,) int64 counts the parts hidden.
+    A small part not yet at its base is looked at again next update (no
+    expiry): its collapses may finish meanwhile.
+    """
+    t = odo[0]
+    for k in range(hidden.shape[0]):
+        if hidden[k] != 0 or (expire and t < pexp[k]):
+            continue
+        small, margin = part_test(k, sphere, vp)
+        if not small:
+            pexp[k] = t + margin if expire else NEVER
+            continue
+        r0, r1 = root_start[k], root_start[k + 1]
+        at_base = True
+        for i in range(r0, r1):
+            if (state[roots[i]] & STATE_MASK) != ACTIVE:
+                at_base = False
+                break
+        if not at_base:
+            pexp[k] = NEVER
+            continue
+        for i in range(face_start[k], face_start[k + 1]):
+            _remove_face(base_faces[faces[i]], mat, face_rec, off, cnt, rec_tri, rec_nbr, rec_face, dirty)
+        for i in range(r0, r1):
+            x = roots[i]
+            state[x] = (state[x] & ~(STATE_MASK | RECHECK) & 0xFF) | HIDDEN
+        hidden[k] = 1
+        pexp[k] = t + margin if expire else NEVER
+        hid[0] += 1
+
+
+@nb.njit(cache=True, nogil=True)
+def position_parts(parent, e, root_part):
+    """(e,) int32 part of each original position (leaf), -1 where its root is in no base face.
+
+    Args:
+        parent: (n,) int32 node parents (-1 for roots; a parent's id is
+            always larger, which :func:`caveclod.meshcheck.check_mesh` proves,
+            so one pass from the top down finds every node's root).
+        e: number of positions (leaves are nodes 0 .. e-1).
+        root_part: (n,) int32 part of each root node, -1 for a root in no
+            base face (and for non-roots).
+    """
+    n = parent.shape[0]
+    top = np.empty(n, np.int32)                  # the root above each node
+    for x in range(n - 1, -1, -1):
+        p = parent[x]
+        top[x] = x if p < 0 else top[p]
+    out = np.empty(e, np.int32)
+    for x in range(e):
+        out[x] = root_part[top[x]]
+    return out
+
+
+@nb.njit(cache=True, nogil=True)
+def part_spheres(positions, part, m):
+    """Bounding sphere of each part's original positions.
+
+    Args:
+        positions: (e, 3) float32 position of each leaf.
+        part: (e,) int32 part of each position (:func:`position_parts`), -1: none.
+        m: number of parts.
+
+    Returns:
+        (m, 4) float64: centre (the middle of the part's box) and radius (the
+        farthest position's distance from it).
+    """
+    e = positions.shape[0]
+    lo = np.full((m, 3), np.inf)
+    hi = np.full((m, 3), -np.inf)
+    for x in range(e):
+        k = part[x]
+        if k < 0:
+            continue
+        for j in range(3):
+            v = np.float64(positions[x, j])
+            lo[k, j] = min(lo[k, j], v)
+            hi[k, j] = max(hi[k, j], v)
+    out = np.zeros((m, 4))
+    for k in range(m):
+        for j in range(3):
+            out[k, j] = 0.5 * (lo[k, j] + hi[k, j])
+    for x in range(e):
+        k = part[x]
+        if k < 0:
+            continue
+        dx = np.float64(positions[x, 0]) - out[k, 0]
+        dy = np.float64(positions[x, 1]) - out[k, 1]
+        dz = np.float64(positions[x, 2]) - out[k, 2]
+        out[k, 3] = max(out[k, 3], math.sqrt(dx * dx + dy * dy + dz * dz))
+    return out
