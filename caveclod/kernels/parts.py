@@ -32,7 +32,7 @@ import math
 import numba as nb
 import numpy as np
 
-from .refine import (ACTIVE, DAMAGED, FOREVER, IN_LIST, NEED_LIST, NEED_RECORDS, NEVER, OK, P_EYE, P_KAPPA, P_PRUNE,
+from .refine import (ACTIVE, DAMAGED, FOREVER, IN_LIST, NEED_RECORDS, NEVER, OK, P_EYE, P_KAPPA, P_PRUNE,
                      P_TOL, RECHECK, STATE_MASK, _add_face, _remove_face, node_position)
 
 HIDDEN = 3            # node state of a hidden part's roots (STATE_MASK's free value)
@@ -101,21 +101,26 @@ def part_test(k, sphere, vp):
 def show_parts(e, npos, mat, fsgid, pos_vstart, vertex_sgid, base_faces, base_nodes, base_nbrs,
                sphere, root_start, roots, face_start, faces, hidden, pexp,
                state, face_rec, off, cnt, cap, rec_tri, rec_nbr, rec_face, dirty,
-               active, texp, aexp, n_active, vp, odo, expire, shown):
+               active, texp, aexp, n_active, vp, odo, expire, todo, need, shown):
     """Show the hidden parts that are no longer small (before a pass).
 
     ``faces`` lists rows of the base arrays (``base_faces``, ``base_nodes``
     (k, 3), ``base_nbrs`` (k, 3)) part by part (CSR ``face_start``), ``roots``
     the part's root nodes (CSR ``root_start``). ``hidden`` (m,) uint8 and
-    ``pexp`` (m,) float64 are the camera's part state; ``shown`` (1,) int64
-    counts the parts shown.
+    ``pexp`` (m,) float64 are the camera's part state; ``todo`` (m,) int32
+    is scratch; ``shown`` (1,) int64 counts the parts shown.
 
-    Returns (status, material): OK, NEED_RECORDS for a material or NEED_LIST
-    (grow, call again: a part is shown whole or not at all, faces already
-    back are skipped), or DAMAGED with the face whose corner has no vertex.
+    First the parts to show are found and the room they need counted, so
+    that a frame in which many parts come back grows the arrays once:
+    returns (NEED_RECORDS, 0) with ``need`` (materials + 1,) int64 holding
+    the records each material needs and, last, the list entries (grow, call
+    again: nothing was changed but small parts' expiries), else shows them
+    all and returns (OK, -1), or (DAMAGED, face) for a base face whose
+    corner has no vertex of its group.
     """
     t = odo[0]
     n = n_active[0]
+    q = 0
     for k in range(hidden.shape[0]):
         if hidden[k] == 0 or (expire and t < pexp[k]):
             continue
@@ -123,25 +128,33 @@ def show_parts(e, npos, mat, fsgid, pos_vstart, vertex_sgid, base_faces, base_no
         if small:
             pexp[k] = t + margin if expire else NEVER
             continue
-        r0, r1 = root_start[k], root_start[k + 1]
-        if n + (r1 - r0) > active.shape[0]:
-            n_active[0] = n
-            return NEED_LIST, -1
+        todo[q] = k
+        q += 1
+    if q == 0:
+        return OK, -1
+    need[:] = 0
+    for j in range(q):
+        k = todo[j]
+        for i in range(face_start[k], face_start[k + 1]):
+            need[mat[base_faces[faces[i]]]] += 1
+        need[need.shape[0] - 1] += root_start[k + 1] - root_start[k]
+    short = n + need[need.shape[0] - 1] > active.shape[0]
+    for s in range(cnt.shape[0]):
+        short = short or cnt[s] + need[s] > cap[s]
+    if short:
+        return NEED_RECORDS, 0
+    for j in range(q):
+        k = todo[j]
         for i in range(face_start[k], face_start[k + 1]):
             f = base_faces[faces[i]]
-            s = mat[f]
-            if face_rec[f] < 0 and cnt[s] >= cap[s]:
+            b = faces[i]
+            if not _add_face(f, node_position(e, npos, base_nodes[b, 0]), node_position(e, npos, base_nodes[b, 1]),
+                             node_position(e, npos, base_nodes[b, 2]), base_nbrs[b, 0], base_nbrs[b, 1],
+                             base_nbrs[b, 2], 0, mat, fsgid, pos_vstart, vertex_sgid, face_rec, off, cnt,
+                             rec_tri, rec_nbr, rec_face, dirty):
                 n_active[0] = n
-                return NEED_RECORDS, s
-            if face_rec[f] < 0:
-                b = faces[i]
-                if not _add_face(f, node_position(e, npos, base_nodes[b, 0]), node_position(e, npos, base_nodes[b, 1]),
-                                 node_position(e, npos, base_nodes[b, 2]), base_nbrs[b, 0], base_nbrs[b, 1],
-                                 base_nbrs[b, 2], 0, mat, fsgid, pos_vstart, vertex_sgid, face_rec, off, cnt,
-                                 rec_tri, rec_nbr, rec_face, dirty):
-                    n_active[0] = n
-                    return DAMAGED, f
-        for i in range(r0, r1):
+                return DAMAGED, f
+        for i in range(root_start[k], root_start[k + 1]):
             x = roots[i]
             if state[x] & IN_LIST:
                 state[x] = (state[x] & ~STATE_MASK & 0xFF) | ACTIVE | RECHECK
@@ -152,6 +165,7 @@ def show_parts(e, npos, mat, fsgid, pos_vstart, vertex_sgid, base_faces, base_no
                 aexp[n] = NEVER
                 n += 1
         hidden[k] = 0
+        _, margin = part_test(k, sphere, vp)
         pexp[k] = t + margin if expire else NEVER
         shown[0] += 1
     n_active[0] = n
