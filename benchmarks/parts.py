@@ -185,6 +185,7 @@ def _plot(out: dict) -> None:
     ax.axhline(out["target_faces"], color="grey", lw=0.8, ls=":", label="target max(1 %, 300)")
     ax.set_xscale("log")
     ax.set_yscale("symlog", linthresh=10)
+    ax.set_ylim(bottom=0)
     ax.invert_xaxis()
     ax.set_xlabel("width of the field on screen (px), nearer to farther")
     ax.set_ylabel("faces drawn")

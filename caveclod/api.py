@@ -23,7 +23,8 @@ def build(source, *, cell_size: float = 1.0, z_scale: float = 1.0, materials=Non
 
     Args:
         source: a built-in (``"default"``: smooth terrain, ``"rough"``:
-            rough terrain with holes, ``"scan"``: a range scan; see
+            rough terrain with holes, ``"scan"``: a range scan, ``"debris"``:
+            a field of many small parts; see
             :mod:`caveclod.builder.builtin`), a path to a
             mesh file (anything trimesh loads) or a heightfield (``.npy``,
             16-bit ``.png``/``.tif``), a ``trimesh.Trimesh``/``Scene``, or a
@@ -34,7 +35,7 @@ def build(source, *, cell_size: float = 1.0, z_scale: float = 1.0, materials=Non
         crease_angle: degrees; normals are computed with it where the input
             has none. None: 30 for meshes, smooth (180) for heightfields, the
             built-in terrain's own choice for built-ins.
-        size: cells (samples) per side of a built-in.
+        size: cells (samples) per side of a built-in (``debris``: 20 x size parts).
         seed: seed of a built-in (None: its own default).
         nodata: heightfield value that marks missing samples (holes); NaN,
             a GeoTIFF's GDAL_NODATA and -32768 in int16 grids always do.

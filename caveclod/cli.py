@@ -71,7 +71,7 @@ def _parser() -> argparse.ArgumentParser:
     b = sub.add_parser("build", help="build a static CAVECLOD mesh (.cvc) from a mesh, a heightfield or a built-in")
     b.add_argument("input", help="mesh file (OBJ, PLY, GLB/glTF, STL, OFF), heightfield (.npy, 16-bit .png/.tif) or a "
                                  "built-in: 'default' (smooth terrain), 'rough' (rough terrain with no-data holes), "
-                                 "'scan' (a range scan)")
+                                 "'scan' (a range scan), 'debris' (20 x --size small parts)")
     b.add_argument("-o", "--output", required=True, help="the .cvc file to write")
     b.add_argument("--json", action="store_true", help="print the build report as one JSON object on stdout")
     b.add_argument("--size", type=int, default=256, help="cells per side of a built-in (default 256: 131,072 "

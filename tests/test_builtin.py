@@ -1,4 +1,4 @@
-"""The built-in sources: the rough terrain and the range scan.
+"""The built-in sources: the rough terrain, the range scan and the debris field.
 
 The smooth default terrain has its own tests in test_terrain.py.
 """
@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 import caveclod
-from caveclod.builder.builtin import ROUGH_CELL, range_scan, rough_heights, rough_terrain
+from caveclod.builder.builtin import ROUGH_CELL, debris_field, range_scan, rough_heights, rough_terrain
 from caveclod.builder.topology import count_components, face_neighbours
 
 
@@ -66,6 +66,21 @@ def test_range_scan_is_like_a_real_scan():
     assert aspect.max() > 3.0
 
 
+def test_debris_field_is_many_small_parts_like_real_rubble():
+    source = debris_field(8)
+    topo = face_neighbours(source.face_positions.astype(np.int32), len(source.positions))
+    assert count_components(topo.nbrs) == 160                     # 20 x size separate parts
+    assert int((topo.nbrs < 0).sum()) > 100                       # open borders: boulders scanned from above
+    assert len(source.vertex_position) > 1.05 * len(source.positions)    # UV seams of the blocks' side charts
+    assert len(np.unique(source.face_material)) >= 8
+    P = source.positions[source.face_positions]
+    edge = np.linalg.norm(P - np.roll(P, 1, axis=1), axis=2)
+    assert np.ptp(source.positions[:, 0]) > 200 * np.median(edge)   # a field far wider than its parts' detail
+    again = debris_field(8)
+    np.testing.assert_array_equal(source.positions, again.positions)          # seeded
+    assert not np.array_equal(debris_field(8, seed=1).positions[:10], source.positions[:10])
+
+
 def test_range_scan_builds_and_refines_fully():
     mesh = caveclod.build("scan", size=32)
     cam = mesh.new_camera()
@@ -75,7 +90,7 @@ def test_range_scan_builds_and_refines_fully():
     assert cam.n_faces == mesh.n_faces
 
 
-@pytest.mark.parametrize("name", ["rough", "scan"])
+@pytest.mark.parametrize("name", ["rough", "scan", "debris"])
 def test_cli_builds_the_builtins(tmp_path, name):
     from caveclod.cli import main
     out = tmp_path / f"{name}.cvc"

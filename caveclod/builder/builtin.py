@@ -13,6 +13,9 @@
   where the scanner's view ends, holes where it was occluded or grazing,
   irregular triangles and slivers, noise, a UV atlas cut into many charts
   and three materials.
+* ``debris``: ``20 * size`` separate small parts (boulders, some open;
+  seamed blocks; sheets) scattered over a field, one atlas of many charts
+  and ten materials: the many-parts meshes that parts vanishing is for.
 
 ``caveclod build NAME --size N`` builds one; :data:`BUILTINS` maps the names.
 """
