@@ -1,4 +1,5 @@
-"""Parts that vanish: whole connected parts hidden while they are smaller than the tolerance.
+"""Parts that vanish: whole connected parts hidden while they are smaller than the
+tolerance or wholly outside the view.
 
 A *part* is a connected component of the base mesh (faces joined through
 shared root nodes). Half-edge collapses only merge the two ends of an edge,
@@ -6,25 +7,32 @@ so a part's subtree never reaches another part: no split of one part forces
 a split in another, and a part can be hidden or shown without touching the
 rest of the camera's state.
 
-A visible part is hidden when the bounding sphere of its original positions
-(centre ``c``, radius ``r``) projects smaller than the tolerance:
+A visible part is to be hidden when the bounding sphere of its original
+positions (centre ``c``, radius ``r``) projects smaller than the tolerance,
 
-    g = (|c - eye| - r) - 2 r kappa / tol > 0
+    (|c - eye| - r) - 2 r kappa / tol > 0
 
-(its diameter ``2 r`` seen at its nearest distance is under ``tol`` pixels,
-the same screen-space measure as a node's error, Kram & Shaw section 3) and
-every root of the part is active, i.e. the part is at its base mesh: its
-base faces are removed and its roots marked HIDDEN. A hidden part is shown
-again (roots active, base faces back) as soon as ``g <= 0``. ``g`` moves by
-at most the eye's displacement, so each answer carries an expiry on the
-camera's travelled distance (``odo[0]``) like the active list's entries: a
-camera at rest reads one float per part.
+(its diameter ``2 r`` seen at its nearest distance is under ``tol`` pixels:
+the node test's arithmetic with an error of ``2 r``, Kram & Shaw section 3),
+or, with culling on, when the sphere lies wholly outside a frustum plane.
+It is hidden at once, however refined: its active faces are removed, the
+nodes below its roots made inactive and its roots marked HIDDEN. A hidden
+part is shown again at its base mesh (roots active, base faces back) as
+soon as it is to be drawn. Both tests are the node test's, so their
+answers carry the same expiries on the camera's travelled distance and
+turned angle (``odo``) as the active list's entries: a camera at rest reads
+two floats per part.
 
-Hiding runs after an update's refinement pass (a part that just coarsened
-to its base vanishes in the same update) and showing before it (a part that
-comes back is refined in the same update). Hidden roots keep their
-active-list entries until the next pass drops them; a shown root that still
-has one is marked RECHECK so that its stale expiries are not trusted.
+Hiding a part at once, rather than waiting for its nodes to collapse, keeps
+the outcome free of history: node spheres are looser than the part's (each
+collapse grows its node's sphere), so a part outside the frustum can have
+nodes whose spheres reach into it and that keep refining.
+
+Hiding runs after an update's refinement pass and showing before it (a
+part that comes back is refined in the same update). Hidden nodes keep
+their active-list entries until the next pass drops them, marked RECHECK so
+that their stale expiries are never trusted (a shown root, or a node split
+into again before the pass reaches its entry).
 """
 
 import math
@@ -32,8 +40,8 @@ import math
 import numba as nb
 import numpy as np
 
-from .refine import (ACTIVE, DAMAGED, FOREVER, IN_LIST, NEED_RECORDS, NEVER, OK, P_EYE, P_KAPPA, P_PRUNE,
-                     P_TOL, RECHECK, STATE_MASK, _add_face, _remove_face, node_position)
+from .refine import (ACTIVE, DAMAGED, FOREVER, IN_LIST, NEED_RECORDS, NEVER, OK, P_CULL, P_EYE, P_KAPPA, P_PLANES,
+                     P_PRUNE, P_TOL, RECHECK, SPLIT, STATE_MASK, _add_face, _expiry, _remove_face, node_position)
 
 HIDDEN = 3            # node state of a hidden part's roots (STATE_MASK's free value)
 
@@ -84,22 +92,55 @@ def label_parts(face_nodes, n_nodes):
 
 @nb.njit(cache=True, nogil=True, inline="always")
 def part_test(k, sphere, vp):
-    """Whether part ``k`` is small enough to hide for the view ``vp``, and the
-    eye distance for which the answer holds: returns (small, margin)."""
-    if vp[P_PRUNE] == 0.0 or vp[P_TOL] <= 0.0:
-        return False, FOREVER
-    dx = sphere[k, 0] - vp[P_EYE]
-    dy = sphere[k, 1] - vp[P_EYE + 1]
-    dz = sphere[k, 2] - vp[P_EYE + 2]
-    r = sphere[k, 3]
+    """Whether part ``k`` is to be drawn for the view ``vp`` (the module doc),
+    and for how long the answer holds: returns (visible, tmargin, rmargin,
+    dist) as :func:`caveclod.kernels.refine.test_node` does, for
+    :func:`caveclod.kernels.refine._expiry`.
+
+    The node test's arithmetic on the part's sphere with an error of its
+    diameter: hidden when wholly outside a frustum plane (culling on), or
+    when ``2 r kappa / tol - (|c - eye| - r) <= 0``.
+    """
+    if vp[P_PRUNE] == 0.0:
+        return True, FOREVER, FOREVER, 0.0
+    cx, cy, cz, r = sphere[k, 0], sphere[k, 1], sphere[k, 2], sphere[k, 3]
+    dx, dy, dz = cx - vp[P_EYE], cy - vp[P_EYE + 1], cz - vp[P_EYE + 2]
     length = math.sqrt(dx * dx + dy * dy + dz * dz)
-    g = (length - r) - 2.0 * r * vp[P_KAPPA] / vp[P_TOL]
-    return g > 0.0, abs(g)
+    inside = FOREVER
+    if vp[P_CULL] != 0.0:
+        outside = 0.0
+        for i in range(5):
+            b = P_PLANES + 4 * i
+            g = vp[b] * cx + vp[b + 1] * cy + vp[b + 2] * cz + vp[b + 3] + r
+            if g < 0.0:
+                outside = max(outside, -g)
+            elif g < inside:
+                inside = g
+        if outside > 0.0:
+            return False, 0.0, outside, length
+    if vp[P_TOL] <= 0.0:
+        return True, FOREVER, inside, length
+    dist = length - r
+    s = 2.0 * r * vp[P_KAPPA] / vp[P_TOL] - dist
+    if dist <= 0.0 or s > 0.0:
+        return True, max(s, 0.0), inside, length
+    return False, -s, 0.0, length
+
+
+@nb.njit(cache=True, nogil=True, inline="always")
+def _part_expiry(odo, k, sphere, vp, expire, ptexp, paexp):
+    """Test part ``k``, store when its answer expires, return whether it is visible."""
+    visible, tm, rm, dist = part_test(k, sphere, vp)
+    if expire:
+        ptexp[k], paexp[k] = _expiry(odo, tm, rm, dist, visible, FOREVER, FOREVER)
+    else:
+        ptexp[k], paexp[k] = NEVER, NEVER
+    return visible
 
 
 @nb.njit(cache=True, nogil=True)
 def show_parts(e, npos, mat, fsgid, pos_vstart, vertex_sgid, base_faces, base_nodes, base_nbrs,
-               sphere, root_start, roots, face_start, faces, hidden, pexp,
+               sphere, root_start, roots, face_start, faces, hidden, ptexp, paexp,
                state, face_rec, off, cnt, cap, rec_tri, rec_nbr, rec_face, dirty,
                active, texp, aexp, n_active, vp, odo, expire, todo, need, shown):
     """Show the hidden parts that are no longer small (before a pass).
@@ -107,29 +148,31 @@ def show_parts(e, npos, mat, fsgid, pos_vstart, vertex_sgid, base_faces, base_no
     ``faces`` lists rows of the base arrays (``base_faces``, ``base_nodes``
     (k, 3), ``base_nbrs`` (k, 3)) part by part (CSR ``face_start``), ``roots``
     the part's root nodes (CSR ``root_start``). ``hidden`` (m,) uint8 and
-    ``pexp`` (m,) float64 are the camera's part state; ``todo`` (m,) int32
-    is scratch; ``shown`` (1,) int64 counts the parts shown.
+    ``ptexp``, ``paexp`` (m,) float64 (when each part's answer expires, on
+    the travelled distance and the turned angle) are the camera's part
+    state; ``todo`` (m,) int32 is scratch; ``shown`` (1,) int64 counts the
+    parts shown.
 
     First the parts to show are found and the room they need counted, so
     that a frame in which many parts come back grows the arrays once:
     returns (NEED_RECORDS, 0) with ``need`` (materials + 1,) int64 holding
     the records each material needs and, last, the list entries (grow, call
-    again: nothing was changed but small parts' expiries), else shows them
+    again: nothing was changed but expiries), else shows them
     all and returns (OK, -1), or (DAMAGED, face) for a base face whose
     corner has no vertex of its group.
     """
-    t = odo[0]
+    t, a = odo[0], odo[1]
     n = n_active[0]
     q = 0
     for k in range(hidden.shape[0]):
-        if hidden[k] == 0 or (expire and t < pexp[k]):
+        if hidden[k] == 0 or (expire and t < ptexp[k] and a < paexp[k]):
             continue
-        small, margin = part_test(k, sphere, vp)
-        if small:
-            pexp[k] = t + margin if expire else NEVER
-            continue
-        todo[q] = k
-        q += 1
+        visible, _, _, _ = part_test(k, sphere, vp)
+        if visible:                      # its expiries are stored once it is shown (this call may stop short)
+            todo[q] = k
+            q += 1
+        else:
+            _part_expiry(odo, k, sphere, vp, expire, ptexp, paexp)
     if q == 0:
         return OK, -1
     need[:] = 0
@@ -137,7 +180,9 @@ def show_parts(e, npos, mat, fsgid, pos_vstart, vertex_sgid, base_faces, base_no
         k = todo[j]
         for i in range(face_start[k], face_start[k + 1]):
             need[mat[base_faces[faces[i]]]] += 1
-        need[need.shape[0] - 1] += root_start[k + 1] - root_start[k]
+        for i in range(root_start[k], root_start[k + 1]):
+            if (state[roots[i]] & IN_LIST) == 0:      # a listed root keeps its entry
+                need[need.shape[0] - 1] += 1
     short = n + need[need.shape[0] - 1] > active.shape[0]
     for s in range(cnt.shape[0]):
         short = short or cnt[s] + need[s] > cap[s]
@@ -165,47 +210,71 @@ def show_parts(e, npos, mat, fsgid, pos_vstart, vertex_sgid, base_faces, base_no
                 aexp[n] = NEVER
                 n += 1
         hidden[k] = 0
-        _, margin = part_test(k, sphere, vp)
-        pexp[k] = t + margin if expire else NEVER
+        _part_expiry(odo, k, sphere, vp, expire, ptexp, paexp)
         shown[0] += 1
     n_active[0] = n
     return OK, -1
 
 
 @nb.njit(cache=True, nogil=True)
-def hide_parts(base_faces, mat, sphere, root_start, roots, face_start, faces, hidden, pexp,
+def hide_parts(e, links, base_faces, mat, sphere, root_start, roots, face_start, faces, hidden, ptexp, paexp,
                state, face_rec, off, cnt, rec_tri, rec_nbr, rec_face, dirty, vp, odo, expire, hid):
-    """Hide the visible parts that are small and at their base mesh (after a pass).
+    """Hide the visible parts that are not to be drawn (after a pass), whatever their refinement.
 
-    Arrays as :func:`show_parts`; ``hid`` (1,) int64 counts the parts hidden.
-    A small part not yet at its base is looked at again next update (no
-    expiry): its collapses may finish meanwhile.
+    Arrays as :func:`show_parts`, with ``e`` and ``links`` (the node rows of
+    :mod:`caveclod.kernels.refine`); ``hid`` (1,) int64 counts the parts
+    hidden. A part's active faces are its base faces and the two faces of
+    each split node (faces are made by splits only), so a walk down from
+    its roots through the split nodes removes them all and makes every node
+    below the roots inactive. A node that keeps an active-list entry is
+    marked RECHECK: the pass drops the entry, or, if the part comes back
+    and the node is split into again first, evaluates it afresh.
     """
-    t = odo[0]
+    t, a = odo[0], odo[1]
+    stack = np.empty(256, np.int32)
     for k in range(hidden.shape[0]):
-        if hidden[k] != 0 or (expire and t < pexp[k]):
+        if hidden[k] != 0 or (expire and t < ptexp[k] and a < paexp[k]):
             continue
-        small, margin = part_test(k, sphere, vp)
-        if not small:
-            pexp[k] = t + margin if expire else NEVER
+        if _part_expiry(odo, k, sphere, vp, expire, ptexp, paexp):
             continue
-        r0, r1 = root_start[k], root_start[k + 1]
-        at_base = True
-        for i in range(r0, r1):
-            if (state[roots[i]] & STATE_MASK) != ACTIVE:
-                at_base = False
-                break
-        if not at_base:
-            pexp[k] = NEVER
-            continue
+        sp = 0
+        for i in range(root_start[k], root_start[k + 1]):
+            if sp + 2 > stack.shape[0]:
+                stack = _grown(stack)
+            stack[sp] = roots[i]
+            sp += 1
+        while sp > 0:
+            sp -= 1
+            x = stack[sp]
+            if x >= e and (state[x] & STATE_MASK) == SPLIT:
+                j = x - e
+                for q in range(2, 4):
+                    f = links[j, q]
+                    if f >= 0 and face_rec[f] >= 0:
+                        _remove_face(f, mat, face_rec, off, cnt, rec_tri, rec_nbr, rec_face, dirty)
+                if sp + 2 > stack.shape[0]:
+                    stack = _grown(stack)
+                stack[sp] = links[j, 0]
+                stack[sp + 1] = links[j, 1]
+                sp += 2
+            listed = state[x] & IN_LIST
+            state[x] = (listed | RECHECK) if listed else 0        # INACTIVE
         for i in range(face_start[k], face_start[k + 1]):
-            _remove_face(base_faces[faces[i]], mat, face_rec, off, cnt, rec_tri, rec_nbr, rec_face, dirty)
-        for i in range(r0, r1):
+            f = base_faces[faces[i]]
+            if face_rec[f] >= 0:
+                _remove_face(f, mat, face_rec, off, cnt, rec_tri, rec_nbr, rec_face, dirty)
+        for i in range(root_start[k], root_start[k + 1]):
             x = roots[i]
-            state[x] = (state[x] & ~(STATE_MASK | RECHECK) & 0xFF) | HIDDEN
+            state[x] = (state[x] & IN_LIST) | HIDDEN
         hidden[k] = 1
-        pexp[k] = t + margin if expire else NEVER
         hid[0] += 1
+
+
+@nb.njit(cache=True, nogil=True, inline="always")
+def _grown(stack):
+    bigger = np.empty(2 * stack.shape[0], np.int32)
+    bigger[:stack.shape[0]] = stack
+    return bigger
 
 
 @nb.njit(cache=True, nogil=True)

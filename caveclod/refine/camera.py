@@ -124,7 +124,8 @@ class CameraState:
         self._parts_static = (a["base_faces"], a["base_face_nodes"], a["base_face_nbrs"], parts.sphere,
                               parts.root_start, parts.roots, parts.face_start, parts.faces)
         self.part_hidden = np.zeros(parts.count, np.uint8)    # 1 while the part is hidden
-        self.part_exp = np.full(parts.count, -np.inf)         # expiry of each part's answer on odo[0]
+        self.part_texp = np.full(parts.count, -np.inf)        # expiries of each part's answer, on odo[0] ...
+        self.part_aexp = np.full(parts.count, -np.inf)        # ... and odo[1]
         self._part_counts = np.zeros(2, np.int64)             # parts shown, hidden by this update
         self.queue = np.empty(32, np.int32)                # collapse candidates of a pass
         self.counts = np.zeros(4, np.int64)
@@ -279,7 +280,7 @@ class CameraState:
         self._last_view = now
         if last is None or any(last[k] != now[k] for k in (P_KAPPA, P_TOL, P_CULL, P_BACKFACE, P_PRUNE)):
             self.texp[:] = -np.inf
-            self.part_exp[:] = -np.inf
+            self.part_texp[:] = -np.inf
             return
         self.odo[0] += math.dist(now[P_EYE:P_EYE + 3], last[P_EYE:P_EYE + 3])
         self.odo[1] += max(math.dist(now[b:b + 3], last[b:b + 3]) for b in range(P_PLANES, P_PLANES + 20, 4))
@@ -292,7 +293,8 @@ class CameraState:
                 up = down.astype(np.float64) > shifted
                 down[up] = np.nextafter(down[up], np.float32(-np.inf))
                 exp[:n] = down
-            self.part_exp -= self.odo[0]          # float64: exact enough as it is
+            self.part_texp -= self.odo[0]         # float64: exact enough as they are
+            self.part_aexp -= self.odo[1]
             self.odo[:] = 0.0
 
     def _pass(self, vp: np.ndarray, mode: int) -> None:
@@ -331,9 +333,10 @@ class CameraState:
         for _ in range(2):                                    # room is made for all of them at once
             status, what = KP.show_parts(
                 self._static[0], self._static[3], self._static[8], self._static[9], self._static[10],
-                self._static[11], *self._parts_static, self.part_hidden, self.part_exp, self.state, self.face_rec,
-                self.off, self.cnt, self.cap, self.rec_tri, self.rec_nbr, self.rec_face, self.dirty, self.active,
-                self.texp, self.aexp, self.n_active, vp, self.odo, self.expiries, todo, need, shown)
+                self._static[11], *self._parts_static, self.part_hidden, self.part_texp, self.part_aexp,
+                self.state, self.face_rec, self.off, self.cnt, self.cap, self.rec_tri, self.rec_nbr, self.rec_face,
+                self.dirty, self.active, self.texp, self.aexp, self.n_active, vp, self.odo, self.expiries, todo,
+                need, shown)
             if status == K.OK:
                 return
             if status == K.NEED_RECORDS:
@@ -367,12 +370,13 @@ class CameraState:
                 setattr(self, name, bigger)
 
     def _hide_parts(self, vp: np.ndarray) -> None:
-        """Hide the parts the view finds small that are at their base mesh."""
+        """Hide the parts the view need not draw (small, or outside it), however refined."""
         if len(self.part_hidden):
-            KP.hide_parts(self._parts_static[0], self._static[8], self._parts_static[3], *self._parts_static[4:],
-                          self.part_hidden, self.part_exp, self.state, self.face_rec, self.off, self.cnt,
-                          self.rec_tri, self.rec_nbr, self.rec_face, self.dirty, vp, self.odo, self.expiries,
-                          self._part_counts[1:2])
+            KP.hide_parts(self._static[0], self._static[2], self._parts_static[0], self._static[8],
+                          self._parts_static[3], *self._parts_static[4:],
+                          self.part_hidden, self.part_texp, self.part_aexp, self.state, self.face_rec, self.off,
+                          self.cnt, self.rec_tri, self.rec_nbr, self.rec_face, self.dirty, vp, self.odo,
+                          self.expiries, self._part_counts[1:2])
 
     def _abandon_pass(self) -> None:
         """Close an interrupted pass (growth failed): keep the listed nodes.
@@ -478,7 +482,7 @@ class CameraState:
 
     @property
     def hidden_parts(self) -> int:
-        """Parts hidden for being smaller than the tolerance."""
+        """Parts hidden for being smaller than the tolerance or outside the view."""
         return int(self.part_hidden.sum())
 
     @property
@@ -487,7 +491,7 @@ class CameraState:
         arrays = (self.state, self.face_rec, self.rec_tri, self.rec_nbr, self.rec_face, self.dirty, self._slack,
                   self.active, self.texp, self.aexp, self.n_active, self.queue,
                   self.off, self.cnt, self.cap, self._sent, self.counts, self._resume, self.odo,
-                  self.part_hidden, self.part_exp, self._part_counts)
+                  self.part_hidden, self.part_texp, self.part_aexp, self._part_counts)
         return int(sum(x.nbytes for x in arrays))
 
     def validate(self) -> None:

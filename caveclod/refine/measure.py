@@ -155,13 +155,16 @@ def hidden_positions(camera) -> np.ndarray:
 
 
 def hidden_part_pixels(camera, view: View) -> np.ndarray:
-    """(h,) float64 the size in pixels of each part ``camera`` hides, from its original positions.
+    """(h,) float64 the size in pixels of each part ``camera`` hides that has a position in
+    ``view``'s frustum, from its original positions.
 
     Twice the largest distance of a position from the middle of the part's
     box, converted to pixels at that position's own distance from the eye as
     :func:`pixel_errors` converts: every position of the part lies within
-    half this many pixels of one point. Hiding promises less than the
-    tolerance, wherever the part lies.
+    half this many pixels of one point. A part in view is hidden only for
+    being small, which promises less than the tolerance; the other hidden
+    parts lie wholly outside the frustum, where :func:`pixel_errors`
+    measures nothing either.
     """
     from .parts import position_part
     part = position_part(camera.mesh)
@@ -180,4 +183,7 @@ def hidden_part_pixels(camera, view: View) -> np.ndarray:
     size = 2.0 * np.linalg.norm(P - 0.5 * (lo + hi)[k], axis=1) * vp[P_KAPPA] / np.linalg.norm(P - eye, axis=1)
     out = np.zeros(len(ids))
     np.maximum.at(out, k, size)
-    return out
+    planes = vp[P_PLANES:P_PLANES + 20].reshape(5, 4)
+    seen = np.zeros(len(ids), bool)
+    np.logical_or.at(seen, k, ((P @ planes[:, :3].T + planes[:, 3]) >= 0.0).all(axis=1))
+    return out[seen]

@@ -25,14 +25,15 @@ the specification of one update:
    need detail and its collapse is legal; its own candidates are pushed in
    turn.
 5. Once the operation budget is spent, nodes are kept as they are.
-6. Parts (connected components of the base mesh) that project smaller than
-   the tolerance vanish: before the walk, each hidden part that is no longer
-   small comes back (its roots active and listed, its base faces added);
-   after it, each visible part that is small and whose roots are all active
-   (it is at its base mesh) is hidden (roots hidden, base faces removed).
-   Small: ``(|c - eye| - r) - 2 r kappa / tol > 0`` for the sphere (c, r)
-   around the part's original positions, when the view allows pruning and
-   the tolerance is positive.
+6. Parts (connected components of the base mesh) that the view need not
+   draw vanish: before the walk, each hidden part that is to be drawn
+   comes back (its roots active and listed, its base faces added); after
+   it, each visible part that is not to be drawn is hidden, however refined
+   (every face on its positions removed, its nodes inactive, its roots
+   hidden, none of them listed). With pruning allowed, a part is not drawn
+   when the sphere (c, r) around its original positions lies wholly outside
+   a frustum plane (culling on), or projects smaller than the tolerance:
+   the node test with an error of 2 r.
 
 Node ids: leaves ``0 .. e-1`` are positions; internal node ``x`` has its
 static data at index ``x - e``. A split of ``s`` into ``t`` (stationary, at
@@ -149,13 +150,15 @@ class ReferenceCamera:
         pos = [[float(v) for v in row] for row in mesh.positions]
         lo = [[math.inf] * 3 for _ in self.part_faces]
         hi = [[-math.inf] * 3 for _ in self.part_faces]
-        leaf_part = []
-        for x in range(self.e):
+        self.node_part = []                   # the part of every node (-1: a root in no base face)
+        for x in range(self.n_nodes):
             top = x
             while self.parent[top] >= 0:
                 top = self.parent[top]
-            k = part_of.get(top, -1)
-            leaf_part.append(k)
+            self.node_part.append(part_of.get(top, -1))
+        leaf_part = self.node_part[:self.e]
+        for x in range(self.e):
+            k = leaf_part[x]
             if k >= 0:
                 for j in range(3):
                     lo[k][j] = min(lo[k][j], pos[x][j])
@@ -485,20 +488,26 @@ class ReferenceCamera:
             push(self.candidates_of(c))
 
     # -- parts that vanish --------------------------------------------------------
-    def part_small(self, k):
-        """Whether part ``k`` projects smaller than the tolerance (rule 6)."""
+    def part_drawn(self, k):
+        """Whether part ``k`` is to be drawn (rule 6)."""
         v = self.view
-        if not v["prune"] or v["tolerance"] <= 0.0:
-            return False
+        if not v["prune"]:
+            return True
         cx, cy, cz, r = self.part_sphere[k]
+        if v["cull"]:
+            for nx, ny, nz, d in v["planes"]:
+                if nx * cx + ny * cy + nz * cz + d < -r:
+                    return False                  # wholly outside a plane
+        if v["tolerance"] <= 0.0:
+            return True
         ex, ey, ez = v["eye"]
         dx, dy, dz = cx - ex, cy - ey, cz - ez
-        length = math.sqrt(dx * dx + dy * dy + dz * dz)
-        return (length - r) - 2.0 * r * v["kappa"] / v["tolerance"] > 0.0
+        dist = math.sqrt(dx * dx + dy * dy + dz * dz) - r
+        return dist <= 0.0 or 2.0 * r * v["kappa"] > v["tolerance"] * dist
 
     def show_parts(self):
         for k in sorted(self.hidden):
-            if not self.part_small(k):
+            if self.part_drawn(k):
                 self.hidden.discard(k)
                 for i in self.part_faces[k]:
                     f, nodes, nbrs = self.base[i]
@@ -510,18 +519,17 @@ class ReferenceCamera:
 
     def hide_parts(self):
         for k in range(len(self.part_faces)):
-            if k in self.hidden or not self.part_small(k):
+            if k in self.hidden or self.part_drawn(k):
                 continue
-            if any(self.node_state(x) != ACTIVE for x in self.part_roots[k]):
-                continue                          # not at its base mesh yet
             self.hidden.add(k)
-            for i in self.part_faces[k]:
-                self._remove_face(self.base[i][0])
+            for f in [f for f, rec in self.faces.items() if self.node_part[rec["pos"][0]] == k]:
+                self._remove_face(f)
+            for x in [x for x in self.state if self.node_part[x] == k]:
+                del self.state[x]                 # inactive
             for x in self.part_roots[k]:
                 self.state[x] = HIDDEN
-                if x in self.in_list:
-                    self.in_list.discard(x)
-                    self.active.remove(x)
+            self.active = [x for x in self.active if self.node_part[x] != k]
+            self.in_list = set(self.active)
             self.parts_hidden += 1
 
     def update(self, view):

@@ -39,8 +39,9 @@ class View:
         backface: coarsen regions whose normal cone faces wholly away.
         prune: hide a whole connected part while it projects smaller than
             the tolerance (its bounding sphere's diameter under
-            ``tolerance_px``), so that a mesh of many small parts seen from
-            afar draws almost nothing (:mod:`caveclod.kernels.parts`).
+            ``tolerance_px``) or, with ``cull``, lies wholly outside the
+            frustum, so that a mesh of many small parts seen from afar draws
+            almost nothing (:mod:`caveclod.kernels.parts`).
     """
 
     eye: tuple = (0.0, -1.0, 1.0)
