@@ -220,7 +220,8 @@ def _base_mesh_reasons(hier: Hierarchy, face_pos: np.ndarray, topo: Topology, la
     large = base > max(0.01 * p, 300)
     reasons = []
     if components > 1:
-        reasons.append(f"{components:,} separate pieces, each keeping at least one face")
+        reasons.append(f"{components:,} separate pieces, each keeping at least one face (cameras hide a piece "
+                       "while it is smaller than their tolerance or out of view)")
     if pinned:
         reasons.append(f"{pinned:,} non-manifold positions that never move")
     if rigid:
