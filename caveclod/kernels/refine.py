@@ -286,6 +286,30 @@ def _add_face(f, a, b, c, n0, n1, n2, rot, mat, fsgid, pos_vstart, vertex_sgid, 
 
 
 @nb.njit(cache=True, nogil=True)
+def move_records(cnt, old_off, old_tri, old_nbr, old_face, old_dirty, new_off, new_tri, new_nbr, new_face,
+                 new_dirty, face_rec):
+    """Copy each material's ``cnt[s]`` records from ``old_off[s]`` to ``new_off[s]`` of a
+    re-laid-out pool, with their written-slot bits; every moved face points at its new record.
+
+    One pass in numba: the same copy as numpy fancy indexing per material took about
+    2.5 ms for 16k records, and a camera re-lays out its pool whenever a material grows.
+    """
+    one = np.uint64(1)
+    for s in range(cnt.shape[0]):
+        a, b = old_off[s], new_off[s]
+        for i in range(cnt[s]):
+            r, q = a + i, b + i
+            for k in range(3):
+                new_tri[q, k] = old_tri[r, k]
+                new_nbr[q, k] = old_nbr[r, k]
+            f = old_face[r]
+            new_face[q] = f
+            face_rec[f] = q
+            if (old_dirty[r >> 6] >> np.uint64(r & 63)) & one:
+                new_dirty[q >> 6] |= one << np.uint64(q & 63)
+
+
+@nb.njit(cache=True, nogil=True)
 def _remove_face(f, mat, face_rec, off, cnt, rec_tri, rec_nbr, rec_face, dirty):
     """Remove face ``f``; the material's last face fills its slot."""
     s = mat[f]

@@ -153,16 +153,8 @@ class CameraState:
         }
         dirty = np.zeros((total + 63) // 64, np.uint64)
         if old is not None:
-            for s in map(int, np.flatnonzero(self.cnt)):    # only materials with records: a file may name 65,536
-                c = int(self.cnt[s])
-                src = np.arange(int(old["off"][s]), int(old["off"][s]) + c)
-                dst = np.arange(int(self.off[s]), int(self.off[s]) + c)
-                for k in new:
-                    new[k][dst] = old[k][src]
-                was = (old["dirty"][src >> 6] >> (src & 63).astype(np.uint64)) & np.uint64(1)
-                moved = dst[was != 0]
-                np.bitwise_or.at(dirty, moved >> 6, np.uint64(1) << (moved & 63).astype(np.uint64))
-                self.face_rec[new["rec_face"][dst]] = dst
+            K.move_records(self.cnt, old["off"], old["rec_tri"], old["rec_nbr"], old["rec_face"], old["dirty"],
+                           self.off, new["rec_tri"], new["rec_nbr"], new["rec_face"], dirty, self.face_rec)
         for k, v in new.items():
             setattr(self, k, v)
         self.dirty = dirty
