@@ -127,6 +127,7 @@ class CameraState:
         self.part_texp = np.full(parts.count, -np.inf)        # expiries of each part's answer, on odo[0] ...
         self.part_aexp = np.full(parts.count, -np.inf)        # ... and odo[1]
         self._part_counts = np.zeros(2, np.int64)             # parts shown, hidden by this update
+        self._parts_due = (-np.inf, -np.inf)                  # earliest part expiries (odo[0], odo[1])
         self.queue = np.empty(32, np.int32)                # collapse candidates of a pass
         self.counts = np.zeros(4, np.int64)
         self._resume = np.zeros(4, np.int64)      # where an interrupted pass goes on
@@ -241,7 +242,10 @@ class CameraState:
         self._advance_odometer(vp)
         self.counts[:] = 0
         self._part_counts[:] = 0
-        self._show_parts(vp)
+        due_t, due_a = self._parts_due
+        parts_due = not self.expiries or self.odo[0] >= due_t or self.odo[1] >= due_a
+        if parts_due:
+            self._show_parts(vp)
         if self.max_ops == UNLIMITED and self.max_faces == UNLIMITED:
             self._pass(vp, K.MIXED)
         else:
@@ -251,7 +255,8 @@ class CameraState:
             self._pass(vp, K.SPLITS_ONLY)
             if self.counts[0] + self.counts[1] < self.max_ops:
                 self._pass(vp, K.COLLAPSES_ONLY)
-        self._hide_parts(vp)
+        if parts_due:
+            self._hide_parts(vp)
         delta = self._collect_delta()
         delta.splits, delta.collapses = int(self.counts[0]), int(self.counts[1])
         delta.parts_shown, delta.parts_hidden = int(self._part_counts[0]), int(self._part_counts[1])
@@ -273,6 +278,7 @@ class CameraState:
         if last is None or any(last[k] != now[k] for k in (P_KAPPA, P_TOL, P_CULL, P_BACKFACE, P_PRUNE)):
             self.texp[:] = -np.inf
             self.part_texp[:] = -np.inf
+            self._parts_due = (-np.inf, -np.inf)
             return
         self.odo[0] += math.dist(now[P_EYE:P_EYE + 3], last[P_EYE:P_EYE + 3])
         self.odo[1] += max(math.dist(now[b:b + 3], last[b:b + 3]) for b in range(P_PLANES, P_PLANES + 20, 4))
@@ -287,6 +293,7 @@ class CameraState:
                 exp[:n] = down
             self.part_texp -= self.odo[0]         # float64: exact enough as they are
             self.part_aexp -= self.odo[1]
+            self._parts_due = (-np.inf, -np.inf)
             self.odo[:] = 0.0
 
     def _pass(self, vp: np.ndarray, mode: int) -> None:
@@ -364,7 +371,7 @@ class CameraState:
     def _hide_parts(self, vp: np.ndarray) -> None:
         """Hide the parts the view need not draw (small, or outside it), however refined."""
         if len(self.part_hidden):
-            KP.hide_parts(self._static[0], self._static[2], self._parts_static[0], self._static[8],
+            self._parts_due = KP.hide_parts(self._static[0], self._static[2], self._parts_static[0], self._static[8],
                           self._parts_static[3], *self._parts_static[4:],
                           self.part_hidden, self.part_texp, self.part_aexp, self.state, self.face_rec, self.off,
                           self.cnt, self.rec_tri, self.rec_nbr, self.rec_face, self.dirty, vp, self.odo,
