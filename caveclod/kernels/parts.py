@@ -60,8 +60,9 @@ def label_parts(face_nodes, n_nodes):
     """Connected components of the base mesh through shared nodes.
 
     Args:
-        face_nodes: (k, 3) int32 root nodes of each base face.
-        n_nodes: number of nodes (ids index a scratch array).
+        face_nodes: (k, 3) int32 the nodes of each base face, numbered
+            0 .. n_nodes-1 (the base mesh's own numbering: ids index scratch
+            arrays of n_nodes).
 
     Returns:
         (k,) int32 part of each base face, numbered 0.. in order of each
@@ -287,52 +288,50 @@ def _grown(stack):
 
 
 @nb.njit(cache=True, nogil=True)
-def position_parts(parent, e, root_part):
-    """(e,) int32 part of each original position (leaf), -1 where its root is in no base face.
+def spread_parts(parent, node_part):
+    """Give every node the part of its root, in place.
 
     Args:
         parent: (n,) int32 node parents (-1 for roots; a parent's id is
             always larger, which :func:`caveclod.meshcheck.check_mesh` proves,
-            so one pass from the top down finds every node's root).
-        e: number of positions (leaves are nodes 0 .. e-1).
-        root_part: (n,) int32 part of each root node, -1 for a root in no
-            base face (and for non-roots).
+            so one pass from the top down reaches every node after its parent).
+        node_part: (n,) int32, the part of each root on entry (-1 for a root
+            in no base face); the part of every node on return. Leaves are
+            nodes 0 .. e-1, so ``node_part[:e]`` is each position's part.
     """
-    n = parent.shape[0]
-    top = np.empty(n, np.int32)                  # the root above each node
-    for x in range(n - 1, -1, -1):
+    for x in range(parent.shape[0] - 1, -1, -1):
         p = parent[x]
-        top[x] = x if p < 0 else top[p]
-    out = np.empty(e, np.int32)
-    for x in range(e):
-        out[x] = root_part[top[x]]
-    return out
+        if p >= 0:
+            node_part[x] = node_part[p]
 
 
 @nb.njit(cache=True, nogil=True)
-def part_spheres(positions, part, m):
+def part_spheres(vertex_positions, pos_vstart, part, m):
     """Bounding sphere of each part's original positions.
 
     Args:
-        positions: (e, 3) float32 position of each leaf.
-        part: (e,) int32 part of each position (:func:`position_parts`), -1: none.
+        vertex_positions: (d, 3) float32 vertex buffer; position ``x`` is
+            ``vertex_positions[pos_vstart[x]]`` (no copy of the positions).
+        pos_vstart: (e+1,) int32 first vertex of each position.
+        part: (>= e,) int32 part of each position (:func:`spread_parts`), -1: none.
         m: number of parts.
 
     Returns:
         (m, 4) float64: centre (the middle of the part's box) and radius (the
         farthest position's distance from it).
     """
-    e = positions.shape[0]
+    e = pos_vstart.shape[0] - 1
     lo = np.full((m, 3), np.inf)
     hi = np.full((m, 3), -np.inf)
     for x in range(e):
         k = part[x]
         if k < 0:
             continue
+        v = pos_vstart[x]
         for j in range(3):
-            v = np.float64(positions[x, j])
-            lo[k, j] = min(lo[k, j], v)
-            hi[k, j] = max(hi[k, j], v)
+            c = np.float64(vertex_positions[v, j])
+            lo[k, j] = min(lo[k, j], c)
+            hi[k, j] = max(hi[k, j], c)
     out = np.zeros((m, 4))
     for k in range(m):
         for j in range(3):
@@ -341,8 +340,9 @@ def part_spheres(positions, part, m):
         k = part[x]
         if k < 0:
             continue
-        dx = np.float64(positions[x, 0]) - out[k, 0]
-        dy = np.float64(positions[x, 1]) - out[k, 1]
-        dz = np.float64(positions[x, 2]) - out[k, 2]
+        v = pos_vstart[x]
+        dx = np.float64(vertex_positions[v, 0]) - out[k, 0]
+        dy = np.float64(vertex_positions[v, 1]) - out[k, 1]
+        dz = np.float64(vertex_positions[v, 2]) - out[k, 2]
         out[k, 3] = max(out[k, 3], math.sqrt(dx * dx + dy * dy + dz * dz))
     return out

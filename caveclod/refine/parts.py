@@ -11,7 +11,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..kernels.parts import label_parts, part_spheres, position_parts
+from ..kernels.parts import label_parts, part_spheres, spread_parts
 
 
 @dataclass(frozen=True)
@@ -43,10 +43,16 @@ class Parts:
 
 
 def mesh_parts(mesh) -> Parts:
-    """The :class:`Parts` of a :class:`~caveclod.staticmesh.StaticMesh`."""
+    """The :class:`Parts` of a :class:`~caveclod.staticmesh.StaticMesh`.
+
+    Transient memory: the base mesh's few arrays and one int32 per node (the
+    pass that gives each position its part); positions are read in place."""
     a = mesh.arrays
     nodes = np.asarray(a["base_face_nodes"], np.int32)
-    label = label_parts(nodes, mesh.n_nodes) if len(nodes) else np.zeros(0, np.int32)
+    # Union-find over the base mesh's own nodes, numbered locally: a scratch array per
+    # node of the whole hierarchy would be 0.8 GB at 200M triangles.
+    used, local = np.unique(nodes, return_inverse=True)
+    label = label_parts(local.reshape(-1, 3).astype(np.int32), len(used)) if len(nodes) else np.zeros(0, np.int32)
     m = int(label.max(initial=-1)) + 1
     faces = np.argsort(label, kind="stable").astype(np.int32)
     face_start = np.searchsorted(label[faces], np.arange(m + 1)).astype(np.int64)
@@ -54,22 +60,20 @@ def mesh_parts(mesh) -> Parts:
     pairs = np.unique(np.c_[np.repeat(label, 3).astype(np.int64), nodes.ravel()], axis=0)
     roots = pairs[:, 1].astype(np.int32)
     root_start = np.searchsorted(pairs[:, 0], np.arange(m + 1)).astype(np.int64)
-    return Parts(_spheres(mesh, roots, root_start), root_start, roots, face_start, faces)
+    part = _node_part(mesh, roots, root_start)
+    sphere = part_spheres(np.asarray(a["vertex_positions"]), np.asarray(a["pos_vstart"]), part, m)
+    return Parts(sphere, root_start, roots, face_start, faces)
 
 
 def position_part(mesh) -> np.ndarray:
     """(e,) int32 part of each original position of ``mesh``, -1 for none (one pass over the nodes)."""
     parts = mesh.parts()
-    return _position_part(mesh, parts.roots, parts.root_start)
+    return _node_part(mesh, parts.roots, parts.root_start)[:mesh.n_positions]
 
 
-def _position_part(mesh, roots: np.ndarray, root_start: np.ndarray) -> np.ndarray:
-    root_part = np.full(mesh.n_nodes, -1, np.int32)
-    root_part[roots] = np.repeat(np.arange(len(root_start) - 1, dtype=np.int32), np.diff(root_start))
-    return position_parts(np.asarray(mesh.arrays["node_parent"]), mesh.n_positions, root_part)
-
-
-def _spheres(mesh, roots: np.ndarray, root_start: np.ndarray) -> np.ndarray:
-    """(m, 4) float64 sphere around each part's original positions."""
-    part = _position_part(mesh, roots, root_start)
-    return part_spheres(np.ascontiguousarray(mesh.positions), part, len(root_start) - 1)
+def _node_part(mesh, roots: np.ndarray, root_start: np.ndarray) -> np.ndarray:
+    """(n,) int32 part of every node (its root's)."""
+    part = np.full(mesh.n_nodes, -1, np.int32)
+    part[roots] = np.repeat(np.arange(len(root_start) - 1, dtype=np.int32), np.diff(root_start))
+    spread_parts(np.asarray(mesh.arrays["node_parent"]), part)
+    return part
