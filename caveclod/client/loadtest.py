@@ -169,7 +169,8 @@ async def _one(client: AsyncClient, index: int, args, mesh, tally: Tally, t0: fl
                                        cache_pq_fraction=args.cache_pq_fraction,
                                        frame_encoding=getattr(args, "frame_encoding", "ops"),
                                        vertex_encoding=getattr(args, "vertex_encoding", "packed"),
-                                       position_bits=getattr(args, "position_bits", None))
+                                       position_bits=getattr(args, "position_bits", None),
+                                       prune=False if getattr(args, "no_prune", False) else None)
         flying = asyncio.ensure_future(_fly(session, index, args, lo, hi, t0, tally))
         try:
             await _receive(session, t0 + args.duration + TAIL_SECONDS, t0 + args.warmup, tally)
@@ -287,6 +288,7 @@ def report(args, tally: Tally, mesh: str, faces: int, cpu: float, wall: float) -
         "target": args.target, "mesh": mesh, "mesh_faces": faces, "sessions": args.sessions,
         "cameras": args.cameras, "duration_s": args.duration, "warmup_s": args.warmup, "rate_hz": args.rate, "trajectory": args.trajectory,
         "viewport": [args.width, args.height], "fov_y": args.fov, "tolerance_px": args.tolerance,
+        "prune": not getattr(args, "no_prune", False),
         "frame_encoding": getattr(args, "frame_encoding", "ops"),
         "vertex_encoding": getattr(args, "vertex_encoding", "packed"), "processes": getattr(args, "processes", 1),
         "connections": getattr(args, "connections", None) or args.sessions,

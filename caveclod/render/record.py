@@ -185,7 +185,8 @@ def main(args) -> int:
         with Client(args.target, token=token, tls_ca=args.tls_ca, cache_dir=args.cache_dir) as client:
             mesh = pick_mesh(client, args.mesh, args.target)
             with client.session(mesh, cameras=args.cameras, width=qw, height=qh, fov_y=args.fov,
-                                tolerance_px=args.tolerance, **cache) as session:
+                                tolerance_px=args.tolerance, prune=False if args.no_prune else None,
+                                **cache) as session:
                 summary, _ = record(session, out, size=size, trajectory=args.trajectory, frames=args.frames,
                                  fps=args.fps, wireframe=args.wireframe, morph_ms=args.morph_ms)
     except SessionEnded as exc:

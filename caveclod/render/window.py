@@ -120,7 +120,8 @@ def main(args) -> int:
         with Client(args.target, token=token, tls_ca=args.tls_ca, cache_dir=args.cache_dir) as client:
             mesh = pick_mesh(client, args.mesh, args.target)
             with client.session(mesh, cameras=args.cameras, width=qw, height=qh, fov_y=args.fov,
-                                tolerance_px=args.tolerance, **cache) as session:
+                                tolerance_px=args.tolerance, prune=False if args.no_prune else None,
+                                **cache) as session:
                 view = SessionRenderer(session, *size, ctx=ctx, morph_ms=args.morph_ms)
                 drawn, image = _loop(glfw, window, ctx, session, view, args)
                 if args.screenshot and image is not None:
