@@ -32,7 +32,7 @@ import numpy as np
 
 import caveclod
 from caveclod.paths import circle, flyover, line, rotate
-from caveclod.refine.measure import original_triangles, pixel_errors, surface_errors
+from caveclod.refine.measure import hidden_positions, original_triangles, pixel_errors, surface_errors
 
 RESULTS = Path(__file__).parent / "results"
 MESHES = ("default", "rough", "scan")
@@ -62,7 +62,9 @@ def measure(mesh, tolerance, original):
         for _ in range(6):
             if cam.update(view).operations == 0:
                 break
-        px.append(pixel_errors(mesh, cam.triangles(), view))
+        # Parts hidden for being small have nothing drawn to measure against (docs/parts.md):
+        # the positions of the parts drawn are measured.
+        px.append(pixel_errors(mesh, cam.triangles(), view, points=np.asarray(mesh.positions)[~hidden_positions(cam)]))
         back.append(surface_errors(mesh, cam.triangles(), original, view))
         faces.append(cam.n_faces)
     return np.concatenate(px), np.concatenate(back), faces
