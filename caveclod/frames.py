@@ -110,7 +110,7 @@ def surface_bytes(s: Surface) -> bytes:
 _STATS = (("splits", b"\x08", "v"), ("collapses", b"\x10", "v"), ("update_us", b"\x18", "v"),
           ("active_faces", b"\x20", "v"), ("budget_exhausted", b"\x28", "v"), ("pose_age_us", b"\x30", "v"),
           ("cache_hits", b"\x38", "v"), ("cache_inserts", b"\x40", "v"), ("cache_tolerance_px", b"\x49", "d"),
-          ("updates", b"\x50", "v"))
+          ("updates", b"\x50", "v"), ("hidden_parts", b"\x58", "v"))
 _STAT_NAMES = {name for name, _, _ in _STATS}
 _ZERO_DOUBLE = bytes(8)
 

@@ -16,7 +16,7 @@ U64 = st.integers(0, 2**64 - 1)
 @given(st.fixed_dictionaries({}, optional={
     "splits": U32, "collapses": U32, "update_us": U64, "active_faces": U64, "budget_exhausted": st.booleans(),
     "pose_age_us": U64, "cache_hits": U32, "cache_inserts": U32,
-    "cache_tolerance_px": st.floats(allow_nan=False, allow_infinity=False), "updates": U32}))
+    "cache_tolerance_px": st.floats(allow_nan=False, allow_infinity=False), "updates": U32, "hidden_parts": U32}))
 @example({"cache_tolerance_px": -0.0})          # protobuf writes a negative zero (its bits are not zero)
 def test_stats_bytes_equal_protobufs(stats):
     assert frames.stats_bytes(stats) == pb.CameraStats(**stats).SerializeToString()

@@ -190,7 +190,7 @@ def test_a_session_follows_parts_hiding_and_coming_back(make_server, tmp_path):
             session = client.session("debris", 1, width=640, height=480, prune=prune)
             try:
                 assert session.info.options.prune is (prune is None)
-                faces = []
+                faces, hidden = [], []
                 for distance in (100.0, 0.3, 100.0):
                     session.send_pose(0, tuple(centre + diagonal * distance * np.array([0, -0.8, 0.6])), tuple(centre))
                     for _ in range(50):                       # until the pose is answered and refined
@@ -201,10 +201,13 @@ def test_a_session_follows_parts_hiding_and_coming_back(make_server, tmp_path):
                             break
                     tris = session.triangles(0)
                     faces.append(sum(len(t) for t in tris.values()))
+                    hidden.append(stats.hidden_parts)
                 assert session.protocol.divergences == 0 and session.protocol.bad_frames == 0
                 if prune is None:
                     assert faces[0] == 0 and faces[2] == 0 and faces[1] > len(DEBRIS.base_faces), faces
+                    assert hidden[0] == hidden[2] == DEBRIS.parts().count > hidden[1], hidden    # CameraStats
                 else:
                     assert faces[0] == faces[2] == len(DEBRIS.base_faces), faces
+                    assert hidden == [0, 0, 0]
             finally:
                 session.close()

@@ -128,6 +128,7 @@ class CameraState:
         self.part_aexp = np.full(parts.count, -np.inf)        # ... and odo[1]
         self._part_counts = np.zeros(2, np.int64)             # parts shown, hidden by this update
         self._parts_due = (-np.inf, -np.inf)                  # earliest part expiries (odo[0], odo[1])
+        self._n_hidden = 0                                    # part_hidden.sum(), kept (servers read it every frame)
         self.queue = np.empty(32, np.int32)                # collapse candidates of a pass
         self.counts = np.zeros(4, np.int64)
         self._resume = np.zeros(4, np.int64)      # where an interrupted pass goes on
@@ -260,6 +261,7 @@ class CameraState:
         delta = self._collect_delta()
         delta.splits, delta.collapses = int(self.counts[0]), int(self.counts[1])
         delta.parts_shown, delta.parts_hidden = int(self._part_counts[0]), int(self._part_counts[1])
+        self._n_hidden += delta.parts_hidden - delta.parts_shown
         if not delta.operations:
             self._trim()              # at rest: a moving camera would only grow again
         delta.budget_exhausted = bool(self.counts[2])
@@ -482,7 +484,7 @@ class CameraState:
     @property
     def hidden_parts(self) -> int:
         """Parts hidden for being smaller than the tolerance or outside the view."""
-        return int(self.part_hidden.sum())
+        return self._n_hidden
 
     @property
     def nbytes(self) -> int:

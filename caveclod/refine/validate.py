@@ -46,6 +46,8 @@ def validate_camera(cam) -> None:
         _fail("a hidden part's root is not hidden, or a visible part's root is")
     if int(np.count_nonzero(state == HIDDEN)) != int(hidden_root.sum()):
         _fail("a node outside the hidden parts' roots is hidden")
+    if cam.hidden_parts != int(np.count_nonzero(cam.part_hidden)):
+        _fail("the count of hidden parts disagrees with the parts' flags")
     listed = cam.active[: cam.n_active[0]]
     if len(np.unique(listed)) != len(listed):
         _fail("a node is listed twice in the active list")

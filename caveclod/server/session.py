@@ -351,7 +351,7 @@ class Session:
             self.due[c] = None if converged else time.monotonic() + (0.0 if delta.budget_exhausted else self.settle)
             out.stats = {"splits": delta.splits, "collapses": delta.collapses,
                          "update_us": int(1e6 * delta.seconds), "active_faces": cam.n_faces,
-                         "budget_exhausted": delta.budget_exhausted, "updates": 1}
+                         "budget_exhausted": delta.budget_exhausted, "updates": 1, "hidden_parts": cam.hidden_parts}
             self.hooks.refined(delta.seconds, delta.operations, cpu)
             if cached is not None:
                 out.stats.update(cache_hits=cd.hits, cache_inserts=cd.inserted, cache_tolerance_px=cd.tolerance_px,

@@ -415,7 +415,7 @@ class SurfaceDelta(_message.Message):
     def __init__(self, material: _Optional[int] = ..., count: _Optional[int] = ..., slots: _Optional[bytes] = ..., first_slot: _Optional[int] = ..., tris: _Optional[bytes] = ..., crc32: _Optional[int] = ..., ops: _Optional[bytes] = ...) -> None: ...
 
 class CameraStats(_message.Message):
-    __slots__ = ("splits", "collapses", "update_us", "active_faces", "budget_exhausted", "pose_age_us", "cache_hits", "cache_inserts", "cache_tolerance_px", "updates")
+    __slots__ = ("splits", "collapses", "update_us", "active_faces", "budget_exhausted", "pose_age_us", "cache_hits", "cache_inserts", "cache_tolerance_px", "updates", "hidden_parts")
     SPLITS_FIELD_NUMBER: _ClassVar[int]
     COLLAPSES_FIELD_NUMBER: _ClassVar[int]
     UPDATE_US_FIELD_NUMBER: _ClassVar[int]
@@ -426,6 +426,7 @@ class CameraStats(_message.Message):
     CACHE_INSERTS_FIELD_NUMBER: _ClassVar[int]
     CACHE_TOLERANCE_PX_FIELD_NUMBER: _ClassVar[int]
     UPDATES_FIELD_NUMBER: _ClassVar[int]
+    HIDDEN_PARTS_FIELD_NUMBER: _ClassVar[int]
     splits: int
     collapses: int
     update_us: int
@@ -436,7 +437,8 @@ class CameraStats(_message.Message):
     cache_inserts: int
     cache_tolerance_px: float
     updates: int
-    def __init__(self, splits: _Optional[int] = ..., collapses: _Optional[int] = ..., update_us: _Optional[int] = ..., active_faces: _Optional[int] = ..., budget_exhausted: _Optional[bool] = ..., pose_age_us: _Optional[int] = ..., cache_hits: _Optional[int] = ..., cache_inserts: _Optional[int] = ..., cache_tolerance_px: _Optional[float] = ..., updates: _Optional[int] = ...) -> None: ...
+    hidden_parts: int
+    def __init__(self, splits: _Optional[int] = ..., collapses: _Optional[int] = ..., update_us: _Optional[int] = ..., active_faces: _Optional[int] = ..., budget_exhausted: _Optional[bool] = ..., pose_age_us: _Optional[int] = ..., cache_hits: _Optional[int] = ..., cache_inserts: _Optional[int] = ..., cache_tolerance_px: _Optional[float] = ..., updates: _Optional[int] = ..., hidden_parts: _Optional[int] = ...) -> None: ...
 
 class Vec3(_message.Message):
     __slots__ = ("x", "y", "z")

@@ -3145,6 +3145,7 @@
                 CameraStats.prototype.cacheInserts = 0;
                 CameraStats.prototype.cacheTolerancePx = 0;
                 CameraStats.prototype.updates = 0;
+                CameraStats.prototype.hiddenParts = 0;
     
                 CameraStats.encode = function (message, writer, _depth) {
                     if (!writer)
@@ -3173,6 +3174,8 @@
                         writer.uint32(73).double(message.cacheTolerancePx);
                     if (message.updates != null && $Object.hasOwnProperty.call(message, "updates") && message.updates !== 0)
                         writer.uint32(80).uint32(message.updates);
+                    if (message.hiddenParts != null && $Object.hasOwnProperty.call(message, "hiddenParts") && message.hiddenParts !== 0)
+                        writer.uint32(88).uint32(message.hiddenParts);
                     if (message.$unknowns != null && $Object.hasOwnProperty.call(message, "$unknowns"))
                         for (var i = 0; i < message.$unknowns.length; ++i)
                             writer.raw(message.$unknowns[i]);
@@ -3294,6 +3297,15 @@
                                     message.updates = value;
                                 else
                                     delete message.updates;
+                                continue;
+                            }
+                        case 11: {
+                                if (wireType !== 0)
+                                    break;
+                                if (value = reader.uint32())
+                                    message.hiddenParts = value;
+                                else
+                                    delete message.hiddenParts;
                                 continue;
                             }
                         }
