@@ -211,3 +211,30 @@ def test_a_session_follows_parts_hiding_and_coming_back(make_server, tmp_path):
                     assert hidden == [0, 0, 0]
             finally:
                 session.close()
+
+
+def test_hidden_parts_change_the_image_only_where_they_would_have_been(gl):
+    """Rendered from afar with and without hiding: at most a pixel differs for each part hidden in
+    view (a part under a pixel wide covers a pixel centre at most), everything drawn is the same."""
+    from caveclod.render import Renderer, Vertices
+    W, H = 640, 360
+    mesh = DEBRIS
+    verts = Vertices(mesh.vertex_positions, mesh.vertex_normals, mesh.vertex_uvs, None)
+    lo, hi = mesh.bounds()
+    centre = (lo + hi) / 2
+    for distance in (4.0, 12.0):
+        eye = centre + float(np.linalg.norm(hi - lo)) * distance * np.array([0.0, -0.8, 0.6])
+        pose = (tuple(eye), tuple(centre), (0.0, 0.0, 1.0))
+        images, hidden = [], 0
+        for prune in (True, False):
+            view = View.from_pose(pose, width=W, height=H, tolerance_px=1.0, prune=prune)
+            cam = mesh.new_camera()
+            _converge(cam, view)
+            hidden = max(hidden, len(hidden_part_pixels(cam, view)))
+            with Renderer(W, H, verts, mesh.materials, ctx=gl) as r:
+                for m, tris in cam.triangles().items():
+                    r.apply(0, m, len(tris), tris, first_slot=0)
+                images.append(r.render([pose]).astype(np.int64))
+        differing = int((np.abs(images[0] - images[1]).max(axis=-1) > 0).sum())
+        assert hidden > 10, "the view should hide parts in it"
+        assert differing <= hidden, (distance, differing, hidden)      # measured: 0 of 32 hidden, 1 of 51
