@@ -13,6 +13,7 @@ import numba as nb
 import numpy as np
 
 from ..errors import InputError
+from ..kernels.unionfind import find
 from .source import SourceMesh
 from .topology import Topology, face_neighbours
 
@@ -96,14 +97,6 @@ def _corner_angles(positions, face_pos):
 
 
 @nb.njit(cache=True, nogil=True)
-def _find(parent, x):
-    while parent[x] != x:
-        parent[x] = parent[parent[x]]
-        x = parent[x]
-    return x
-
-
-@nb.njit(cache=True, nogil=True)
 def _wedges(face_pos, nbrs, face_vertex, unit, cos_crease):
     """(p, 3) wedge label per corner: union corners across smooth edges.
 
@@ -129,12 +122,12 @@ def _wedges(face_pos, nbrs, face_vertex, unit, cos_crease):
                 cg = 0 if face_pos[g, 0] == x else (1 if face_pos[g, 1] == x else 2)
                 if face_vertex[f, cf] != face_vertex[g, cg]:
                     continue
-                ra, rb = _find(parent, 3 * f + cf), _find(parent, 3 * g + cg)
+                ra, rb = find(parent, 3 * f + cf), find(parent, 3 * g + cg)
                 if ra != rb:
                     parent[ra] = rb
     out = np.empty((p, 3), np.int64)
     for c in range(3 * p):
-        out[c // 3, c % 3] = _find(parent, c)
+        out[c // 3, c % 3] = find(parent, c)
     return out
 
 

@@ -40,19 +40,11 @@ import math
 import numba as nb
 import numpy as np
 
-from .refine import (ACTIVE, DAMAGED, FOREVER, IN_LIST, NEED_RECORDS, NEVER, OK, P_CULL, P_EYE, P_KAPPA, P_PLANES,
-                     P_PRUNE, P_TOL, RECHECK, SPLIT, STATE_MASK, _add_face, _expiry, _remove_face, node_position)
+from .refine import (ACTIVE, DAMAGED, FOREVER, IN_LIST, NEED_RECORDS, NEVER, OK, P_EYE, P_KAPPA, P_PRUNE, P_TOL,
+                     RECHECK, SPLIT, STATE_MASK, _add_face, _expiry, _remove_face, node_position, sphere_planes)
+from .unionfind import find
 
 HIDDEN = 3            # node state of a hidden part's roots (STATE_MASK's free value)
-
-
-@nb.njit(cache=True, nogil=True, inline="always")
-def _find(up, x):
-    """Union-find representative of ``x``, halving the path on the way."""
-    while up[x] != x:
-        up[x] = up[up[x]]
-        x = up[x]
-    return x
 
 
 @nb.njit(cache=True, nogil=True)
@@ -70,9 +62,9 @@ def label_parts(face_nodes, n_nodes):
     """
     up = np.arange(n_nodes).astype(np.int32)      # union-find over nodes
     for i in range(face_nodes.shape[0]):
-        a = _find(up, face_nodes[i, 0])
+        a = find(up, face_nodes[i, 0])
         for k in range(1, 3):
-            b = _find(up, face_nodes[i, k])
+            b = find(up, face_nodes[i, k])
             if a != b:
                 if a < b:
                     up[b] = a
@@ -83,7 +75,7 @@ def label_parts(face_nodes, n_nodes):
     out = np.empty(face_nodes.shape[0], np.int32)
     m = 0
     for i in range(face_nodes.shape[0]):
-        root = _find(up, face_nodes[i, 0])
+        root = find(up, face_nodes[i, 0])
         if label[root] < 0:
             label[root] = m
             m += 1
@@ -107,18 +99,9 @@ def part_test(k, sphere, vp):
     cx, cy, cz, r = sphere[k, 0], sphere[k, 1], sphere[k, 2], sphere[k, 3]
     dx, dy, dz = cx - vp[P_EYE], cy - vp[P_EYE + 1], cz - vp[P_EYE + 2]
     length = math.sqrt(dx * dx + dy * dy + dz * dz)
-    inside = FOREVER
-    if vp[P_CULL] != 0.0:
-        outside = 0.0
-        for i in range(5):
-            b = P_PLANES + 4 * i
-            g = vp[b] * cx + vp[b + 1] * cy + vp[b + 2] * cz + vp[b + 3] + r
-            if g < 0.0:
-                outside = max(outside, -g)
-            elif g < inside:
-                inside = g
-        if outside > 0.0:
-            return False, 0.0, outside, length
+    outside, inside = sphere_planes(cx, cy, cz, r, vp)
+    if outside > 0.0:
+        return False, 0.0, outside, length
     if vp[P_TOL] <= 0.0:
         return True, FOREVER, inside, length
     dist = length - r

@@ -132,6 +132,24 @@ def _replace_nbr(rec_nbr, r, old, new):
 # ---------------------------------------------------------------- the view test
 
 
+@nb.njit(cache=True, nogil=True, inline="always")
+def sphere_planes(cx, cy, cz, r, vp):
+    """The sphere (c, r) against the view frustum's five planes, when culling is on:
+    (how far it lies wholly outside a plane, 0 if it does not; the smallest
+    margin by which it reaches inside them all, FOREVER with culling off)."""
+    inside = FOREVER
+    outside = 0.0
+    if vp[P_CULL] != 0.0:
+        for i in range(5):
+            b = P_PLANES + 4 * i
+            g = vp[b] * cx + vp[b + 1] * cy + vp[b + 2] * cz + vp[b + 3] + r
+            if g < 0.0:
+                outside = max(outside, -g)
+            elif g < inside:
+                inside = g
+    return outside, inside
+
+
 @nb.njit(cache=True, nogil=True)
 def test_node(j, bound, cone, vp):
     """Whether internal node ``j`` (index into node arrays) needs detail,
@@ -145,18 +163,9 @@ def test_node(j, bound, cone, vp):
     cx, cy, cz, r = bound[j, 0], bound[j, 1], bound[j, 2], bound[j, 3]
     dx, dy, dz = cx - vp[P_EYE], cy - vp[P_EYE + 1], cz - vp[P_EYE + 2]
     length = math.sqrt(dx * dx + dy * dy + dz * dz)
-    inside = FOREVER                      # smallest plane margin while inside all
-    if vp[P_CULL] != 0.0:
-        outside = 0.0
-        for i in range(5):
-            b = P_PLANES + 4 * i
-            g = vp[b] * cx + vp[b + 1] * cy + vp[b + 2] * cz + vp[b + 3] + r
-            if g < 0.0:
-                outside = max(outside, -g)
-            elif g < inside:
-                inside = g
-        if outside > 0.0:
-            return False, 0.0, outside, length          # wholly outside a plane
+    outside, inside = sphere_planes(cx, cy, cz, r, vp)
+    if outside > 0.0:
+        return False, 0.0, outside, length          # wholly outside a plane
     if vp[P_BACKFACE] != 0.0:
         if length > r and cone[j, 3] < 0.5 * math.pi:
             # Back-facing when every normal of the cone points away from every
