@@ -325,19 +325,20 @@ class CameraState:
                 self._abandon_pass()
 
     def _show_parts(self, vp: np.ndarray) -> None:
-        """Bring back the hidden parts the view no longer finds small, growing arrays when asked."""
+        """Bring back the hidden parts the view needs drawn again (grown, or back in view),
+        growing the arrays once for all of them when asked."""
         if not len(self.part_hidden):
             return
+        e, _, _, npos, _, _, _, _, mat, fsgid, pos_vstart, vertex_sgid, _ = self._static
         shown = self._part_counts[0:1]
         todo = np.empty(len(self.part_hidden), np.int32)
         need = np.zeros(self.n_materials + 1, np.int64)       # records per material, then list entries
         for _ in range(2):                                    # room is made for all of them at once
             status, what = KP.show_parts(
-                self._static[0], self._static[3], self._static[8], self._static[9], self._static[10],
-                self._static[11], *self._parts_static, self.part_hidden, self.part_texp, self.part_aexp,
-                self.state, self.face_rec, self.off, self.cnt, self.cap, self.rec_tri, self.rec_nbr, self.rec_face,
-                self.dirty, self.active, self.texp, self.aexp, self.n_active, vp, self.odo, self.expiries, todo,
-                need, shown)
+                e, npos, mat, fsgid, pos_vstart, vertex_sgid, *self._parts_static, self.part_hidden, self.part_texp,
+                self.part_aexp, self.state, self.face_rec, self.off, self.cnt, self.cap, self.rec_tri, self.rec_nbr,
+                self.rec_face, self.dirty, self.active, self.texp, self.aexp, self.n_active, vp, self.odo,
+                self.expiries, todo, need, shown)
             if status == K.OK:
                 return
             if status == K.NEED_RECORDS:
@@ -372,12 +373,14 @@ class CameraState:
 
     def _hide_parts(self, vp: np.ndarray) -> None:
         """Hide the parts the view need not draw (small, or outside it), however refined."""
-        if len(self.part_hidden):
-            self._parts_due = KP.hide_parts(self._static[0], self._static[2], self._parts_static[0], self._static[8],
-                          self._parts_static[3], *self._parts_static[4:],
-                          self.part_hidden, self.part_texp, self.part_aexp, self.state, self.face_rec, self.off,
-                          self.cnt, self.rec_tri, self.rec_nbr, self.rec_face, self.dirty, vp, self.odo,
-                          self.expiries, self._part_counts[1:2])
+        if not len(self.part_hidden):
+            return
+        e, _, links, _, _, _, _, _, mat, _, _, _, _ = self._static
+        base_faces, _, _, sphere, root_start, roots, face_start, faces = self._parts_static
+        self._parts_due = KP.hide_parts(
+            e, links, base_faces, mat, sphere, root_start, roots, face_start, faces, self.part_hidden,
+            self.part_texp, self.part_aexp, self.state, self.face_rec, self.off, self.cnt, self.rec_tri, self.rec_nbr,
+            self.rec_face, self.dirty, vp, self.odo, self.expiries, self._part_counts[1:2])
 
     def _abandon_pass(self) -> None:
         """Close an interrupted pass (growth failed): keep the listed nodes.

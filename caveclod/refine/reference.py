@@ -90,7 +90,7 @@ class ReferenceCamera:
         for f, nodes, nbrs in self.base:
             self._add_face(f, [self.position(x) for x in nodes], list(nbrs))
         self._find_parts(mesh)
-        self.hidden = set()                   # parts hidden for being small
+        self.hidden = set()                   # parts hidden (small, or out of view)
 
     def _read_static(self, mesh):
         def ints(name):
