@@ -33,6 +33,7 @@ from .cli import morph_argument
 from .errors import CaveclodError, FileFormatError, InputError
 
 SERVER_START_SECONDS = 180.0     # the first start compiles the refinement kernels
+OPEN_SECONDS = 600.0             # ... and its first Open waits for them (a cold numba cache: about a minute)
 CAMERAS = ("A", "B", "C", "D")
 
 
@@ -156,7 +157,12 @@ def fly(target: str, mesh: str, out: Path, size: tuple, args) -> tuple[dict, lis
     qw, qh = quadrants(*size, len(CAMERAS))[0][2:]
     try:
         with Client(target, cache_dir=out / "vertex-cache") as client:
-            with client.session(mesh, cameras=len(CAMERAS), width=qw, height=qh,
+            # A server's first Open waits for its kernels: on a machine whose numba cache is
+            # cold (the first demo) compiling them takes most of a minute, more than the client's
+            # default of 30 s.
+            print("demo: opening a session (the first run on a machine waits while the server compiles its "
+                  "kernels, about a minute)", flush=True)
+            with client.session(mesh, cameras=len(CAMERAS), width=qw, height=qh, timeout=OPEN_SECONDS,
                                 morph_targets=args.morph_ms > 0) as session:
                 info = session.info
                 packed = info.vertex_packing if info.HasField("vertex_packing") else None
