@@ -54,7 +54,7 @@ class AsyncClient:
     async def session(self, mesh: str, cameras: int = 1, *, width: int = 1280, height: int = 720,
                       fov_y: float | None = None, tolerance_px: float | None = None, cull: bool | None = None,
                       backface: bool | None = None, max_ops: int | None = None, max_faces: int | None = None,
-                      ack_window: int = 0, retries: int = 12, timeout: float = 30.0, cache_vertices: int | None = None,
+                      ack_window: int = 0, retries: int = 12, timeout: float = 120.0, cache_vertices: int | None = None,
                       cache_strategy: str | None = None, cache_pq_fraction: float | None = None,
                       frame_encoding: str = "ops", vertex_encoding: str = "packed",
                       position_bits: int | None = None, morph_targets: bool = False,

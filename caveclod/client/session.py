@@ -151,7 +151,7 @@ class Client:
     def session(self, mesh: str, cameras: int = 1, *, width: int = 1280, height: int = 720,
                 fov_y: float | None = None, tolerance_px: float | None = None, cull: bool | None = None,
                 backface: bool | None = None, max_ops: int | None = None, max_faces: int | None = None,
-                ack_window: int = 0, retries: int = 12, timeout: float = 30.0, cache_vertices: int | None = None,
+                ack_window: int = 0, retries: int = 12, timeout: float = 120.0, cache_vertices: int | None = None,
                 cache_strategy: str | None = None, cache_pq_fraction: float | None = None,
                 frame_encoding: str = "ops", vertex_encoding: str = "packed",
                 position_bits: int | None = None, morph_targets: bool = False,
@@ -169,6 +169,11 @@ class Client:
         ``lru``; ``cache_pq_fraction`` for ``lru_pq``, default 0.1). Nothing
         is downloaded up front; :meth:`Session.slots` holds each camera's
         vertices and the index buffers hold slot numbers.
+
+        ``timeout``: seconds to wait for SessionInfo and the vertex buffer. A
+        server's first Open waits for its kernels; where numba's cache is
+        cold (a new machine without ``python -m caveclod.server.warm``) that
+        takes about a minute, hence the default of 120.
 
         ``retries``: how many times a broken stream is opened again (with the
         session's token, backing off from 0.1 s doubling to 2 s, with jitter)
