@@ -161,16 +161,20 @@ class CameraState:
             setattr(self, k, v)
         self.dirty = dirty
 
-    def _grow_records(self, material: int) -> None:
+    def _relayout(self, capacity: np.ndarray) -> None:
+        """Re-lay out the record pool with ``capacity`` per material, keeping every record."""
         old = {k: getattr(self, k) for k in RECORD_ARRAYS}
         old["off"], old["dirty"] = self.off, self.dirty
+        self._layout(capacity, old)
+
+    def _grow_records(self, material: int) -> None:
         cap = self.cap.copy()
         # Grow by a quarter: a camera's bytes are what adding a camera costs,
         # so slack is kept small; re-layout is O(active faces) and rare
         # (at least SLACK_RECORDS, or a small material re-lays out the pool
         # a few faces at a time).
         cap[material] = cap[material] + max(cap[material] // 4, self._slack[material], 8)
-        self._layout(cap, old)
+        self._relayout(cap)
 
     def _trim(self) -> None:
         """Give back room a pass no longer uses (after a jump to a coarser
@@ -188,12 +192,11 @@ class CameraState:
                 setattr(self, name, getattr(self, name)[:size].copy())
         wasted = self.cap > 2 * self.cnt + self._slack + 4
         if wasted.any():
-            old = {k: getattr(self, k) for k in RECORD_ARRAYS}
-            old["off"], old["dirty"] = self.off, self.dirty
-            self._layout(np.where(wasted, self.cnt + self.cnt // 4 + self._slack // 4 + 4, self.cap), old)
+            self._relayout(np.where(wasted, self.cnt + self.cnt // 4 + self._slack // 4 + 4, self.cap))
 
-    def _grow_list(self) -> None:
-        size = max(len(self.active) + len(self.active) // 4, 16)
+    def _grow_list(self, at_least: int = 0) -> None:
+        """Grow the active list by a quarter, or to ``at_least`` entries if that is more."""
+        size = max(len(self.active) + len(self.active) // 4, 16, at_least)
         for name, fill in (("active", -1), ("texp", -np.inf), ("aexp", -np.inf)):
             old = getattr(self, name)
             bigger = np.full(size, fill, old.dtype)
@@ -358,18 +361,11 @@ class CameraState:
         want = self.cnt + records
         short = want > self.cap
         if short.any():
-            old = {k: getattr(self, k) for k in RECORD_ARRAYS}
-            old["off"], old["dirty"] = self.off, self.dirty
             bigger = np.maximum(want + np.maximum(want // 2, self._slack), self.cap + 8)
-            self._layout(np.where(short, bigger, self.cap), old)
-        n = int(self.n_active[0])
-        if n + entries > len(self.active):
-            size = n + entries + (n + entries) // 4 + 16
-            for name, fill in (("active", -1), ("texp", -np.inf), ("aexp", -np.inf)):
-                old = getattr(self, name)
-                bigger = np.full(size, fill, old.dtype)
-                bigger[:n] = old[:n]
-                setattr(self, name, bigger)
+            self._relayout(np.where(short, bigger, self.cap))
+        n = int(self.n_active[0]) + entries
+        if n > len(self.active):
+            self._grow_list(n + n // 4 + 16)
 
     def _hide_parts(self, vp: np.ndarray) -> None:
         """Hide the parts the view need not draw (small, or outside it), however refined."""

@@ -149,9 +149,14 @@ def hidden_positions(camera) -> np.ndarray:
     """(e,) bool: the original positions of the parts ``camera`` hides for being
     smaller than the tolerance (:mod:`caveclod.kernels.parts`). :func:`pixel_errors`
     has nothing drawn to measure them against; :func:`hidden_part_pixels` measures them."""
+    return _hidden(camera)[1]
+
+
+def _hidden(camera) -> tuple[np.ndarray, np.ndarray]:
+    """((e,) int32 part of each position, (e,) bool: the position's part is hidden)."""
     from .parts import position_part
     part = position_part(camera.mesh)
-    return (part >= 0) & (camera.part_hidden[np.maximum(part, 0)] != 0)
+    return part, (part >= 0) & (camera.part_hidden[np.maximum(part, 0)] != 0)
 
 
 def hidden_part_pixels(camera, view: View) -> np.ndarray:
@@ -166,9 +171,7 @@ def hidden_part_pixels(camera, view: View) -> np.ndarray:
     parts lie wholly outside the frustum, where :func:`pixel_errors`
     measures nothing either.
     """
-    from .parts import position_part
-    part = position_part(camera.mesh)
-    keep = (part >= 0) & (camera.part_hidden[np.maximum(part, 0)] != 0)
+    part, keep = _hidden(camera)
     k = part[keep]
     P = np.asarray(camera.mesh.positions, np.float64)[keep]
     if len(k) == 0:
