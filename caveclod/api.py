@@ -18,7 +18,8 @@ DEFAULT_SIZE = 256
 
 def build(source, *, cell_size: float = 1.0, z_scale: float = 1.0, materials=None,
           crease_angle: float | None = None, size: int = DEFAULT_SIZE, seed: int | None = None, nodata: float | None = None,
-          weld: float | None = None, progress: bool = False) -> StaticMesh:
+          weld: float | None = None, progress: bool = False, tiles: int | None = None,
+          workers: int | None = None) -> StaticMesh:
     """Build the static CAVECLOD mesh of ``source``.
 
     Args:
@@ -42,15 +43,31 @@ def build(source, *, cell_size: float = 1.0, z_scale: float = 1.0, materials=Non
         weld: merge positions closer than about this distance (default:
             weld exactly); see :mod:`caveclod.builder.weld`.
         progress: draw a progress bar on stderr.
+        tiles: tiles per side of the build's grid, a power of two (1: one
+            tile; None: about 65,536 to 131,072 faces a tile); tiles are
+            simplified in parallel with their borders fixed, then merged
+            2 x 2 (:mod:`caveclod.builder.tiles`).
+        workers: threads the build uses (None: the cores, at most 8); the
+            file is the same whatever their number.
     """
     from .builder.hierarchy import build_static_mesh
     _check_options(crease_angle=crease_angle, cell_size=cell_size, z_scale=z_scale)
+    _check_parallelism(tiles, workers)
     src = to_source(source, cell_size=cell_size, z_scale=z_scale, materials=materials, size=size, seed=seed,
                     nodata=nodata)
     if weld is not None:
         from .builder.weld import weld_positions
         src = weld_positions(src, weld)
-    return build_static_mesh(src, crease_angle=crease_angle, progress=progress)
+    return build_static_mesh(src, crease_angle=crease_angle, progress=progress, tiles=tiles, workers=workers)
+
+
+def _check_parallelism(tiles, workers) -> None:
+    """Refuse a tile grid or a worker count the build cannot use."""
+    if tiles is not None and (not isinstance(tiles, (int, np.integer)) or tiles < 1 or tiles & (tiles - 1)
+                              or tiles > 4096):
+        raise InputError(f"--tiles must be a power of two from 1 to 4096 (tiles per side), got {tiles!r}")
+    if workers is not None and (not isinstance(workers, (int, np.integer)) or not 1 <= workers <= 256):
+        raise InputError(f"--workers must be a whole number from 1 to 256, got {workers!r}")
 
 
 def _check_options(crease_angle, cell_size, z_scale) -> None:

@@ -87,6 +87,11 @@ def _parser() -> argparse.ArgumentParser:
                                                      "for heightfields)")
     b.add_argument("--weld", type=float, help="merge positions closer than about this distance "
                                               "(default: only bitwise-equal positions are one)")
+    b.add_argument("--tiles", type=int, help="tiles per side, a power of two: tiles are simplified in parallel with "
+                                             "their borders fixed, then merged 2 x 2 (default: by size, about "
+                                             "65,536-131,072 faces a tile; 1: no tiles)")
+    b.add_argument("--workers", type=int, help="threads of the build (default: the cores, at most 8); the file is the "
+                                               "same whatever their number")
     b.add_argument("--quiet", action="store_true", help="no progress on stderr")
     b.set_defaults(run=_build)
 
@@ -313,7 +318,7 @@ def _build(args) -> int:
     from .api import build
     mesh = build(args.input, cell_size=args.cell_size, z_scale=args.z_scale, materials=args.materials,
                  crease_angle=args.crease_angle, size=args.size, seed=args.seed, nodata=args.nodata, weld=args.weld,
-                 progress=not args.quiet)
+                 progress=not args.quiet, tiles=args.tiles, workers=args.workers)
     try:
         mesh.save(args.output)
     except OSError as exc:

@@ -38,8 +38,17 @@ CASES = {
     "noisy_box": noisy_box,
     "holey_scan": holey_scan,
     "bad_topology": lambda: with_bad_topology(holey_scan(seed=3)),
+    # Tiled builds (caveclod.builder.tiles): the same guarantees across tile borders.
+    "terrain32_tiles4": lambda: default_terrain(32),
+    "holey_scan_tiles2": holey_scan,
+    "noisy_box_tiles4": noisy_box,
 }
 NAMES = sorted(CASES)
+
+
+def tiles_of(name: str) -> int | None:
+    """Tiles per side a case is built with (None: as the build chooses)."""
+    return int(name.rsplit("_tiles", 1)[1]) if "_tiles" in name else None
 
 # ---------------------------------------------------------------- reference data
 
@@ -47,9 +56,9 @@ NAMES = sorted(CASES)
 class Case:
     """A built mesh plus everything the checks need about its original."""
 
-    def __init__(self, source, mesh=None, crease_angle=None):
+    def __init__(self, source, mesh=None, crease_angle=None, tiles=None):
         self.raw = source
-        self.mesh = build_static_mesh(source, crease_angle=crease_angle) if mesh is None else mesh
+        self.mesh = build_static_mesh(source, crease_angle=crease_angle, tiles=tiles) if mesh is None else mesh
         src, _ = prepare_source(source, crease_angle)
         self.source = src
         m = self.mesh
@@ -99,7 +108,7 @@ class Library:
 
     def __getitem__(self, name) -> Case:
         if name not in self._cases:
-            self._cases[name] = Case(CASES[name]())
+            self._cases[name] = Case(CASES[name](), tiles=tiles_of(name))
         return self._cases[name]
 
 
@@ -879,12 +888,13 @@ def test_cameras_work_on_a_read_only_memory_mapped_mesh(lib, tmp_path):
 @given(
     rows=st.integers(2, 9), cols=st.integers(2, 9), seed=st.integers(0, 10_000),
     n_classes=st.integers(1, 4), holes=st.floats(0, 0.3), n_views=st.integers(1, 4),
+    tiles=st.sampled_from([1, 2, 4]),
 )
-def test_property_random_heightfields(rows, cols, seed, n_classes, holes, n_views):
+def test_property_random_heightfields(rows, cols, seed, n_classes, holes, n_views, tiles):
     source = random_heightfield(rows, cols, seed, n_classes, holes)
     if source is None:
         return                                  # everything fell into holes
-    case = Case(source)
+    case = Case(source, tiles=tiles)
     cam = case.mesh.new_camera()
     buffers = {}
     for view in random_walk(case, seed=seed, steps=n_views, tol_range=(0.05, 8.0)):

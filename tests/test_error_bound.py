@@ -38,6 +38,9 @@ CASES = {
     "terrain": lambda: default_terrain(64),
     "uv_sphere": lambda: uv_sphere((40, 20)),
     "noisy_box": noisy_box,
+    # Tiled builds: bounds measured and saturated across the tiles' borders too.
+    "rough_tiles4": lambda: rough_terrain(64),
+    "scan_tiles4": lambda: range_scan(48),
 }
 
 
@@ -47,7 +50,8 @@ def meshes():
 
     def get(name):
         if name not in cache:
-            cache[name] = build_static_mesh(CASES[name]())
+            tiles = int(name.rsplit("_tiles", 1)[1]) if "_tiles" in name else None
+            cache[name] = build_static_mesh(CASES[name](), tiles=tiles)
         return cache[name]
     return get
 

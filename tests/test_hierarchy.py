@@ -20,13 +20,18 @@ CASES = {
     "noisy_box": noisy_box,
     "holey_scan": holey_scan,
     "bad_topology": lambda: with_bad_topology(holey_scan(seed=3)),
+    # Tiled builds: tiles simplified with fixed borders, then merged (caveclod.builder.tiles).
+    "terrain64_tiles4": lambda: default_terrain(64),
+    "holey_scan_tiles2": holey_scan,
+    "noisy_box_tiles4": noisy_box,
 }
 
 
 @pytest.fixture(scope="module", params=sorted(CASES))
 def built(request):
     source = CASES[request.param]()
-    return request.param, source, build_static_mesh(source)
+    tiles = int(request.param.rsplit("_tiles", 1)[1]) if "_tiles" in request.param else None
+    return request.param, source, build_static_mesh(source, tiles=tiles)
 
 
 def test_replay_reference(built):
@@ -126,25 +131,26 @@ def test_nonmanifold_positions_are_rigid():
 @settings(max_examples=25, deadline=None, suppress_health_check=[HealthCheck.too_slow])
 @given(
     rows=st.integers(2, 9), cols=st.integers(2, 9), seed=st.integers(0, 10_000),
-    n_classes=st.integers(1, 4), holes=st.floats(0, 0.3),
+    n_classes=st.integers(1, 4), holes=st.floats(0, 0.3), tiles=st.sampled_from([1, 2, 4]),
 )
-def test_property_random_heightfields(rows, cols, seed, n_classes, holes):
-    """Random small terrains with holes and speckled materials."""
+def test_property_random_heightfields(rows, cols, seed, n_classes, holes, tiles):
+    """Random small terrains with holes and speckled materials, in tiles or not."""
     source = random_heightfield(rows, cols, seed, n_classes, holes)
     if source is None:
         return                                  # everything fell into holes
-    mesh = build_static_mesh(source)
+    mesh = build_static_mesh(source, tiles=tiles)
     replay_collapses(mesh, source)
 
 
 @settings(max_examples=15, deadline=None, suppress_health_check=[HealthCheck.too_slow])
-@given(seed=st.integers(0, 10_000), keep=st.floats(0.5, 1.0), crease=st.sampled_from([0.0, 30.0, 90.0]))
-def test_property_random_scans(seed, keep, crease):
-    """Random subsets of a noisy sphere: holes, islands, slivers, crease seams."""
+@given(seed=st.integers(0, 10_000), keep=st.floats(0.5, 1.0), crease=st.sampled_from([0.0, 30.0, 90.0]),
+       tiles=st.sampled_from([1, 4]))
+def test_property_random_scans(seed, keep, crease, tiles):
+    """Random subsets of a noisy sphere: holes, islands, slivers, crease seams; in tiles or not."""
     source = random_scan(seed, keep)
     if source is None:
         return
-    mesh = build_static_mesh(source, crease_angle=crease)
+    mesh = build_static_mesh(source, crease_angle=crease, tiles=tiles)
     replay_collapses(mesh, source, crease_angle=crease)
 
 

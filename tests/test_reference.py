@@ -38,6 +38,9 @@ MESHES = {
     "holey_scan": lambda: build_static_mesh(holey_scan()),
     "bad_topology": lambda: build_static_mesh(with_bad_topology(holey_scan(seed=3))),
     "debris": lambda: caveclod.build("debris", size=2, seed=3),      # 40 parts that vanish and come back
+    # Tiled builds: nodes made tile by tile, numbered afterwards (caveclod.builder.tiles).
+    "rough_tiles4": lambda: caveclod.build("rough", size=32, tiles=4),
+    "holey_scan_tiles2": lambda: build_static_mesh(holey_scan(), tiles=2),
 }
 TOLERANCES = (0.0, 0.25, 1.0, 3.0, 10.0, 1e12)
 

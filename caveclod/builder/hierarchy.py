@@ -9,6 +9,7 @@ The pipeline, each step a module of its own::
 from __future__ import annotations
 
 import os
+import queue
 import time
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
@@ -24,16 +25,21 @@ from ..progress import Progress, stage
 from .source import SourceMesh
 from ..staticmesh import StaticMesh
 from .surfaces import RIGID, corner_vertices, layout_surfaces
+from .tiles import positions_left_to_merge, tile_grid, tiles_per_side
 from .topology import Topology, count_components, face_neighbours
 
 PASS_FRACTION = 0.5   # share of ranked collapses a pass may make (shallower tree)
 
 
-def build_static_mesh(source: SourceMesh, crease_angle: float | None = None, progress: bool = False) -> StaticMesh:
+def build_static_mesh(source: SourceMesh, crease_angle: float | None = None, progress: bool = False,
+                      tiles: int | None = None, workers: int | None = None) -> StaticMesh:
     """Run the whole offline build; see the module docstring.
 
     ``crease_angle`` (degrees) applies where the source has no normals;
     None takes the source's own default (``SourceMesh.crease_angle``).
+    ``tiles`` (per side, a power of two; None chooses by size) and
+    ``workers`` (threads; None: the cores) are :func:`collapse_all`'s; the
+    file does not depend on ``workers``.
     """
     t0 = time.perf_counter()
     source.validate()
@@ -46,12 +52,13 @@ def build_static_mesh(source: SourceMesh, crease_angle: float | None = None, pro
     if max(lay.n_sgids, len(source.materials)) > 65535:
         raise InputError(f"{lay.n_sgids:,} surface group ids and {len(source.materials):,} materials: at most "
                          "65,535 of each fit the .cvc format; merge materials before building")
-    hier = collapse_all(source.positions, face_pos, topo, lay, progress)
+    hier = collapse_all(source.positions, face_pos, topo, lay, progress, tiles=tiles, workers=workers)
     mesh = StaticMesh(arrays=static_arrays(source, face_pos, lay, hier), materials=list(source.materials))
     mesh.info = {
         "build_seconds": round(time.perf_counter() - t0, 3),
         "input_triangles": len(face_pos),
         "passes": hier.passes,
+        "tiles": hier.tiles,
         "surface_groups": lay.n_groups,
         "classes": mesh.class_tally(),
         "base_mesh": _base_mesh_reasons(hier, face_pos, topo, lay, source.face_material),
@@ -74,6 +81,7 @@ class Hierarchy:
         rotation: (p,) uint8 corner of each such face that its split's first
             node (t for fl, u for fr) takes, as in the source face.
         base: (k,) int32 base faces; base_nodes, base_nbrs: (k, 3) int32.
+        tiles: tiles per side of the build's grid (1: none).
     """
 
     m: int
@@ -91,14 +99,20 @@ class Hierarchy:
     base: np.ndarray
     base_nodes: np.ndarray
     base_nbrs: np.ndarray
+    tiles: int = 1
 
 
-def collapse_all(positions: np.ndarray, face_pos: np.ndarray, topo: Topology, lay, progress: bool) -> Hierarchy:
+def collapse_all(positions: np.ndarray, face_pos: np.ndarray, topo: Topology, lay, progress: bool,
+                 tiles: int | None = None, workers: int | None = None) -> Hierarchy:
     """Collapse pass after pass until no legal collapse is left.
 
-    Ranking runs on several threads (the kernels release the GIL), each over
-    its own range of positions with its own scratch marks; collapses are
-    made on one.
+    With a grid of tiles (:mod:`caveclod.builder.tiles`; ``tiles`` per side,
+    None to choose by size), each level's tiles are simplified at once on
+    ``workers`` threads (None: the cores, at most 8; the kernels release the
+    GIL), their borders fixed, and their nodes numbered in tile order
+    afterwards, so the result does not depend on ``workers``. A level of one
+    tile (the last, or the only one of a small mesh) ranks on every thread,
+    each over its own share of the positions, and collapses on one.
     """
     e, p = len(positions), len(face_pos)
     P = np.ascontiguousarray(positions, dtype=np.float64)
@@ -110,51 +124,153 @@ def collapse_all(positions: np.ndarray, face_pos: np.ndarray, topo: Topology, la
     err = np.zeros(2 * e)
     init_leaves(P, F, N, lay.face_group, vface, Q, sphere, cone)
 
-    alive = np.ones(p, bool)
-    cur_node = np.arange(e, dtype=np.int32)
-    parent = np.full(2 * e, -1, np.int32)
-    child = np.full((e, 2), -1, np.int32)
-    npos = np.full(e, -1, np.int32)
-    nfaces = np.full((e, 2), -1, np.int32)
-    nfn = np.full((e, 4), -1, np.int32)
-    creator = np.full(p, -1, np.int32)
-    rotation = np.zeros(p, np.uint8)
-    pt_head, pt = new_store(p, e)            # carried points (kernels/carried.py)
-    lock = np.full(e, -1, np.int64)
-    workers = max(1, min(os.cpu_count() or 1, 4))
-    ranges = np.linspace(0, e, workers + 1).astype(np.int64)
-    marks = [np.full(e, -1, np.int64) for _ in range(workers)]
-    counters = [np.zeros(1, np.int64) for _ in range(workers)]
-    best_t = np.full(e, -1, np.int32)
-    best_c = np.zeros(e)
-    cost, target, src = np.empty(e), np.empty(e, np.int32), np.empty(e, np.int32)
-    fixed = topo.nonmanifold
-    group, cls, pg_start, pg_groups = lay.face_group, lay.position_class, lay.pos_vstart, lay.vertex_group
+    st = _CollapseState(
+        P=P, F=F, N=N, vface=vface, Q=Q, sphere=sphere, cone=cone, err=err,
+        alive=np.ones(p, bool), cur_node=np.arange(e, dtype=np.int32), parent=np.full(2 * e, -1, np.int32),
+        child=np.full((e, 2), -1, np.int32), npos=np.full(e, -1, np.int32), nfaces=np.full((e, 2), -1, np.int32),
+        nfn=np.full((e, 4), -1, np.int32), creator=np.full(p, -1, np.int32), rotation=np.zeros(p, np.uint8),
+        pt=new_store(p, e), lock=np.full(e, -1, np.int64), best_t=np.full(e, -1, np.int32), best_c=np.zeros(e),
+        group=lay.face_group, cls=lay.position_class, pg_start=lay.pos_vstart, pg_groups=lay.vertex_group,
+        fixed=topo.nonmanifold)
+    workers = max(1, min(os.cpu_count() or 1, 8)) if workers is None else max(1, int(workers))
+    grid = tile_grid(P, face_pos, tiles_per_side(p, tiles))
+    scratch: queue.SimpleQueue = queue.SimpleQueue()      # (mark, stamp counter) per thread at work
+    for _ in range(workers):
+        scratch.put((np.full(e, -1, np.int64), np.zeros(1, np.int64)))
 
-    bar = Progress("collapsing", total=max(int(np.count_nonzero((cls != RIGID) & ~fixed)), 1), enabled=progress)
-    m, pass_id = 0, 0
+    bar = Progress("collapsing", total=max(int(np.count_nonzero((st.cls != RIGID) & ~topo.nonmanifold)), 1),
+                   enabled=progress)
+    m, passes = 0, 0
     with ThreadPoolExecutor(workers) as pool:
+        for level in range(grid.levels):
+            regions, border = grid.regions(level, face_pos, vface >= 0)
+            st.fixed = topo.nonmanifold | border if level < grid.levels - 1 else topo.nonmanifold
+            st.lock.fill(-1)
+            bases = m + np.concatenate([[0], np.cumsum([len(r) for r in regions])])
+            if len(regions) == 1:
+                made, level_passes = _collapse_region(st, regions[0], int(bases[0]), scratch, pool, workers)
+                m += made
+                bar.update(m)
+            else:
+                jobs = [pool.submit(_collapse_region, st, r, int(b), scratch, keep=positions_left_to_merge(len(r)))
+                        for r, b in zip(regions, bases)]
+                done = []
+                for job in jobs:
+                    done.append(job.result())
+                    bar.update(m + sum(d[0] for d in done))
+                made = np.array([d[0] for d in done], np.int64)
+                level_passes = max(d[1] for d in done)
+                m = _number_nodes(st, e, m, bases[:-1], made)
+            passes += level_passes
+    bar.close()
+    base = np.flatnonzero(st.alive).astype(np.int32)
+    return Hierarchy(m=m, passes=passes, parent=st.parent, child=st.child, npos=st.npos, nfaces=st.nfaces,
+                     nfn=st.nfn, sphere=sphere, cone=cone, err=err, creator=st.creator, rotation=st.rotation,
+                     base=base, base_nodes=st.cur_node[F[base]].astype(np.int32), base_nbrs=N[base].astype(np.int32),
+                     tiles=grid.per_side)
+
+
+@dataclass
+class _CollapseState:
+    """The arrays the collapse kernels share (see :func:`collapse_all`)."""
+
+    P: np.ndarray
+    F: np.ndarray
+    N: np.ndarray
+    vface: np.ndarray
+    Q: np.ndarray
+    sphere: np.ndarray
+    cone: np.ndarray
+    err: np.ndarray
+    alive: np.ndarray
+    cur_node: np.ndarray
+    parent: np.ndarray
+    child: np.ndarray
+    npos: np.ndarray
+    nfaces: np.ndarray
+    nfn: np.ndarray
+    creator: np.ndarray
+    rotation: np.ndarray
+    pt: tuple
+    lock: np.ndarray
+    best_t: np.ndarray
+    best_c: np.ndarray
+    group: np.ndarray
+    cls: np.ndarray
+    pg_start: np.ndarray
+    pg_groups: np.ndarray
+    fixed: np.ndarray
+
+
+def _collapse_region(st: _CollapseState, region: np.ndarray, base: int, scratch: queue.SimpleQueue,
+                     pool: ThreadPoolExecutor | None = None, workers: int = 1, keep: int = 0) -> tuple[int, int]:
+    """Collapse inside ``region`` (k,) int32 positions until nothing is left to do.
+
+    Nodes are numbered ``e + base`` on (at most k of them: each collapse
+    removes a position of the region). With ``pool``, ranking runs on
+    ``workers`` threads, each over its share of the region. Returns (nodes
+    made, passes). Stops once at most ``keep`` of the region's positions are
+    left.
+    """
+    parts = np.array_split(region, workers) if pool is not None else [region]
+    held = [scratch.get() for _ in parts]
+    try:
+        k = len(region)
+        cost, target, src = np.empty(k), np.empty(k, np.int32), np.empty(k, np.int32)
+        pt_head, pt = st.pt
+        m, pass_id = base, 0
         while True:
             before = m
-            jobs = [pool.submit(rank_collapses, P, F, N, vface, group, cls, fixed, pg_start, pg_groups, Q,
-                                lock, marks[i], best_t, best_c, pass_id, ranges[i], ranges[i + 1], counters[i])
-                    for i in range(workers)]
-            for job in jobs:
-                job.result()
-            nc = gather_candidates(vface, best_t, best_c, cost, target, src)
-            m = perform_collapses(P, F, N, vface, alive, group, cls, fixed, pg_start, pg_groups, Q, cur_node,
-                                  parent, child, npos, nfaces, nfn, sphere, cone, err, creator, rotation,
-                                  pt_head, pt, m, lock,
-                                  marks[0], pass_id, PASS_FRACTION, cost, target, src, nc, counters[0])
+            args = (st.P, st.F, st.N, st.vface, st.group, st.cls, st.fixed, st.pg_start, st.pg_groups, st.Q, st.lock)
+            if pool is not None:
+                jobs = [pool.submit(rank_collapses, *args, mark, st.best_t, st.best_c, pass_id, part, counter)
+                        for part, (mark, counter) in zip(parts, held)]
+                for job in jobs:
+                    job.result()
+            else:
+                mark, counter = held[0]
+                rank_collapses(*args, mark, st.best_t, st.best_c, pass_id, region, counter)
+            nc = gather_candidates(st.vface, st.best_t, st.best_c, region, cost, target, src)
+            mark, counter = held[0]
+            m = perform_collapses(st.P, st.F, st.N, st.vface, st.alive, st.group, st.cls, st.fixed, st.pg_start,
+                                  st.pg_groups, st.Q, st.cur_node, st.parent, st.child, st.npos, st.nfaces, st.nfn,
+                                  st.sphere, st.cone, st.err, st.creator, st.rotation, pt_head, pt, m, st.lock,
+                                  mark, pass_id, PASS_FRACTION, cost, target, src, nc, counter)
             pass_id += 1
-            bar.update(m)
-            if m == before:
-                break
-    bar.close()
-    base = np.flatnonzero(alive).astype(np.int32)
-    return Hierarchy(m=m, passes=pass_id, parent=parent, child=child, npos=npos, nfaces=nfaces, nfn=nfn,
-                     sphere=sphere, cone=cone, err=err, creator=creator, rotation=rotation, base=base,
-                     base_nodes=cur_node[F[base]].astype(np.int32), base_nbrs=N[base].astype(np.int32))
+            if m == before or k - (m - base) <= keep:
+                return m - base, pass_id
+    finally:
+        for h in held:
+            scratch.put(h)
+
+
+def _number_nodes(st: _CollapseState, e: int, m: int, bases: np.ndarray, made: np.ndarray) -> int:
+    """Number a level's nodes one after another, tile by tile; returns the new m.
+
+    Each tile numbered its nodes from its own base (``bases`` (t,) internal
+    ids, ``made`` (t,) nodes each); the gaps between them close here, which
+    keeps every parent after its children (a tile's nodes keep their order,
+    and tiles follow earlier levels).
+    """
+    total = int(made.sum())
+    span = int(bases[-1] + made[-1]) - m
+    old = np.concatenate([np.arange(b, b + k) for b, k in zip(bases, made)]).astype(np.int64)
+    remap = np.full(span, -1, np.int64)
+    remap[old - m] = np.arange(m, m + total)
+
+    def renumber(ids: np.ndarray) -> None:         # node ids >= e + m made at this level
+        sel = ids >= e + m
+        ids[sel] = e + remap[ids[sel] - e - m]
+
+    for ids in (st.parent, st.child, st.cur_node, st.creator):
+        renumber(ids)
+    new = np.arange(m, m + total)
+    for a in (st.child, st.npos, st.nfaces, st.nfn):
+        a[new] = a[old]
+    for a in (st.parent, st.sphere, st.cone, st.err):
+        a[e + new] = a[e + old]
+    st.parent[e + m + total: e + m + span] = -1      # rows left behind: no stale parents for later nodes
+    return m + total
 
 
 def static_arrays(source: SourceMesh, face_pos: np.ndarray, lay, hier: Hierarchy) -> dict:

@@ -350,20 +350,21 @@ def do_collapse(u, t, fl, fr, P, F, N, vface, alive, Q, cur_node, parent, child,
 
 @nb.njit(cache=True, nogil=True)
 def rank_collapses(P, F, N, vface, fgroup, pclass, fixed, pg_start, pg_groups, Q, lock, mark,
-                   best_t, best_c, pass_id, lo, hi, counter):
-    """Rank the cheapest legal collapse of positions ``lo .. hi-1``.
+                   best_t, best_c, pass_id, region, counter):
+    """Rank the cheapest legal collapse of the positions ``region`` (k,) int32.
 
     Writes ``best_t`` (target t, -1 if none) and ``best_c`` (cost), both (e,),
     for those positions. The ranking is redone only where the last pass moved
     something nearby. Reads the mesh only, so two threads may rank disjoint
-    ranges at once, each with its own ``mark`` and ``counter``.
+    regions at once, each with its own ``mark`` and ``counter``.
     """
     fan_u = np.empty(4096, np.int32)
     fan_t = np.empty(4096, np.int32)
     ring = np.empty(4096, np.int32)
     cand_t = np.empty(4096, np.int32)
     cand_c = np.empty(4096)
-    for u in range(lo, hi):
+    for r in range(region.shape[0]):
+        u = region[r]
         if vface[u] == -1 or pclass[u] == RIGID or fixed[u]:
             continue
         nu, _ = collect_fan(F, N, vface[u], u, ring)
@@ -414,10 +415,12 @@ def rank_collapses(P, F, N, vface, fgroup, pclass, fixed, pg_start, pg_groups, Q
 
 
 @nb.njit(cache=True, nogil=True)
-def gather_candidates(vface, best_t, best_c, cost, target, src):
-    """Collect ranked collapses of live positions; returns their number."""
+def gather_candidates(vface, best_t, best_c, region, cost, target, src):
+    """Collect ranked collapses of the live positions of ``region`` (k,) int32
+    into ``cost``, ``target``, ``src`` (>= k,); returns their number."""
     nc = 0
-    for u in range(best_t.shape[0]):
+    for r in range(region.shape[0]):
+        u = region[r]
         if vface[u] != -1 and best_t[u] >= 0:
             cost[nc] = best_c[u]
             target[nc] = best_t[u]

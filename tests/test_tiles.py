@@ -1,0 +1,136 @@
+"""Tiled builds: tiles simplified in parallel with fixed borders, merged 2 x 2.
+
+The invariants every build keeps (legal collapses, exact full refinement,
+crack-free walks, reference agreement, error bounds) run on tiled builds in
+test_hierarchy, test_camera, test_reference and test_error_bound; this file
+checks what is particular to tiles: the grid, the borders, the numbering of
+nodes made tile by tile, and that the file does not depend on the workers.
+"""
+
+from __future__ import annotations
+
+import hashlib
+
+import numpy as np
+import pytest
+
+import caveclod
+from caveclod.builder.builtin import range_scan, rough_terrain
+from caveclod.builder.hierarchy import build_static_mesh, prepare_source
+from caveclod.builder.tiles import positions_left_to_merge, tile_grid, tiles_per_side
+from caveclod.errors import InputError
+from caveclod.meshcheck import find_problem
+
+from meshes import replay_collapses
+
+
+def digest(mesh) -> str:
+    h = hashlib.sha256()
+    for name in sorted(mesh.arrays):
+        h.update(name.encode())
+        h.update(np.ascontiguousarray(mesh.arrays[name]).tobytes())
+    return h.hexdigest()
+
+
+def tree_height(parent: np.ndarray, e: int) -> int:
+    """Longest leaf-to-root path (a slow, obvious walk up from every leaf)."""
+    best = 0
+    for leaf in range(e):
+        x, d = leaf, 0
+        while parent[x] >= 0:
+            x, d = parent[x], d + 1
+        best = max(best, d)
+    return best
+
+
+@pytest.fixture(scope="module")
+def rough():
+    return rough_terrain(96)          # rough relief, no-data holes, materials
+
+
+def test_the_same_file_for_one_and_three_workers(rough):
+    one = build_static_mesh(rough, tiles=4, workers=1)
+    three = build_static_mesh(rough, tiles=4, workers=3)
+    assert digest(one) == digest(three)
+    assert one.info["tiles"] == 4
+
+
+def test_tiled_build_is_legal_and_complete(rough):
+    mesh = build_static_mesh(rough, tiles=4, workers=2)
+    assert find_problem(mesh) is None
+    replay_collapses(mesh, rough)
+    # Every node has a later parent or is a root; internal nodes are numbered without gaps.
+    parent = np.asarray(mesh.node_parent)
+    ids = np.arange(len(parent))
+    assert ((parent == -1) | (parent > ids)).all()
+    assert np.count_nonzero(parent >= 0) == 2 * mesh.n_internal
+
+
+def test_tiles_merge_to_a_base_mesh_like_a_single_build(rough):
+    single = build_static_mesh(rough, tiles=1)
+    tiled = build_static_mesh(rough, tiles=4)
+    assert abs(single.n_internal - tiled.n_internal) <= 0.01 * single.n_internal
+    assert len(tiled.base_faces) <= 1.5 * len(single.base_faces) + 20
+    # Roots bound the same surface: their errors agree within a factor.
+    roots_s = np.asarray(single.node_parent)[single.n_positions:] < 0
+    roots_t = np.asarray(tiled.node_parent)[tiled.n_positions:] < 0
+    es, et = single.node_error[roots_s].max(), tiled.node_error[roots_t].max()
+    assert 0.5 * es <= et <= 2.0 * es, (es, et)
+    # Borders fixed for a level add levels to the tree, but not many.
+    hs = tree_height(np.asarray(single.node_parent), single.n_positions)
+    ht = tree_height(np.asarray(tiled.node_parent), tiled.n_positions)
+    assert ht <= 2 * hs + 10, (hs, ht)
+
+
+def test_borders_are_the_positions_between_tiles():
+    src, _ = prepare_source(rough_terrain(32))
+    fp = src.face_positions.astype(np.int32)
+    grid = tile_grid(src.positions, fp, 4)
+    assert grid.levels == 3
+    live = np.ones(len(src.positions), bool)
+    for level, count in ((0, 16), (1, 4), (2, 1)):
+        regions, border = grid.regions(level, fp, live)
+        assert len(regions) <= count
+        tiles = grid.face_tiles(level)
+        for r in regions:
+            # Every face around an inside position is in one tile.
+            faces = np.flatnonzero(np.isin(fp, r).any(axis=1))
+            assert len(np.unique(tiles[faces])) == 1
+            assert not border[r].any()
+        inside = np.concatenate(regions)
+        assert len(np.unique(inside)) == len(inside), "a position in two tiles"
+        # A border position touches faces of two tiles.
+        for x in np.flatnonzero(border)[:50]:
+            assert len(np.unique(tiles[(fp == x).any(axis=1)])) > 1
+    assert not grid.regions(2, fp, live)[1].any(), "the last level has no border"
+
+
+def test_a_scan_splits_along_its_longest_axes():
+    src, _ = prepare_source(range_scan(48))
+    grid = tile_grid(src.positions, src.face_positions.astype(np.int32), 2)
+    counts = np.bincount(grid.face_tiles(0), minlength=4)
+    assert (counts > 0).sum() >= 3
+
+
+def test_automatic_grid_and_bad_grids():
+    assert tiles_per_side(100_000) == 1
+    assert tiles_per_side(1_000_000) == 4
+    assert tiles_per_side(200_000_000) == 64
+    assert tiles_per_side(10, 8) == 8
+    with pytest.raises(ValueError):
+        tiles_per_side(10, 3)
+    assert positions_left_to_merge(10_000) == 400
+    for bad in dict(tiles=3), dict(tiles=0), dict(workers=0), dict(tiles=2.0):
+        with pytest.raises(InputError, match="--tiles|--workers"):
+            caveclod.build("default", size=8, **bad)
+
+
+def test_cli_builds_in_tiles(tmp_path, capsys):
+    from caveclod.cli import main
+    out = tmp_path / "t.cvc"
+    assert main(["build", "rough", "--size", "48", "--tiles", "2", "--workers", "2", "-o", str(out), "--quiet",
+                 "--json"]) == 0
+    mesh = caveclod.load(out)
+    assert mesh.info["tiles"] == 2
+    assert main(["build", "default", "--size", "8", "--tiles", "6", "-o", str(out), "--quiet"]) == 2
+    assert "power of two" in capsys.readouterr().err
