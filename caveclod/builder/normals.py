@@ -46,16 +46,19 @@ def _face_normals(P, F):
     return unit, length
 
 
-def add_crease_normals(source: SourceMesh, crease_angle_deg: float, topo: Topology | None = None) -> SourceMesh:
+def add_crease_normals(source: SourceMesh, crease_angle_deg: float, topo: Topology | None = None,
+                       face_pos: np.ndarray | None = None) -> SourceMesh:
     """Return ``source`` with vertex normals computed at ``crease_angle_deg``.
 
     Vertices are split where wedges differ, so the result's vertex ids change;
     UVs and colours of the input vertices are kept. ``topo`` is the mesh's
-    :class:`~caveclod.builder.topology.Topology` when the caller already has it.
+    :class:`~caveclod.builder.topology.Topology` when the caller already has it,
+    ``face_pos`` (p, 3) int32 its ``face_positions``.
     """
     if not 0.0 <= crease_angle_deg <= 180.0:
         raise InputError(f"--crease-angle must be between 0 and 180 degrees, got {crease_angle_deg}")
-    face_pos = source.face_positions.astype(np.int32)
+    if face_pos is None:
+        face_pos = source.face_positions.astype(np.int32)
     if topo is None:
         topo = face_neighbours(face_pos, len(source.positions))
     unit, _ = face_normals(source.positions, face_pos)

@@ -24,6 +24,7 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 
+import numba as nb
 import numpy as np
 
 TILE_FACES = 1 << 16
@@ -119,15 +120,24 @@ class TileGrid:
 
 def tile_grid(positions: np.ndarray, face_pos: np.ndarray, per_side: int) -> TileGrid:
     """Cells of ``per_side`` x ``per_side`` over ``positions`` (e, 3)'s two longest
-    axes; each face of ``face_pos`` (p, 3) goes to its centroid's cell."""
+    axes; each face of ``face_pos`` (p, 3) int32 goes to its centroid's cell."""
     p = len(face_pos)
     if per_side == 1 or p == 0:
         return TileGrid(per_side, np.zeros((p, 2), np.int32))
     lo, hi = positions.min(axis=0), positions.max(axis=0)
-    axes = np.argsort(hi - lo)[::-1][:2]
-    cell = np.empty((p, 2), np.int32)
-    for j, a in enumerate(axes):
-        centre = positions[face_pos, a].mean(axis=1)     # (p,)
-        span = max(float(hi[a] - lo[a]), np.finfo(np.float64).tiny)
-        cell[:, j] = np.clip(((centre - lo[a]) / span * per_side).astype(np.int64), 0, per_side - 1)
-    return TileGrid(per_side, cell)
+    axes = np.argsort(hi - lo)[::-1][:2].astype(np.int64)
+    span = np.maximum((hi - lo)[axes], np.finfo(np.float64).tiny)
+    return TileGrid(per_side, _face_cells(np.asarray(positions, np.float64), face_pos, axes, lo[axes], span, per_side))
+
+
+@nb.njit(cache=True, nogil=True)
+def _face_cells(P, face_pos, axes, lo, span, per_side):
+    """(p, 2) int32 cell of each face's centroid along ``axes`` (2,)."""
+    out = np.empty((face_pos.shape[0], 2), np.int32)
+    for f in range(face_pos.shape[0]):
+        for j in range(2):
+            a = axes[j]
+            c = (P[face_pos[f, 0], a] + P[face_pos[f, 1], a] + P[face_pos[f, 2], a]) / 3.0
+            k = int((c - lo[j]) / span[j] * per_side)
+            out[f, j] = min(max(k, 0), per_side - 1)
+    return out
