@@ -165,6 +165,21 @@ def test_a_textured_object_circled_with_raw_frames(make_server, browser, texture
         assert not page.console_errors and not _only_loopback(page.requests)
 
 
+def test_the_hud_counts_the_parts_a_camera_hides(make_server, browser, tmp_path):
+    """A field of small parts circled from its middle: parts behind the camera are hidden
+    (issue 18's pruning), and the HUD says how many, from the frames' CameraStats."""
+    import caveclod
+    path = tmp_path / "debris.cvc"
+    caveclod.build("debris", size=4, seed=5).save(path)          # 80 parts
+    server = make_server(meshes=[path], web_port=0)
+    with Page(browser, _base(server) + "?mesh=debris&trajectory=circle") as page:
+        stats = page.wait(lambda s: s["frames"] >= 20 and s["hiddenParts"] > 0 or s["error"])
+        assert stats["error"] is None and stats["divergences"] == 0, stats
+        assert 0 < stats["hiddenParts"] <= 80, stats
+        assert "hidden parts" in page.page.inner_text("#hud")
+        assert not page.console_errors and not _only_loopback(page.requests)
+
+
 def test_the_page_closes_its_session_when_it_unloads(make_server, browser):
     server = make_server(web_port=0, resume_ttl=60)
     with Page(browser, _base(server) + "?mesh=terrain&trajectory=rotate") as page:

@@ -108,7 +108,8 @@ export class Session {
     this.sent = [];
     this.answered = [];
     this.latest = [];
-    for (let c = 0; c < this.cameras; c++) { this.sent.push(new Map()); this.answered.push(0); this.latest.push(null); }
+    this.hidden = []; // parts each camera's server-side refinement hides (CameraStats.hidden_parts)
+    for (let c = 0; c < this.cameras; c++) { this.sent.push(new Map()); this.answered.push(0); this.latest.push(null); this.hidden.push(0); }
     this.asked = new Set();
     this.frame = null;
     this.ended = false;
@@ -116,7 +117,7 @@ export class Session {
     this.latencies = [];
     this.newLatencies = false; // samples added since the percentiles were computed
     this.stats = {
-      frames: 0, divergences: 0, crcChecks: 0, badFrames: 0, keyframeRequests: 0, facesDrawn: 0,
+      frames: 0, divergences: 0, crcChecks: 0, badFrames: 0, keyframeRequests: 0, facesDrawn: 0, hiddenParts: 0,
       latencyMsP50: 0, latencyMsP99: 0, bytesReceived: 0, posesSent: 0, resumes: 0, connected: false,
       status: null, error: null,
       frameBytes: 0, // bytes of frames (all their parts), for bytes per frame
@@ -408,6 +409,10 @@ export class Session {
           this.newLatencies = true;
         }
       }
+    }
+    if (cf.stats) {
+      this.hidden[c] = cf.stats.hiddenParts || 0;
+      this.stats.hiddenParts = this.hidden.reduce((a, b) => a + b, 0);
     }
     if (update.untrusted.has(c)) return;
     const nVertices = Number(this.info.vertexFormat.vertexCount);

@@ -206,7 +206,7 @@ async function main() {
     syncStats();
     hud.textContent = [
       `${mesh} · ${cameras} camera${cameras > 1 ? "s" : ""}${trajectory ? " · " + trajectory : ""}${session.stats.connected ? "" : " · offline"}`,
-      `faces ${stats.facesDrawn.toLocaleString()}   frames ${stats.frames}   ${stats.fps.toFixed(0)} fps`,
+      `faces ${stats.facesDrawn.toLocaleString()}${stats.hiddenParts ? `   hidden parts ${stats.hiddenParts.toLocaleString()}` : ""}   frames ${stats.frames}   ${stats.fps.toFixed(0)} fps`,
       `latency p50 ${stats.latencyMsP50.toFixed(1)} ms   p99 ${stats.latencyMsP99.toFixed(1)} ms`,
       `received ${(stats.bytesReceived / 1048576).toFixed(2)} MiB   divergences ${stats.divergences}`,
     ].join("\n");
