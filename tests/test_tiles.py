@@ -105,6 +105,20 @@ def test_borders_are_the_positions_between_tiles():
     assert not grid.regions(2, fp, live)[1].any(), "the last level has no border"
 
 
+def test_tiles_too_small_to_hold_a_position_inside():
+    """An 80-face icosphere in 8 x 8 tiles: every position touches faces of several tiles, so the
+    first levels have nothing to move; the build skips them and still makes the hierarchy."""
+    import trimesh
+    from caveclod.builder.meshfile import source_from_trimesh
+    src = source_from_trimesh(trimesh.creation.icosphere(subdivisions=1))
+    src.vertex_normal = None
+    grid = tile_grid(src.positions, src.face_positions.astype(np.int32), 8)
+    assert not grid.regions(0, src.face_positions.astype(np.int32), np.ones(len(src.positions), bool))[0]
+    tiled, single = build_static_mesh(src, tiles=8), build_static_mesh(src, tiles=1)
+    replay_collapses(tiled, src)
+    assert tiled.n_internal == single.n_internal > 0
+
+
 def test_a_scan_splits_along_its_longest_axes():
     src, _ = prepare_source(range_scan(48))
     grid = tile_grid(src.positions, src.face_positions.astype(np.int32), 2)

@@ -145,6 +145,8 @@ def collapse_all(positions: np.ndarray, face_pos: np.ndarray, topo: Topology, la
     with ThreadPoolExecutor(workers) as pool:
         for level in range(grid.levels):
             regions, border = grid.regions(level, face_pos, vface >= 0)
+            if not regions:
+                continue                      # every live position on a border: the next level frees some
             st.fixed = topo.nonmanifold | border if level < grid.levels - 1 else topo.nonmanifold
             st.lock.fill(-1)
             bases = m + np.concatenate([[0], np.cumsum([len(r) for r in regions])])
