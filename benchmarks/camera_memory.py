@@ -57,7 +57,8 @@ def part(cam, name):
 rows = [{"bytes": cam.nbytes, "state_bytes": part(cam, "state"),
          "face_map_bytes": part(cam, "face_map") + part(cam, "face_rec"), "faces": cam.n_faces} for cam in cams]
 print(json.dumps({"code": caveclod.__file__, "p50_ms": 1e3 * float(np.percentile(times, 50)),
-                  "p99_ms": 1e3 * float(np.percentile(times, 99)), "updates": len(times), "cameras": rows, "nodes": mesh.n_nodes, "mesh_faces": mesh.n_faces}))
+                  "p99_ms": 1e3 * float(np.percentile(times, 99)), "updates": len(times), "cameras": rows,
+                  "nodes": mesh.n_nodes, "mesh_faces": mesh.n_faces}))
 """
 
 
@@ -104,7 +105,8 @@ def main(argv=None) -> int:
                 row = {"tree": name, "terrain": terrain, "size": size, **summarize(runs[name])}
                 rows.append(row)
                 print(f"{name} {terrain} --size {size} ({row['mesh_faces']:,} faces): update p50 "
-                      f"{row['p50_ms']:.3f} ms, p99 {row['p99_ms']:.3f} ms; a camera {row['camera_bytes'] / 1e6:.2f} MB (state "
+                      f"{row['p50_ms']:.3f} ms, p99 {row['p99_ms']:.3f} ms; a camera "
+                      f"{row['camera_bytes'] / 1e6:.2f} MB (state "
                       f"{row['state_bytes'] / 1e6:.2f}, face map {row['face_map_bytes'] / 1e6:.2f}) for "
                       f"{row['faces']:,.0f} faces", flush=True)
     args.out.parent.mkdir(parents=True, exist_ok=True)
