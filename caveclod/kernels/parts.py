@@ -42,6 +42,7 @@ import numpy as np
 
 from .refine import (ACTIVE, DAMAGED, FOREVER, IN_LIST, NEED_RECORDS, NEVER, OK, P_EYE, P_KAPPA, P_PRUNE, P_TOL,
                      RECHECK, SPLIT, STATE_MASK, _add_face, _expiry, _remove_face, node_position, sphere_planes)
+from .facemap import fm_get
 from .unionfind import find
 
 HIDDEN = 3            # node state of a hidden part's roots (STATE_MASK's free value)
@@ -125,7 +126,7 @@ def _part_expiry(odo, k, sphere, vp, expire, ptexp, paexp):
 @nb.njit(cache=True, nogil=True)
 def show_parts(e, npos, mat, fsgid, pos_vstart, vertex_sgid, base_faces, base_nodes, base_nbrs,
                sphere, root_start, roots, face_start, faces, hidden, ptexp, paexp,
-               state, face_rec, off, cnt, cap, rec_tri, rec_nbr, rec_face, dirty,
+               state, face_map, off, cnt, cap, rec_tri, rec_nbr, rec_face, dirty,
                active, texp, aexp, n_active, vp, odo, expire, todo, need, shown):
     """Show the hidden parts that are no longer small (before a pass).
 
@@ -179,7 +180,7 @@ def show_parts(e, npos, mat, fsgid, pos_vstart, vertex_sgid, base_faces, base_no
             b = faces[i]
             if not _add_face(f, node_position(e, npos, base_nodes[b, 0]), node_position(e, npos, base_nodes[b, 1]),
                              node_position(e, npos, base_nodes[b, 2]), base_nbrs[b, 0], base_nbrs[b, 1],
-                             base_nbrs[b, 2], 0, mat, fsgid, pos_vstart, vertex_sgid, face_rec, off, cnt,
+                             base_nbrs[b, 2], 0, mat, fsgid, pos_vstart, vertex_sgid, face_map, off, cnt,
                              rec_tri, rec_nbr, rec_face, dirty):
                 n_active[0] = n
                 return DAMAGED, f
@@ -202,7 +203,7 @@ def show_parts(e, npos, mat, fsgid, pos_vstart, vertex_sgid, base_faces, base_no
 
 @nb.njit(cache=True, nogil=True)
 def hide_parts(e, links, base_faces, mat, sphere, root_start, roots, face_start, faces, hidden, ptexp, paexp,
-               state, face_rec, off, cnt, rec_tri, rec_nbr, rec_face, dirty, vp, odo, expire, hid):
+               state, face_map, off, cnt, rec_tri, rec_nbr, rec_face, dirty, vp, odo, expire, hid):
     """Hide the visible parts that are not to be drawn (after a pass), whatever their refinement.
 
     Arrays as :func:`show_parts`, with ``e`` and ``links`` (the node rows of
@@ -238,8 +239,8 @@ def hide_parts(e, links, base_faces, mat, sphere, root_start, roots, face_start,
                 j = x - e
                 for q in range(2, 4):
                     f = links[j, q]
-                    if f >= 0 and face_rec[f] >= 0:
-                        _remove_face(f, mat, face_rec, off, cnt, rec_tri, rec_nbr, rec_face, dirty)
+                    if f >= 0 and fm_get(face_map, f) >= 0:
+                        _remove_face(f, mat, face_map, off, cnt, rec_tri, rec_nbr, rec_face, dirty)
                 if sp + 2 > stack.shape[0]:
                     stack = _grown(stack)
                 stack[sp] = links[j, 0]
@@ -249,8 +250,8 @@ def hide_parts(e, links, base_faces, mat, sphere, root_start, roots, face_start,
             state[x] = (listed | RECHECK) if listed else 0        # INACTIVE
         for i in range(face_start[k], face_start[k + 1]):
             f = base_faces[faces[i]]
-            if face_rec[f] >= 0:
-                _remove_face(f, mat, face_rec, off, cnt, rec_tri, rec_nbr, rec_face, dirty)
+            if fm_get(face_map, f) >= 0:
+                _remove_face(f, mat, face_map, off, cnt, rec_tri, rec_nbr, rec_face, dirty)
         for i in range(root_start[k], root_start[k + 1]):
             x = roots[i]
             state[x] = (state[x] & IN_LIST) | HIDDEN

@@ -10,8 +10,10 @@ the paper's Equation 1 per-camera term ``4n + 4p + 16 + 12 n_a + 36 p_a``:
   (above it), plus the IN_LIST bit while the node has an entry in the active
   list, the QUEUED bit while it waits in the collapse-candidate stack, and
   the RECHECK bit when its entry must be evaluated whatever its expiries.
-* ``face_rec`` (p,) int32: the record of each active face, -1 if inactive
-  (Equation 1's 4p).
+* ``face_map``: the record of each active face, a hash table over the
+  active faces only, (c, 2) int32, or while that would be larger (a camera
+  holding much of the mesh) the dense (p, 1) array of Equation 1's 4p that
+  it replaced (:mod:`caveclod.kernels.facemap`).
 * Records of active faces, pooled: material ``s`` owns records
   ``off[s] .. off[s] + cnt[s]`` of a capacity ``cap[s]``, and record
   ``off[s] + k`` *is* slot ``k`` of that material's index buffer: ``tri``
@@ -80,6 +82,8 @@ import math
 
 import numba as nb
 import numpy as np
+
+from .facemap import fm_del, fm_get, fm_set
 
 INACTIVE, ACTIVE, SPLIT = 0, 1, 2
 STATE_MASK, IN_LIST, QUEUED, RECHECK = 3, 4, 8, 16
@@ -226,7 +230,7 @@ def _mark(r, dirty):
 
 
 @nb.njit(cache=True, nogil=True, inline="always")
-def _move_wedge(fn0, fn2, old, new, fl, fr, fsgid, pos_vstart, vertex_sgid, vpos, face_rec, rec_tri, rec_nbr,
+def _move_wedge(fn0, fn2, old, new, fl, fr, fsgid, pos_vstart, vertex_sgid, vpos, face_map, rec_tri, rec_nbr,
                 dirty):
     """Move the floating child's wedge of faces from position ``old`` to ``new``.
 
@@ -239,7 +243,7 @@ def _move_wedge(fn0, fn2, old, new, fl, fr, fsgid, pos_vstart, vertex_sgid, vpos
     if fn0 >= 0:
         f = fn0
         while True:
-            r = face_rec[f]
+            r = fm_get(face_map, f)
             k = corner_at(rec_tri, vpos, r, old) if r >= 0 else -1
             v = lookup_vertex(pos_vstart, vertex_sgid, fsgid[f], new)
             steps -= 1
@@ -255,7 +259,7 @@ def _move_wedge(fn0, fn2, old, new, fl, fr, fsgid, pos_vstart, vertex_sgid, vpos
     elif fn2 >= 0:
         f = fn2
         while True:
-            r = face_rec[f]
+            r = fm_get(face_map, f)
             k = corner_at(rec_tri, vpos, r, old) if r >= 0 else -1
             v = lookup_vertex(pos_vstart, vertex_sgid, fsgid[f], new)
             steps -= 1
@@ -270,7 +274,7 @@ def _move_wedge(fn0, fn2, old, new, fl, fr, fsgid, pos_vstart, vertex_sgid, vpos
 
 
 @nb.njit(cache=True, nogil=True, inline="always")
-def _add_face(f, a, b, c, n0, n1, n2, rot, mat, fsgid, pos_vstart, vertex_sgid, face_rec, off, cnt,
+def _add_face(f, a, b, c, n0, n1, n2, rot, mat, fsgid, pos_vstart, vertex_sgid, face_map, off, cnt,
               rec_tri, rec_nbr, rec_face, dirty):
     """Append face ``f`` on positions (a, b, c) with neighbours (n0, n1, n2)
     across edges a->b, b->c, c->a, its corners starting at corner ``rot``
@@ -285,7 +289,7 @@ def _add_face(f, a, b, c, n0, n1, n2, rot, mat, fsgid, pos_vstart, vertex_sgid, 
     s = mat[f]
     r = off[s] + cnt[s]
     cnt[s] += 1
-    face_rec[f] = r
+    fm_set(face_map, f, r)
     rec_face[r] = f
     k0, k1, k2 = rot, (rot + 1) % 3, (rot + 2) % 3
     rec_tri[r, k0], rec_tri[r, k1], rec_tri[r, k2] = va, vb, vc
@@ -296,7 +300,7 @@ def _add_face(f, a, b, c, n0, n1, n2, rot, mat, fsgid, pos_vstart, vertex_sgid, 
 
 @nb.njit(cache=True, nogil=True)
 def move_records(cnt, old_off, old_tri, old_nbr, old_face, old_dirty, new_off, new_tri, new_nbr, new_face,
-                 new_dirty, face_rec):
+                 new_dirty, face_map):
     """Copy each material's ``cnt[s]`` records from ``old_off[s]`` to ``new_off[s]`` of a
     re-laid-out pool, with their written-slot bits; every moved face points at its new record.
 
@@ -313,25 +317,25 @@ def move_records(cnt, old_off, old_tri, old_nbr, old_face, old_dirty, new_off, n
                 new_nbr[q, k] = old_nbr[r, k]
             f = old_face[r]
             new_face[q] = f
-            face_rec[f] = q
+            fm_set(face_map, f, q)
             if (old_dirty[r >> 6] >> np.uint64(r & 63)) & one:
                 new_dirty[q >> 6] |= one << np.uint64(q & 63)
 
 
 @nb.njit(cache=True, nogil=True)
-def _remove_face(f, mat, face_rec, off, cnt, rec_tri, rec_nbr, rec_face, dirty):
+def _remove_face(f, mat, face_map, off, cnt, rec_tri, rec_nbr, rec_face, dirty):
     """Remove face ``f``; the material's last face fills its slot."""
     s = mat[f]
-    r = face_rec[f]
+    r = fm_get(face_map, f)
     last = off[s] + cnt[s] - 1
     if r != last:
         for k in range(3):
             rec_tri[r, k] = rec_tri[last, k]
             rec_nbr[r, k] = rec_nbr[last, k]
         rec_face[r] = rec_face[last]
-        face_rec[rec_face[r]] = r
+        fm_set(face_map, rec_face[r], r)
         _mark(r, dirty)
-    face_rec[f] = -1
+    fm_del(face_map, f)
     cnt[s] -= 1
 
 
@@ -339,7 +343,7 @@ def _remove_face(f, mat, face_rec, off, cnt, rec_tri, rec_nbr, rec_face, dirty):
 
 
 @nb.njit(cache=True, nogil=True, inline="always")
-def split_node(x, e, links, npos, rotation, mat, fsgid, pos_vstart, vertex_sgid, vpos, state, face_rec, off, cnt,
+def split_node(x, e, links, npos, rotation, mat, fsgid, pos_vstart, vertex_sgid, vpos, state, face_map, off, cnt,
                rec_tri, rec_nbr, rec_face, dirty):
     """Split active node ``x`` whose required faces are all active.
 
@@ -354,7 +358,7 @@ def split_node(x, e, links, npos, rotation, mat, fsgid, pos_vstart, vertex_sgid,
     px = npos[j]
     pu = node_position(e, npos, u)
     # 1. The floating child's wedge: faces from fl_u round to fr_u move to u.
-    if not _move_wedge(fn0, fn2, px, pu, fl, fr, fsgid, pos_vstart, vertex_sgid, vpos, face_rec, rec_tri, rec_nbr,
+    if not _move_wedge(fn0, fn2, px, pu, fl, fr, fsgid, pos_vstart, vertex_sgid, vpos, face_map, rec_tri, rec_nbr,
                        dirty):
         return False
     # 2. The two new faces, linked into their neighbours. (The required faces
@@ -362,56 +366,56 @@ def split_node(x, e, links, npos, rotation, mat, fsgid, pos_vstart, vertex_sgid,
     # that of a built mesh.)
     if fl >= 0:
         if fn0 >= 0:
-            r0 = face_rec[fn0]
+            r0 = fm_get(face_map, fn0)
             k = corner_at(rec_tri, vpos, r0, pu)
             if k < 0:
                 return False
             vl = vpos[rec_tri[r0, (k + 2) % 3]]
         else:
-            r1 = face_rec[fn1]
+            r1 = fm_get(face_map, fn1)
             k = corner_at(rec_tri, vpos, r1, px) if fn1 >= 0 else -1
             if k < 0:
                 return False
             vl = vpos[rec_tri[r1, (k + 1) % 3]]
-        if not _add_face(fl, px, pu, vl, fr, fn0, fn1, rotation[fl], mat, fsgid, pos_vstart, vertex_sgid, face_rec,
+        if not _add_face(fl, px, pu, vl, fr, fn0, fn1, rotation[fl], mat, fsgid, pos_vstart, vertex_sgid, face_map,
                          off, cnt, rec_tri, rec_nbr, rec_face, dirty):
             return False
         if fn0 >= 0:
-            r0 = face_rec[fn0]
+            r0 = fm_get(face_map, fn0)
             k = corner_at(rec_tri, vpos, r0, vl)
             if k < 0:
                 return False
             rec_nbr[r0, k] = fl      # edge vl -> u
         if fn1 >= 0:
-            r1 = face_rec[fn1]
+            r1 = fm_get(face_map, fn1)
             k = corner_at(rec_tri, vpos, r1, px)
             if k < 0:
                 return False
             rec_nbr[r1, k] = fl      # edge t -> vl
     if fr >= 0:
         if fn2 >= 0:
-            r2 = face_rec[fn2]
+            r2 = fm_get(face_map, fn2)
             k = corner_at(rec_tri, vpos, r2, pu)
             if k < 0:
                 return False
             vr = vpos[rec_tri[r2, (k + 1) % 3]]
         else:
-            r3 = face_rec[fn3]
+            r3 = fm_get(face_map, fn3)
             k = corner_at(rec_tri, vpos, r3, px) if fn3 >= 0 else -1
             if k < 0:
                 return False
             vr = vpos[rec_tri[r3, (k + 2) % 3]]
-        if not _add_face(fr, pu, px, vr, fl, fn3, fn2, rotation[fr], mat, fsgid, pos_vstart, vertex_sgid, face_rec,
+        if not _add_face(fr, pu, px, vr, fl, fn3, fn2, rotation[fr], mat, fsgid, pos_vstart, vertex_sgid, face_map,
                          off, cnt, rec_tri, rec_nbr, rec_face, dirty):
             return False
         if fn2 >= 0:
-            r2 = face_rec[fn2]
+            r2 = fm_get(face_map, fn2)
             k = corner_at(rec_tri, vpos, r2, pu)
             if k < 0:
                 return False
             rec_nbr[r2, k] = fr      # edge u -> vr
         if fn3 >= 0:
-            r3 = face_rec[fn3]
+            r3 = fm_get(face_map, fn3)
             k = corner_at(rec_tri, vpos, r3, vr)
             if k < 0:
                 return False
@@ -423,7 +427,7 @@ def split_node(x, e, links, npos, rotation, mat, fsgid, pos_vstart, vertex_sgid,
 
 
 @nb.njit(cache=True, nogil=True)
-def collapse_legal(x, e, links, rotation, state, face_rec, rec_nbr):
+def collapse_legal(x, e, links, rotation, state, face_map, rec_nbr):
     """Hoppe's ecol precondition for undoing the split of ``x``: both
     children active, and fl's neighbours across u->vl and vl->t (fr's across
     t->vr and vr->u) are the faces the split required."""
@@ -432,18 +436,18 @@ def collapse_legal(x, e, links, rotation, state, face_rec, rec_nbr):
         return False
     fl, fr = links[j, 2], links[j, 3]
     if fl >= 0:
-        r, k = face_rec[fl], rotation[fl]
+        r, k = fm_get(face_map, fl), rotation[fl]
         if rec_nbr[r, (k + 1) % 3] != links[j, 4] or rec_nbr[r, (k + 2) % 3] != links[j, 5]:
             return False
     if fr >= 0:
-        r, k = face_rec[fr], rotation[fr]
+        r, k = fm_get(face_map, fr), rotation[fr]
         if rec_nbr[r, (k + 1) % 3] != links[j, 7] or rec_nbr[r, (k + 2) % 3] != links[j, 6]:
             return False
     return True
 
 
 @nb.njit(cache=True, nogil=True)
-def collapse_node(x, e, links, npos, mat, fsgid, pos_vstart, vertex_sgid, vpos, state, face_rec, off, cnt,
+def collapse_node(x, e, links, npos, mat, fsgid, pos_vstart, vertex_sgid, vpos, state, face_map, off, cnt,
                   rec_tri, rec_nbr, rec_face, dirty):
     """Undo the split of ``x`` (the caller checked :func:`collapse_legal`).
 
@@ -455,27 +459,27 @@ def collapse_node(x, e, links, npos, mat, fsgid, pos_vstart, vertex_sgid, vpos, 
     fn0, fn1, fn2, fn3 = links[j, 4], links[j, 5], links[j, 6], links[j, 7]
     px = npos[j]
     pu = node_position(e, npos, u)
-    if not _move_wedge(fn0, fn2, pu, px, fl, fr, fsgid, pos_vstart, vertex_sgid, vpos, face_rec, rec_tri, rec_nbr,
+    if not _move_wedge(fn0, fn2, pu, px, fl, fr, fsgid, pos_vstart, vertex_sgid, vpos, face_map, rec_tri, rec_nbr,
                        dirty):
         return False
     # fl's and fr's recorded neighbours are the required faces (collapse_legal),
     # active in a built mesh: an inactive one (record -1) is damage.
     if fl >= 0:
-        if (fn0 >= 0 and face_rec[fn0] < 0) or (fn1 >= 0 and face_rec[fn1] < 0):
+        if (fn0 >= 0 and fm_get(face_map, fn0) < 0) or (fn1 >= 0 and fm_get(face_map, fn1) < 0):
             return False
         if fn0 >= 0:
-            _replace_nbr(rec_nbr, face_rec[fn0], fl, fn1)
+            _replace_nbr(rec_nbr, fm_get(face_map, fn0), fl, fn1)
         if fn1 >= 0:
-            _replace_nbr(rec_nbr, face_rec[fn1], fl, fn0)
-        _remove_face(fl, mat, face_rec, off, cnt, rec_tri, rec_nbr, rec_face, dirty)
+            _replace_nbr(rec_nbr, fm_get(face_map, fn1), fl, fn0)
+        _remove_face(fl, mat, face_map, off, cnt, rec_tri, rec_nbr, rec_face, dirty)
     if fr >= 0:
-        if (fn2 >= 0 and face_rec[fn2] < 0) or (fn3 >= 0 and face_rec[fn3] < 0):
+        if (fn2 >= 0 and fm_get(face_map, fn2) < 0) or (fn3 >= 0 and fm_get(face_map, fn3) < 0):
             return False
         if fn2 >= 0:
-            _replace_nbr(rec_nbr, face_rec[fn2], fr, fn3)
+            _replace_nbr(rec_nbr, fm_get(face_map, fn2), fr, fn3)
         if fn3 >= 0:
-            _replace_nbr(rec_nbr, face_rec[fn3], fr, fn2)
-        _remove_face(fr, mat, face_rec, off, cnt, rec_tri, rec_nbr, rec_face, dirty)
+            _replace_nbr(rec_nbr, fm_get(face_map, fn3), fr, fn2)
+        _remove_face(fr, mat, face_map, off, cnt, rec_tri, rec_nbr, rec_face, dirty)
     state[x] = (state[x] & ~STATE_MASK) | ACTIVE
     state[t] = state[t] & ~STATE_MASK
     state[u] = state[u] & ~STATE_MASK
@@ -593,7 +597,7 @@ def _skip_run(active, texp, aexp, state, odo, i, w, n, expire):
 
 @nb.njit(cache=True, nogil=True)
 def adapt(e, parent, links, npos, bound, cone, face_creator, rotation, mat, fsgid, pos_vstart, vertex_sgid, vpos,
-          state, face_rec, off, cnt, cap, rec_tri, rec_nbr, rec_face, dirty,
+          state, face_map, off, cnt, cap, rec_tri, rec_nbr, rec_face, dirty,
           active, texp, aexp, n_active, queue, vp, odo, max_ops, max_faces, counts, resume, mode, expire):
     """One pass of incremental selective refinement over the active nodes.
 
@@ -633,7 +637,7 @@ def adapt(e, parent, links, npos, bound, cone, face_creator, rotation, mat, fsgi
         # Candidates left when room ran out go first, as they would have.
         q, n, n_faces, status = _collapse_candidates(
             e, parent, links, npos, bound, cone, face_creator, rotation, mat, fsgid, pos_vstart, vertex_sgid,
-            vpos, state, face_rec, off, cnt, rec_tri, rec_nbr, rec_face, dirty, active, texp, aexp, n, vp,
+            vpos, state, face_map, off, cnt, rec_tri, rec_nbr, rec_face, dirty, active, texp, aexp, n, vp,
             max_ops, counts, queue, q, n_faces)
         if status == DAMAGED:
             need_mat = queue[q]                  # the candidate it was collapsing
@@ -693,7 +697,7 @@ def adapt(e, parent, links, npos, bound, cone, face_creator, rotation, mat, fsgi
                     missing = False
                     for k in range(4):
                         f = links[jy, 4 + k]
-                        if f >= 0 and face_rec[f] < 0:
+                        if f >= 0 and fm_get(face_map, f) < 0:
                             stack[sp] = face_creator[f]
                             sp += 1
                             missing = True
@@ -710,7 +714,7 @@ def adapt(e, parent, links, npos, bound, cone, face_creator, rotation, mat, fsgi
                         status = NEED_LIST
                         break
                     if not split_node(y, e, links, npos, rotation, mat, fsgid, pos_vstart, vertex_sgid, vpos,
-                                      state, face_rec, off, cnt, rec_tri, rec_nbr, rec_face, dirty):
+                                      state, face_map, off, cnt, rec_tri, rec_nbr, rec_face, dirty):
                         status, need_mat = DAMAGED, y
                         break
                     counts[0] += 1
@@ -737,7 +741,7 @@ def adapt(e, parent, links, npos, bound, cone, face_creator, rotation, mat, fsgi
                 (state[links[p - e, 1]] & STATE_MASK) == ACTIVE:
             need, tm, rm, dist = test_node(p - e, bound, cone, vp)
             if not need:
-                if collapse_legal(p, e, links, rotation, state, face_rec, rec_nbr):
+                if collapse_legal(p, e, links, rotation, state, face_map, rec_nbr):
                     if (state[p] & IN_LIST) == 0 and n + 1 > active.shape[0]:
                         i -= 1
                         status = NEED_LIST
@@ -747,7 +751,7 @@ def adapt(e, parent, links, npos, bound, cone, face_creator, rotation, mat, fsgi
                         status = NEED_QUEUE
                         break
                     if not collapse_node(p, e, links, npos, mat, fsgid, pos_vstart, vertex_sgid, vpos, state,
-                                         face_rec, off, cnt, rec_tri, rec_nbr, rec_face, dirty):
+                                         face_map, off, cnt, rec_tri, rec_nbr, rec_face, dirty):
                         status, need_mat = DAMAGED, p
                         break
                     counts[1] += 1
@@ -757,7 +761,7 @@ def adapt(e, parent, links, npos, bound, cone, face_creator, rotation, mat, fsgi
                     q = _push_after_collapse(p, e, parent, links, face_creator, state, queue, q)
                     q, n, n_faces, status = _collapse_candidates(
                         e, parent, links, npos, bound, cone, face_creator, rotation, mat, fsgid, pos_vstart,
-                        vertex_sgid, vpos, state, face_rec, off, cnt, rec_tri, rec_nbr, rec_face, dirty, active,
+                        vertex_sgid, vpos, state, face_map, off, cnt, rec_tri, rec_nbr, rec_face, dirty, active,
                         texp, aexp, n, vp, max_ops, counts, queue, q, n_faces)
                     if status == DAMAGED:
                         need_mat = queue[q]      # the candidate it was collapsing
@@ -786,7 +790,7 @@ def adapt(e, parent, links, npos, bound, cone, face_creator, rotation, mat, fsgi
 
 @nb.njit(cache=True, nogil=True)
 def _collapse_candidates(e, parent, links, npos, bound, cone, face_creator, rotation, mat, fsgid, pos_vstart,
-                         vertex_sgid, vpos, state, face_rec, off, cnt, rec_tri, rec_nbr, rec_face, dirty, active,
+                         vertex_sgid, vpos, state, face_map, off, cnt, rec_tri, rec_nbr, rec_face, dirty, active,
                          texp, aexp, n, vp, max_ops, counts, queue, q, n_faces):
     """Try the pushed candidates, last pushed first, until none is left.
 
@@ -813,7 +817,7 @@ def _collapse_candidates(e, parent, links, npos, bound, cone, face_creator, rota
             q -= 1
             state[c] = state[c] & ~QUEUED & 0xFF
             continue
-        if not collapse_legal(c, e, links, rotation, state, face_rec, rec_nbr):
+        if not collapse_legal(c, e, links, rotation, state, face_map, rec_nbr):
             q -= 1
             state[c] = state[c] & ~QUEUED & 0xFF
             continue
@@ -828,7 +832,7 @@ def _collapse_candidates(e, parent, links, npos, bound, cone, face_creator, rota
             return q, n, n_faces, NEED_QUEUE
         q -= 1
         state[c] = state[c] & ~QUEUED & 0xFF
-        if not collapse_node(c, e, links, npos, mat, fsgid, pos_vstart, vertex_sgid, vpos, state, face_rec, off, cnt,
+        if not collapse_node(c, e, links, npos, mat, fsgid, pos_vstart, vertex_sgid, vpos, state, face_map, off, cnt,
                              rec_tri, rec_nbr, rec_face, dirty):
             return q, n, n_faces, DAMAGED
         counts[1] += 1

@@ -16,6 +16,7 @@ import numpy as np
 from ..errors import CaveclodError, InputError
 from ..kernels import parts as KP
 from ..kernels import refine as K
+from ..kernels.facemap import fm_fill, new_face_map
 from .view import P_BACKFACE, P_CULL, P_EYE, P_KAPPA, P_PLANES, P_PRUNE, P_TOL, View
 
 UNLIMITED = np.iinfo(np.int64).max
@@ -109,13 +110,12 @@ class CameraState:
             a["node_bound"], a["node_cone"], a["face_creator"], a["face_rotation"],
             a["face_material"], a["face_sgid"], a["pos_vstart"], a["vertex_sgid"], mesh.vertex_position_ids,
         )
-        n, p = mesh.n_nodes, mesh.n_faces
+        n = mesh.n_nodes
         self._faces_of_material, base_count = mesh.material_face_counts()
         self.n_materials = len(base_count)
         # Room kept beyond the need (SLACK_RECORDS), less on small meshes, where Equation 1 allows little.
         self._slack = np.minimum(SLACK_RECORDS, self._faces_of_material // 16)
         self.state = np.zeros(n, np.uint8)
-        self.face_rec = np.full(p, -1, np.int32)
         self.cnt = np.zeros(self.n_materials, np.int64)
         self._layout(np.maximum(base_count + base_count // 4, 4))
         self._sent = np.zeros(self.n_materials, np.int64)   # buffer lengths the last delta announced
@@ -142,7 +142,9 @@ class CameraState:
         """(Re)allocate the record pool with ``capacity`` per material.
 
         Records move, so the written-slot bits are re-set where the records
-        they mark went (and every moved record's face points at it again).
+        they mark went, and the face map is made afresh for the new pool
+        (twice its records, so that it stays at most half full; dense when
+        that is smaller) with every moved record's face in it.
         """
         self.cap = np.minimum(capacity.astype(np.int64), self._faces_of_material)
         self.off = np.zeros(self.n_materials, np.int64)
@@ -154,9 +156,10 @@ class CameraState:
             "rec_face": np.full(total, -1, np.int32),
         }
         dirty = np.zeros((total + 63) // 64, np.uint64)
+        self.face_map = new_face_map(total, self.mesh.n_faces)
         if old is not None:
             K.move_records(self.cnt, old["off"], old["rec_tri"], old["rec_nbr"], old["rec_face"], old["dirty"],
-                           self.off, new["rec_tri"], new["rec_nbr"], new["rec_face"], dirty, self.face_rec)
+                           self.off, new["rec_tri"], new["rec_nbr"], new["rec_face"], dirty, self.face_map)
         for k, v in new.items():
             setattr(self, k, v)
         self.dirty = dirty
@@ -228,7 +231,7 @@ class CameraState:
             self.rec_face[r] = faces[pick]
             self.rec_tri[r] = tri[pick]
             self.rec_nbr[r] = a["base_face_nbrs"][pick]
-            self.face_rec[faces[pick]] = r
+            fm_fill(self.face_map, faces[pick].astype(np.int32), r.astype(np.int32))
             np.bitwise_or.at(self.dirty, r >> 6, np.uint64(1) << (r & 63).astype(np.uint64))
 
     # -- refinement -----------------------------------------------------------
@@ -306,7 +309,7 @@ class CameraState:
         expire = self.expiries and mode == K.MIXED
         try:
             while True:
-                status, material = K.adapt(*self._static, self.state, self.face_rec, self.off, self.cnt,
+                status, material = K.adapt(*self._static, self.state, self.face_map, self.off, self.cnt,
                                            self.cap, self.rec_tri, self.rec_nbr, self.rec_face, self.dirty,
                                            self.active, self.texp, self.aexp,
                                            self.n_active, self.queue, vp, self.odo, self.max_ops,
@@ -339,7 +342,7 @@ class CameraState:
         for _ in range(2):                                    # room is made for all of them at once
             status, what = KP.show_parts(
                 e, npos, mat, fsgid, pos_vstart, vertex_sgid, *self._parts_static, self.part_hidden, self.part_texp,
-                self.part_aexp, self.state, self.face_rec, self.off, self.cnt, self.cap, self.rec_tri, self.rec_nbr,
+                self.part_aexp, self.state, self.face_map, self.off, self.cnt, self.cap, self.rec_tri, self.rec_nbr,
                 self.rec_face, self.dirty, self.active, self.texp, self.aexp, self.n_active, vp, self.odo,
                 self.expiries, todo, need, shown)
             if status == K.OK:
@@ -375,7 +378,7 @@ class CameraState:
         base_faces, _, _, sphere, root_start, roots, face_start, faces = self._parts_static
         self._parts_due = KP.hide_parts(
             e, links, base_faces, mat, sphere, root_start, roots, face_start, faces, self.part_hidden,
-            self.part_texp, self.part_aexp, self.state, self.face_rec, self.off, self.cnt, self.rec_tri, self.rec_nbr,
+            self.part_texp, self.part_aexp, self.state, self.face_map, self.off, self.cnt, self.rec_tri, self.rec_nbr,
             self.rec_face, self.dirty, vp, self.odo, self.expiries, self._part_counts[1:2])
 
     def _abandon_pass(self) -> None:
@@ -446,7 +449,7 @@ class CameraState:
         for name in RECORD_ARRAYS:
             array = getattr(self, name)
             array[rows] = array[rows][order]
-        self.face_rec[self.rec_face[rows]] = np.arange(lo, lo + n, dtype=self.face_rec.dtype)
+        fm_fill(self.face_map, self.rec_face[rows], np.arange(lo, lo + n, dtype=np.int32))
         marks = np.zeros(len(self.dirty) * 64, np.bool_)      # record r is bit r & 63 of word r >> 6
         marks[rows] = True
         self.dirty &= ~np.packbits(marks, bitorder="little").view("<u8")
@@ -488,7 +491,7 @@ class CameraState:
     @property
     def nbytes(self) -> int:
         """Bytes this camera owns (the static mesh is shared, not counted)."""
-        arrays = (self.state, self.face_rec, self.rec_tri, self.rec_nbr, self.rec_face, self.dirty, self._slack,
+        arrays = (self.state, self.face_map, self.rec_tri, self.rec_nbr, self.rec_face, self.dirty, self._slack,
                   self.active, self.texp, self.aexp, self.n_active, self.queue,
                   self.off, self.cnt, self.cap, self._sent, self.counts, self._resume, self.odo,
                   self.part_hidden, self.part_texp, self.part_aexp, self._part_counts)

@@ -5,6 +5,7 @@ from __future__ import annotations
 import numpy as np
 
 from ..kernels import refine as K
+from ..kernels.facemap import fm_dense
 from ..kernels.parts import HIDDEN
 
 
@@ -68,7 +69,8 @@ def validate_camera(cam) -> None:
     part_of_face = np.repeat(np.arange(parts.count), np.diff(parts.face_start))
     base = np.asarray(mesh.base_faces)[parts.faces]
     want[base] = cam.part_hidden[part_of_face] == 0
-    indexed = cam.face_rec >= 0
+    face_rec = fm_dense(cam.face_map, len(creator))
+    indexed = face_rec >= 0
     if not np.array_equal(want, indexed):
         _fail("a face is active while its creator is not split, or the reverse")
 
@@ -83,7 +85,7 @@ def validate_camera(cam) -> None:
         faces = cam.rec_face[r]
         if (mat[faces] != s).any():
             _fail(f"a face sits in the index buffer of another material ({s})")
-        if not np.array_equal(cam.face_rec[faces], r):
+        if not np.array_equal(face_rec[faces], r):
             _fail(f"the face -> record map and the records disagree in material {s}")
         recs.append(r)
     recs = np.concatenate(recs) if recs else np.zeros(0, np.int64)
