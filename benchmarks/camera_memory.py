@@ -120,20 +120,20 @@ def _plot(rows, path: Path) -> None:
     import matplotlib
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
-    fig, (a, b) = plt.subplots(1, 2, figsize=(10, 3.8))
-    labels = [f"{r['tree']}\n{r['terrain']} {r['mesh_faces'] / 1e6:.1f}M" for r in rows]
+    fig, (a, b) = plt.subplots(1, 2, figsize=(12, 4.2))
+    labels = [f"{r['tree']}\n{r['terrain']}\n{r['mesh_faces'] / 1e6:.1f}M" for r in rows]
     xs = range(len(rows))
     a.bar(xs, [r["state_bytes"] / 1e6 for r in rows], label="state (a byte per node)")
     a.bar(xs, [r["face_map_bytes"] / 1e6 for r in rows], bottom=[r["state_bytes"] / 1e6 for r in rows],
           label="face -> record map")
     a.bar(xs, [(r["camera_bytes"] - r["state_bytes"] - r["face_map_bytes"]) / 1e6 for r in rows],
           bottom=[(r["state_bytes"] + r["face_map_bytes"]) / 1e6 for r in rows], label="records, list, rest")
-    a.set_xticks(list(xs), labels, fontsize=8)
+    a.set_xticks(list(xs), labels, fontsize=7)
     a.set_ylabel("bytes per camera (MB)")
     a.legend(fontsize=8)
     b.bar([x - 0.2 for x in xs], [r["p50_ms"] for r in rows], 0.4, label="p50")
     b.bar([x + 0.2 for x in xs], [r["p99_ms"] for r in rows], 0.4, label="p99")
-    b.set_xticks(list(xs), labels, fontsize=8)
+    b.set_xticks(list(xs), labels, fontsize=7)
     b.set_ylabel("update time per camera-frame (ms)")
     b.legend(fontsize=8)
     fig.suptitle("4-camera flyover at 1 px (medians of runs)")
