@@ -8,9 +8,9 @@ to the cell holding its centroid. Level ``L`` groups the cells ``2**L x
 2**L`` into tiles; a position lies *inside* a tile when every face around
 it is in that tile, and on a *border* otherwise. At each level every tile
 is simplified on its own with its borders fixed (until about four times
-as many positions are left inside as lie on its border), so tiles can be simplified
-at once on several threads and none depends on how the others went: the
-result is the same whatever the number of workers. The next level merges
+as many positions are left inside as lie on its border), so tiles can be
+simplified at once on several threads and none depends on how the others
+went: the result is the same whatever the number of workers. The next level merges
 the tiles 2 x 2 and frees the borders between them; the last level is one
 tile, the whole mesh, with no border.
 
@@ -28,7 +28,7 @@ import numba as nb
 import numpy as np
 
 TILE_FACES = 1 << 16
-"""Faces per tile the automatic grid aims at (a tile's arrays stay in cache)."""
+"""Faces per tile the automatic grid aims at (4 x 4 tiles for the 1M-triangle terrains)."""
 
 
 def positions_left_to_merge(inside: int) -> int:
@@ -41,8 +41,8 @@ def positions_left_to_merge(inside: int) -> int:
     terrains (faces a converged camera draws at 1 px, and build time): at
     about the border's length (4 sqrt(k) for a square tile) the first
     level's time halved, but the smooth terrain drew 26 % more faces than a
-    single build; at 16 sqrt(k) (6 % of a 62k-position tile) it draws as
-    many, and the rough terrain 4.5 % more, for most of the time saved.
+    single build; at 16 sqrt(k) (6 % of a 62k-position tile) 4-7 % more on
+    both terrains (benchmarks/build.py), for most of the time saved.
     """
     return int(16.0 * math.sqrt(inside))
 
