@@ -46,20 +46,25 @@ def _home(fm, f):
 
 
 @nb.njit(cache=True, nogil=True, inline="always")
+def _row(fm, f):
+    """Row of a table that holds face ``f``, or the empty row where its probe ends."""
+    mask = fm.shape[0] - 1
+    i = _home(fm, f)
+    for _ in range(fm.shape[0]):         # the table is at most half full: a probe ends early
+        k = fm[i, 0]
+        if k == f or k == EMPTY:
+            return i
+        i = (i + 1) & mask
+    return i
+
+
+@nb.njit(cache=True, nogil=True, inline="always")
 def fm_get(fm, f):
     """Record of face ``f``, or -1 when it is not active."""
     if fm.shape[1] == 1:
         return fm[f, 0]
-    mask = fm.shape[0] - 1
-    i = _home(fm, f)
-    for _ in range(fm.shape[0]):
-        k = fm[i, 0]
-        if k == f:
-            return fm[i, 1]
-        if k == EMPTY:
-            return -1
-        i = (i + 1) & mask
-    return -1
+    i = _row(fm, f)
+    return fm[i, 1] if fm[i, 0] == f else -1
 
 
 @nb.njit(cache=True, nogil=True, inline="always")
@@ -68,15 +73,9 @@ def fm_set(fm, f, r):
     if fm.shape[1] == 1:
         fm[f, 0] = r
         return
-    mask = fm.shape[0] - 1
-    i = _home(fm, f)
-    for _ in range(fm.shape[0]):
-        k = fm[i, 0]
-        if k == f or k == EMPTY:
-            fm[i, 0] = f
-            fm[i, 1] = r
-            return
-        i = (i + 1) & mask
+    i = _row(fm, f)
+    fm[i, 0] = f
+    fm[i, 1] = r
 
 
 @nb.njit(cache=True, nogil=True)
@@ -85,19 +84,12 @@ def fm_del(fm, f):
     if fm.shape[1] == 1:
         fm[f, 0] = EMPTY
         return
-    mask = fm.shape[0] - 1
-    i = _home(fm, f)
-    for _ in range(fm.shape[0]):
-        k = fm[i, 0]
-        if k == EMPTY:
-            return
-        if k == f:
-            break
-        i = (i + 1) & mask
-    else:
+    i = _row(fm, f)
+    if fm[i, 0] != f:
         return
     # Backward-shift deletion: move up each later row of the run whose home
     # is not between the hole and itself, so every face stays reachable.
+    mask = fm.shape[0] - 1
     j = i
     while True:
         j = (j + 1) & mask
