@@ -51,8 +51,10 @@ def build(source, *, cell_size: float = 1.0, z_scale: float = 1.0, materials=Non
             file is the same whatever their number.
     """
     from .builder.hierarchy import build_static_mesh
+    from .builder.tiles import check_tiles
     _check_options(crease_angle=crease_angle, cell_size=cell_size, z_scale=z_scale)
-    _check_parallelism(tiles, workers)
+    _check_workers(workers)
+    check_tiles(tiles)
     src = to_source(source, cell_size=cell_size, z_scale=z_scale, materials=materials, size=size, seed=seed,
                     nodata=nodata)
     if weld is not None:
@@ -61,11 +63,8 @@ def build(source, *, cell_size: float = 1.0, z_scale: float = 1.0, materials=Non
     return build_static_mesh(src, crease_angle=crease_angle, progress=progress, tiles=tiles, workers=workers)
 
 
-def _check_parallelism(tiles, workers) -> None:
-    """Refuse a tile grid or a worker count the build cannot use."""
-    if tiles is not None and (not isinstance(tiles, (int, np.integer)) or tiles < 1 or tiles & (tiles - 1)
-                              or tiles > 4096):
-        raise InputError(f"--tiles must be a power of two from 1 to 4096 (tiles per side), got {tiles!r}")
+def _check_workers(workers) -> None:
+    """Refuse a worker count the build cannot use."""
     if workers is not None and (not isinstance(workers, (int, np.integer)) or not 1 <= workers <= 256):
         raise InputError(f"--workers must be a whole number from 1 to 256, got {workers!r}")
 

@@ -131,7 +131,7 @@ def test_automatic_grid_and_bad_grids():
     assert tiles_per_side(1_000_000) == 4
     assert tiles_per_side(200_000_000) == 64
     assert tiles_per_side(10, 8) == 8
-    with pytest.raises(ValueError):
+    with pytest.raises(InputError, match="power of two"):
         tiles_per_side(10, 3)
     assert positions_left_to_merge(10_000) == 1600
     for bad in dict(tiles=3), dict(tiles=0), dict(workers=0), dict(tiles=2.0):

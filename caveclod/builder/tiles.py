@@ -27,6 +27,8 @@ from dataclasses import dataclass
 import numba as nb
 import numpy as np
 
+from ..errors import InputError
+
 TILE_FACES = 1 << 16
 """Faces per tile the automatic grid aims at (4 x 4 tiles for the 1M-triangle terrains)."""
 
@@ -47,14 +49,24 @@ def positions_left_to_merge(inside: int) -> int:
     return int(16.0 * math.sqrt(inside))
 
 
+MAX_TILES = 4096
+"""Most tiles per side ``--tiles`` accepts."""
+
+
+def check_tiles(tiles) -> None:
+    """Refuse a tile count the build cannot use (None: chosen by size)."""
+    if tiles is not None and (not isinstance(tiles, (int, np.integer)) or tiles < 1 or tiles & (tiles - 1)
+                              or tiles > MAX_TILES):
+        raise InputError(f"--tiles must be a power of two from 1 to {MAX_TILES} (tiles per side), got {tiles!r}")
+
+
 def tiles_per_side(n_faces: int, tiles: int | None = None) -> int:
-    """Cells per side: ``tiles`` if given (a power of two), else the least
-    power of two whose square holds ``n_faces`` at about :data:`TILE_FACES`
-    each (1, no tiling, up to twice that)."""
+    """Cells per side: ``tiles`` if given (checked by :func:`check_tiles`),
+    else the least power of two whose square holds ``n_faces`` at about
+    :data:`TILE_FACES` each (1, no tiling, up to twice that)."""
+    check_tiles(tiles)
     if tiles is not None:
-        if tiles < 1 or tiles & (tiles - 1):
-            raise ValueError(f"tiles per side must be a power of two (1, 2, 4, ...), got {tiles}")
-        return tiles
+        return int(tiles)
     g = 1
     while g * g * TILE_FACES * 2 < n_faces:
         g *= 2
