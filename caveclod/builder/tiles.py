@@ -114,6 +114,9 @@ class TileGrid:
             bool, positions touching more than one tile.
         """
         e = len(live)
+        if self.tiles_at(level) == 1:         # one tile: every live position is inside, none on a border
+            inside = np.flatnonzero(live).astype(np.int32)
+            return ([inside] if len(inside) else []), np.zeros(e, bool)
         ft = np.repeat(self.face_tiles(level), 3)
         corners = face_pos.ravel()
         big = np.iinfo(np.int32).max
