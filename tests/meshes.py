@@ -167,3 +167,13 @@ def replay_collapses(mesh, source: SourceMesh, crease_angle=None) -> dict:
         if alive[f]:
             assert creator[f] == -1
     return {"base": len(base), "collapses": mesh.n_internal}
+
+
+def tree_depth(parent) -> int:
+    """Longest leaf-to-root path; parents have larger ids than their children."""
+    depth = np.zeros(len(parent), np.int64)
+    for x in range(len(parent) - 1, -1, -1):
+        if parent[x] >= 0:
+            assert parent[x] > x
+            depth[x] = depth[parent[x]] + 1
+    return int(depth.max(initial=0))

@@ -30,7 +30,7 @@ from caveclod.builder.topology import face_neighbours
 from caveclod.refine.parts import position_part
 from caveclod.refine.view import View
 
-from meshes import holey_scan, noisy_box, random_heightfield, random_scan, uv_sphere, with_bad_topology
+from meshes import holey_scan, noisy_box, random_heightfield, random_scan, tree_depth, uv_sphere, with_bad_topology
 
 CASES = {
     "terrain32": lambda: default_terrain(32),
@@ -123,16 +123,6 @@ def terrain64():
 
 
 # ---------------------------------------------------------------- helpers
-
-
-def tree_depth(parent) -> int:
-    """Longest leaf-to-root path; parents have larger ids than their children."""
-    depth = np.zeros(len(parent), np.int64)
-    for x in range(len(parent) - 1, -1, -1):
-        if parent[x] >= 0:
-            assert parent[x] > x
-            depth[x] = depth[parent[x]] + 1
-    return int(depth.max(initial=0))
 
 
 def euler_characteristic(face_pos) -> int:

@@ -21,7 +21,7 @@ from caveclod.builder.tiles import positions_left_to_merge, tile_grid, tiles_per
 from caveclod.errors import InputError
 from caveclod.meshcheck import find_problem
 
-from meshes import replay_collapses
+from meshes import replay_collapses, tree_depth
 
 
 def digest(mesh) -> str:
@@ -30,17 +30,6 @@ def digest(mesh) -> str:
         h.update(name.encode())
         h.update(np.ascontiguousarray(mesh.arrays[name]).tobytes())
     return h.hexdigest()
-
-
-def tree_height(parent: np.ndarray, e: int) -> int:
-    """Longest leaf-to-root path (a slow, obvious walk up from every leaf)."""
-    best = 0
-    for leaf in range(e):
-        x, d = leaf, 0
-        while parent[x] >= 0:
-            x, d = parent[x], d + 1
-        best = max(best, d)
-    return best
 
 
 @pytest.fixture(scope="module")
@@ -77,8 +66,8 @@ def test_tiles_merge_to_a_base_mesh_like_a_single_build(rough):
     es, et = single.node_error[roots_s].max(), tiled.node_error[roots_t].max()
     assert 0.5 * es <= et <= 2.0 * es, (es, et)
     # Borders fixed for a level add levels to the tree, but not many.
-    hs = tree_height(np.asarray(single.node_parent), single.n_positions)
-    ht = tree_height(np.asarray(tiled.node_parent), tiled.n_positions)
+    hs = tree_depth(np.asarray(single.node_parent))
+    ht = tree_depth(np.asarray(tiled.node_parent))
     assert ht <= 2 * hs + 10, (hs, ht)
 
 
