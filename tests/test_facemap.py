@@ -10,6 +10,7 @@ from hypothesis import strategies as st
 from caveclod.builder.builtin import default_terrain
 from caveclod.builder.hierarchy import build_static_mesh
 from caveclod.kernels.facemap import fm_del, fm_dense, fm_fill, fm_get, fm_set, map_capacity, new_face_map
+from caveclod.kernels.nodestate import is_dense
 from caveclod.refine.view import View
 
 OPS = st.lists(st.tuples(st.sampled_from(["set", "del", "get"]), st.integers(0, 300), st.integers(0, 10_000)),
@@ -57,8 +58,8 @@ def test_capacity_keeps_the_map_half_empty():
 
 
 def test_a_camera_holds_no_entry_per_face_of_the_mesh():
-    """Seen from afar (its base mesh), a camera on a 4x larger terrain holds the same bytes
-    except one state byte per node; the face map follows its records, not the faces."""
+    """Seen from afar (its base mesh), a camera on a 4x larger terrain holds the same bytes:
+    the face map follows its records and the node states its nodes, not the mesh."""
     held = {}
     for size in (64, 128):
         mesh = build_static_mesh(default_terrain(size))
@@ -69,7 +70,8 @@ def test_a_camera_holds_no_entry_per_face_of_the_mesh():
         cam.validate()
         assert cam.face_map.nbytes <= 8 * map_capacity(len(cam.rec_face))
         assert cam.face_map.nbytes < mesh.n_faces, "the map is smaller than one byte per face"
-        held[size] = cam.nbytes - cam.state.nbytes, cam.n_faces
+        assert not is_dense(cam.state) and cam.state.nbytes < mesh.n_nodes / 4, "node bytes follow the view"
+        held[size] = cam.nbytes, cam.n_faces
         # Refined fully, the camera holds every face: the dense form, Equation 1's 4p, is the smaller.
         cam.update(View(eye=tuple(far), target=tuple((lo + hi) / 2), up=(0, 1, 0), tolerance_px=0.0, prune=False))
         cam.validate()

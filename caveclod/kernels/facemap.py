@@ -41,21 +41,46 @@ def new_face_map(records: int, n_faces: int) -> np.ndarray:
 
 
 @nb.njit(cache=True, nogil=True, inline="always")
-def _home(fm, f):
-    return ((np.int64(f) * _GOLDEN) >> 7) & (fm.shape[0] - 1)
+def home_row(key, mask):
+    """The row where a probe for ``key`` starts in a table of ``mask + 1`` rows."""
+    return ((np.int64(key) * _GOLDEN) >> 7) & mask
 
 
 @nb.njit(cache=True, nogil=True, inline="always")
-def _row(fm, f):
-    """Row of a table that holds face ``f``, or the empty row where its probe ends."""
-    mask = fm.shape[0] - 1
-    i = _home(fm, f)
-    for _ in range(fm.shape[0]):         # the table is at most half full: a probe ends early
-        k = fm[i, 0]
-        if k == f or k == EMPTY:
+def probe(t, key, mask):
+    """Row of rows ``0 .. mask`` of table ``t`` (column 0 the keys) that holds
+    ``key``, or the empty row where its probe ends. The table must have an
+    empty row (it is kept at most half full)."""
+    i = home_row(key, mask)
+    for _ in range(mask + 1):
+        k = t[i, 0]
+        if k == key or k == EMPTY:
             return i
         i = (i + 1) & mask
     return i
+
+
+@nb.njit(cache=True, nogil=True)
+def remove_row(t, i, mask):
+    """Empty row ``i`` of rows ``0 .. mask`` of table ``t`` (both columns).
+
+    Backward-shift deletion: each later row of the run whose home is not
+    between the hole and itself moves up, so every key stays reachable and
+    no tombstones slow later probes.
+    """
+    j = i
+    while True:
+        j = (j + 1) & mask
+        k = t[j, 0]
+        if k == EMPTY:
+            break
+        h = home_row(k, mask)
+        if (i <= j and (h <= i or h > j)) or (i > j and h <= i and h > j):
+            t[i, 0] = k
+            t[i, 1] = t[j, 1]
+            i = j
+    t[i, 0] = EMPTY
+    t[i, 1] = EMPTY
 
 
 @nb.njit(cache=True, nogil=True, inline="always")
@@ -63,7 +88,7 @@ def fm_get(fm, f):
     """Record of face ``f``, or -1 when it is not active."""
     if fm.shape[1] == 1:
         return fm[f, 0]
-    i = _row(fm, f)
+    i = probe(fm, f, fm.shape[0] - 1)
     return fm[i, 1] if fm[i, 0] == f else -1
 
 
@@ -73,7 +98,7 @@ def fm_set(fm, f, r):
     if fm.shape[1] == 1:
         fm[f, 0] = r
         return
-    i = _row(fm, f)
+    i = probe(fm, f, fm.shape[0] - 1)
     fm[i, 0] = f
     fm[i, 1] = r
 
@@ -84,25 +109,9 @@ def fm_del(fm, f):
     if fm.shape[1] == 1:
         fm[f, 0] = EMPTY
         return
-    i = _row(fm, f)
-    if fm[i, 0] != f:
-        return
-    # Backward-shift deletion: move up each later row of the run whose home
-    # is not between the hole and itself, so every face stays reachable.
-    mask = fm.shape[0] - 1
-    j = i
-    while True:
-        j = (j + 1) & mask
-        k = fm[j, 0]
-        if k == EMPTY:
-            break
-        h = _home(fm, k)
-        if (i <= j and (h <= i or h > j)) or (i > j and h <= i and h > j):
-            fm[i, 0] = k
-            fm[i, 1] = fm[j, 1]
-            i = j
-    fm[i, 0] = EMPTY
-    fm[i, 1] = EMPTY
+    i = probe(fm, f, fm.shape[0] - 1)
+    if fm[i, 0] == f:
+        remove_row(fm, i, fm.shape[0] - 1)
 
 
 @nb.njit(cache=True, nogil=True)

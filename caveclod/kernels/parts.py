@@ -43,6 +43,7 @@ import numpy as np
 from .refine import (ACTIVE, DAMAGED, FOREVER, IN_LIST, NEED_RECORDS, NEVER, OK, P_EYE, P_KAPPA, P_PRUNE, P_TOL,
                      RECHECK, SPLIT, STATE_MASK, _add_face, _expiry, _remove_face, node_position, sphere_planes)
 from .facemap import fm_get
+from .nodestate import ns_get, ns_set, ns_update
 from .unionfind import find
 
 HIDDEN = 3            # node state of a hidden part's roots (STATE_MASK's free value)
@@ -166,7 +167,7 @@ def show_parts(e, npos, mat, fsgid, pos_vstart, vertex_sgid, base_faces, base_no
         for i in range(face_start[k], face_start[k + 1]):
             need[mat[base_faces[faces[i]]]] += 1
         for i in range(root_start[k], root_start[k + 1]):
-            if (state[roots[i]] & IN_LIST) == 0:      # a listed root keeps its entry
+            if (ns_get(state, roots[i]) & IN_LIST) == 0:      # a listed root keeps its entry
                 need[need.shape[0] - 1] += 1
     short = n + need[need.shape[0] - 1] > active.shape[0]
     for s in range(cnt.shape[0]):
@@ -186,10 +187,10 @@ def show_parts(e, npos, mat, fsgid, pos_vstart, vertex_sgid, base_faces, base_no
                 return DAMAGED, f
         for i in range(root_start[k], root_start[k + 1]):
             x = roots[i]
-            if state[x] & IN_LIST:
-                state[x] = (state[x] & ~STATE_MASK & 0xFF) | ACTIVE | RECHECK
+            if ns_get(state, x) & IN_LIST:
+                ns_update(state, x, STATE_MASK, ACTIVE | RECHECK)
             else:
-                state[x] = ACTIVE | IN_LIST
+                ns_set(state, x, ACTIVE | IN_LIST)
                 active[n] = x
                 texp[n] = NEVER
                 aexp[n] = NEVER
@@ -235,7 +236,8 @@ def hide_parts(e, links, base_faces, mat, sphere, root_start, roots, face_start,
         while sp > 0:
             sp -= 1
             x = stack[sp]
-            if x >= e and (state[x] & STATE_MASK) == SPLIT:
+            st = ns_get(state, x)
+            if x >= e and (st & STATE_MASK) == SPLIT:
                 j = x - e
                 for q in range(2, 4):
                     f = links[j, q]
@@ -246,15 +248,15 @@ def hide_parts(e, links, base_faces, mat, sphere, root_start, roots, face_start,
                 stack[sp] = links[j, 0]
                 stack[sp + 1] = links[j, 1]
                 sp += 2
-            listed = state[x] & IN_LIST
-            state[x] = (listed | RECHECK) if listed else 0        # INACTIVE
+            listed = st & IN_LIST
+            ns_set(state, x, (listed | RECHECK) if listed else 0)        # INACTIVE
         for i in range(face_start[k], face_start[k + 1]):
             f = base_faces[faces[i]]
             if fm_get(face_map, f) >= 0:
                 _remove_face(f, mat, face_map, off, cnt, rec_tri, rec_nbr, rec_face, dirty)
         for i in range(root_start[k], root_start[k + 1]):
             x = roots[i]
-            state[x] = (state[x] & IN_LIST) | HIDDEN
+            ns_update(state, x, 0xFF & ~IN_LIST, HIDDEN)
         hidden[k] = 1
         hid[0] += 1
     due_t, due_a = FOREVER, FOREVER

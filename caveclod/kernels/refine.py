@@ -6,10 +6,14 @@ any number of cameras share it and each kernel call releases the GIL.
 Camera state (see :class:`caveclod.refine.camera.CameraState`), sized to fit
 the paper's Equation 1 per-camera term ``4n + 4p + 16 + 12 n_a + 36 p_a``:
 
-* ``state`` (n,) uint8 per node: INACTIVE (below the front), ACTIVE, SPLIT
+* ``state``, a byte per node: INACTIVE (below the front), ACTIVE, SPLIT
   (above it), plus the IN_LIST bit while the node has an entry in the active
   list, the QUEUED bit while it waits in the collapse-candidate stack, and
   the RECHECK bit when its entry must be evaluated whatever its expiries.
+  Held only for the nodes whose byte is not 0 (a hash table, or while that
+  would be larger the dense byte per node of Equation 1's 4n:
+  :mod:`caveclod.kernels.nodestate`), so a camera's bytes follow its view,
+  not the mesh.
 * ``face_map``: the record of each active face, a hash table over the
   active faces only, (c, 2) int32, or while that would be larger (a camera
   holding much of the mesh) the dense (p, 1) array of Equation 1's 4p that
@@ -84,11 +88,13 @@ import numba as nb
 import numpy as np
 
 from .facemap import fm_del, fm_get, fm_set
+from .nodestate import ns_get, ns_room, ns_update
 
 INACTIVE, ACTIVE, SPLIT = 0, 1, 2
 STATE_MASK, IN_LIST, QUEUED, RECHECK = 3, 4, 8, 16
 
 OK, NEED_RECORDS, NEED_LIST, NEED_QUEUE = 0, 1, 2, 3
+NEED_NODES = 5      # the node-state table is full (after DAMAGED, which kept its number)
 # The static mesh broke a rule no built mesh breaks (a vertex lookup that
 # misses, a face walk that does not close, a forced split that does not end):
 # the file is damaged. See "Guards" in the module doc.
@@ -420,9 +426,9 @@ def split_node(x, e, links, npos, rotation, mat, fsgid, pos_vstart, vertex_sgid,
             if k < 0:
                 return False
             rec_nbr[r3, k] = fr      # edge vr -> t
-    state[x] = (state[x] & ~STATE_MASK) | SPLIT
-    state[t] = (state[t] & ~STATE_MASK) | ACTIVE
-    state[u] = (state[u] & ~STATE_MASK) | ACTIVE
+    ns_update(state, x, STATE_MASK, SPLIT)
+    ns_update(state, t, STATE_MASK, ACTIVE)
+    ns_update(state, u, STATE_MASK, ACTIVE)
     return True
 
 
@@ -432,7 +438,7 @@ def collapse_legal(x, e, links, rotation, state, face_map, rec_nbr):
     children active, and fl's neighbours across u->vl and vl->t (fr's across
     t->vr and vr->u) are the faces the split required."""
     j = x - e
-    if (state[links[j, 0]] & STATE_MASK) != ACTIVE or (state[links[j, 1]] & STATE_MASK) != ACTIVE:
+    if (ns_get(state, links[j, 0]) & STATE_MASK) != ACTIVE or (ns_get(state, links[j, 1]) & STATE_MASK) != ACTIVE:
         return False
     fl, fr = links[j, 2], links[j, 3]
     if fl >= 0:
@@ -480,9 +486,9 @@ def collapse_node(x, e, links, npos, mat, fsgid, pos_vstart, vertex_sgid, vpos, 
         if fn3 >= 0:
             _replace_nbr(rec_nbr, fm_get(face_map, fn3), fr, fn2)
         _remove_face(fr, mat, face_map, off, cnt, rec_tri, rec_nbr, rec_face, dirty)
-    state[x] = (state[x] & ~STATE_MASK) | ACTIVE
-    state[t] = state[t] & ~STATE_MASK
-    state[u] = state[u] & ~STATE_MASK
+    ns_update(state, x, STATE_MASK, ACTIVE)
+    ns_update(state, t, STATE_MASK, 0)
+    ns_update(state, u, STATE_MASK, 0)
     return True
 
 
@@ -534,8 +540,8 @@ def sort_active(active, texp, aexp, n):
 @nb.njit(cache=True, nogil=True, inline="always")
 def _append(x, active, texp, aexp, n, state):
     """Give active node ``x`` an entry at the back of the list unless it has one."""
-    if (state[x] & IN_LIST) == 0:
-        state[x] |= IN_LIST
+    if (ns_get(state, x) & IN_LIST) == 0:
+        ns_update(state, x, 0, IN_LIST)
         active[n] = x
         texp[n] = NEVER
         aexp[n] = NEVER
@@ -546,8 +552,8 @@ def _append(x, active, texp, aexp, n, state):
 @nb.njit(cache=True, nogil=True, inline="always")
 def _push(c, e, state, queue, q):
     """Push split node ``c`` as a collapse candidate (once)."""
-    if c >= e and (state[c] & STATE_MASK) == SPLIT and (state[c] & QUEUED) == 0:
-        state[c] |= QUEUED
+    if c >= e and (ns_get(state, c) & (STATE_MASK | QUEUED)) == SPLIT:
+        ns_update(state, c, 0, QUEUED)
         queue[q] = c
         q += 1
     return q
@@ -580,9 +586,9 @@ def _skip_run(active, texp, aexp, state, odo, i, w, n, expire):
     t, a = odo[0], odo[1]
     while i < n:
         x = active[i]
-        st = state[x]
+        st = ns_get(state, x)
         if (st & STATE_MASK) != ACTIVE:
-            state[x] = st & ~IN_LIST & 0xFF     # split or collapsed away since
+            ns_update(state, x, IN_LIST, 0)     # split or collapsed away since
             i += 1
             continue
         te, ae = texp[i], aexp[i]
@@ -617,8 +623,8 @@ def adapt(e, parent, links, npos, bound, cone, face_creator, rotation, mat, fsgi
     Returns (status, material): OK, DAMAGED with the node being split or
     collapsed (the mesh is damaged: module doc, "Guards"; the camera is not
     to be used again), or NEED_RECORDS for that material /
-    NEED_LIST / NEED_QUEUE (``queue``, the collapse candidates): grow the
-    arrays and call again, and the call *continues the same pass* where this
+    NEED_LIST / NEED_QUEUE (``queue``, the collapse candidates) / NEED_NODES
+    (``state``, before a split): grow the arrays and call again, and the call *continues the same pass* where this
     one stopped: ``resume`` (4,) int64 holds the read and write positions, a
     flag and the candidates left in ``queue``, so decisions never depend on
     how much room the arrays happened to have. (The node being force-split when room
@@ -648,7 +654,7 @@ def adapt(e, parent, links, npos, bound, cone, face_creator, rotation, mat, fsgi
         i = 0
         w = 0
     stack = np.empty(256, np.int64)
-    n_nodes = state.shape[0]
+    n_nodes = parent.shape[0]
     max_stack, max_steps = 4 * n_nodes + 8, 8 * n_nodes + 64     # what an acyclic hierarchy can need
     while status == OK:
         i, w = _skip_run(active, texp, aexp, state, odo, i, w, n, expire)
@@ -656,7 +662,7 @@ def adapt(e, parent, links, npos, bound, cone, face_creator, rotation, mat, fsgi
             break
         x = active[i]
         i += 1
-        state[x] = state[x] & ~RECHECK & 0xFF
+        ns_update(state, x, RECHECK, 0)
         counts[3] += 1
         te, ae = FOREVER, FOREVER
         ops = counts[0] + counts[1]
@@ -678,7 +684,7 @@ def adapt(e, parent, links, npos, bound, cone, face_creator, rotation, mat, fsgi
                     if steps > max_steps:
                         status, need_mat = DAMAGED, y
                         break
-                    sy = state[y] & STATE_MASK
+                    sy = ns_get(state, y) & STATE_MASK
                     if sy == SPLIT or y < e:
                         sp -= 1
                         continue
@@ -713,6 +719,9 @@ def adapt(e, parent, links, npos, bound, cone, face_creator, rotation, mat, fsgi
                     if n + 2 > active.shape[0]:
                         status = NEED_LIST
                         break
+                    if not ns_room(state, 2):
+                        status = NEED_NODES
+                        break
                     if not split_node(y, e, links, npos, rotation, mat, fsgid, pos_vstart, vertex_sgid, vpos,
                                       state, face_map, off, cnt, rec_tri, rec_nbr, rec_face, dirty):
                         status, need_mat = DAMAGED, y
@@ -725,11 +734,11 @@ def adapt(e, parent, links, npos, bound, cone, face_creator, rotation, mat, fsgi
                 if status != OK:
                     i -= 1                       # x is visited again on resume
                     break
-                if (state[x] & STATE_MASK) == ACTIVE:      # a budget stopped it
+                if (ns_get(state, x) & STATE_MASK) == ACTIVE:      # a budget stopped it
                     active[w], texp[w], aexp[w] = x, NEVER, NEVER
                     w += 1
                 else:
-                    state[x] = state[x] & ~IN_LIST & 0xFF
+                    ns_update(state, x, IN_LIST, 0)
                 continue
             te, ae = _expiry(odo, tm, rm, dist, need, te, ae)
         p = parent[x]
@@ -738,11 +747,11 @@ def adapt(e, parent, links, npos, bound, cone, face_creator, rotation, mat, fsgi
         # (cache-missing) parent tests. The sibling's activation, or a change
         # in the collapse's legality, pushes the parent as a candidate.
         if mode != SPLITS_ONLY and p >= 0 and links[p - e, 0] == x and \
-                (state[links[p - e, 1]] & STATE_MASK) == ACTIVE:
+                (ns_get(state, links[p - e, 1]) & STATE_MASK) == ACTIVE:
             need, tm, rm, dist = test_node(p - e, bound, cone, vp)
             if not need:
                 if collapse_legal(p, e, links, rotation, state, face_map, rec_nbr):
-                    if (state[p] & IN_LIST) == 0 and n + 1 > active.shape[0]:
+                    if (ns_get(state, p) & IN_LIST) == 0 and n + 1 > active.shape[0]:
                         i -= 1
                         status = NEED_LIST
                         break
@@ -757,7 +766,7 @@ def adapt(e, parent, links, npos, bound, cone, face_creator, rotation, mat, fsgi
                     counts[1] += 1
                     n_faces -= (links[p - e, 2] >= 0) + (links[p - e, 3] >= 0)
                     n = _append(p, active, texp, aexp, n, state)
-                    state[x] = state[x] & ~IN_LIST & 0xFF
+                    ns_update(state, x, IN_LIST, 0)
                     q = _push_after_collapse(p, e, parent, links, face_creator, state, queue, q)
                     q, n, n_faces, status = _collapse_candidates(
                         e, parent, links, npos, bound, cone, face_creator, rotation, mat, fsgid, pos_vstart,
@@ -800,38 +809,38 @@ def _collapse_candidates(e, parent, links, npos, bound, cone, face_creator, rota
     """
     while q > 0:
         c = queue[q - 1]
-        if (state[c] & STATE_MASK) != SPLIT:
+        if (ns_get(state, c) & STATE_MASK) != SPLIT:
             q -= 1
-            state[c] = state[c] & ~QUEUED & 0xFF
+            ns_update(state, c, QUEUED, 0)
             continue
         j = c - e
         t = links[j, 0]
-        if (state[t] & STATE_MASK) != ACTIVE or (state[links[j, 1]] & STATE_MASK) != ACTIVE:
+        if (ns_get(state, t) & STATE_MASK) != ACTIVE or (ns_get(state, links[j, 1]) & STATE_MASK) != ACTIVE:
             q -= 1
-            state[c] = state[c] & ~QUEUED & 0xFF
+            ns_update(state, c, QUEUED, 0)
             continue
         if need_refine(j, bound, cone, vp):
             # The view keeps c split; its stationary child's entry may hold no
             # expiry for this test (module doc): have it evaluated next pass.
-            state[t] |= RECHECK
+            ns_update(state, t, 0, RECHECK)
             q -= 1
-            state[c] = state[c] & ~QUEUED & 0xFF
+            ns_update(state, c, QUEUED, 0)
             continue
         if not collapse_legal(c, e, links, rotation, state, face_map, rec_nbr):
             q -= 1
-            state[c] = state[c] & ~QUEUED & 0xFF
+            ns_update(state, c, QUEUED, 0)
             continue
         if counts[0] + counts[1] >= max_ops:
             counts[2] = 1
             q -= 1
-            state[c] = state[c] & ~QUEUED & 0xFF
+            ns_update(state, c, QUEUED, 0)
             continue
-        if (state[c] & IN_LIST) == 0 and n + 1 > active.shape[0]:
+        if (ns_get(state, c) & IN_LIST) == 0 and n + 1 > active.shape[0]:
             return q, n, n_faces, NEED_LIST
         if q - 1 + 5 > queue.shape[0]:
             return q, n, n_faces, NEED_QUEUE
         q -= 1
-        state[c] = state[c] & ~QUEUED & 0xFF
+        ns_update(state, c, QUEUED, 0)
         if not collapse_node(c, e, links, npos, mat, fsgid, pos_vstart, vertex_sgid, vpos, state, face_map, off, cnt,
                              rec_tri, rec_nbr, rec_face, dirty):
             return q, n, n_faces, DAMAGED

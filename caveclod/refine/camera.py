@@ -16,6 +16,7 @@ import numpy as np
 from ..errors import CaveclodError, InputError
 from ..kernels import parts as KP
 from ..kernels import refine as K
+from ..kernels import nodestate as NS
 from ..kernels.facemap import fm_fill, new_face_map
 from .view import P_BACKFACE, P_CULL, P_EYE, P_KAPPA, P_PLANES, P_PRUNE, P_TOL, View
 
@@ -110,12 +111,10 @@ class CameraState:
             a["node_bound"], a["node_cone"], a["face_creator"], a["face_rotation"],
             a["face_material"], a["face_sgid"], a["pos_vstart"], a["vertex_sgid"], mesh.vertex_position_ids,
         )
-        n = mesh.n_nodes
         self._faces_of_material, base_count = mesh.material_face_counts()
         self.n_materials = len(base_count)
         # Room kept beyond the need (SLACK_RECORDS), less on small meshes, where Equation 1 allows little.
         self._slack = np.minimum(SLACK_RECORDS, self._faces_of_material // 16)
-        self.state = np.zeros(n, np.uint8)
         self.cnt = np.zeros(self.n_materials, np.int64)
         self._layout(np.maximum(base_count + base_count // 4, 4))
         self._sent = np.zeros(self.n_materials, np.int64)   # buffer lengths the last delta announced
@@ -196,6 +195,16 @@ class CameraState:
         wasted = self.cap > 2 * self.cnt + self._slack + 4
         if wasted.any():
             self._relayout(np.where(wasted, self.cnt + self.cnt // 4 + self._slack // 4 + 4, self.cap))
+        # The node-state table likewise: a hash table over four times the need
+        # halves; a dense one becomes a hash table when that is half its size.
+        held = NS.ns_count(self.state)
+        want = held + held // 4 + 16
+        if NS.is_dense(self.state):
+            shrink = NS.hash_is_smaller(2 * want, self.mesh.n_nodes)
+        else:
+            shrink = len(self.state) - 1 > 4 * NS.table_rows(want)
+        if shrink:
+            self.state = NS.resized(self.state, want, self.mesh.n_nodes)
 
     def _grow_list(self, at_least: int = 0) -> None:
         """Grow the active list by a quarter, or to ``at_least`` entries if that is more."""
@@ -206,6 +215,10 @@ class CameraState:
             bigger[: self.n_active[0]] = old[: self.n_active[0]]
             setattr(self, name, bigger)
 
+    def _grow_nodes(self) -> None:
+        """Double the node-state table (or make it dense, when that is smaller)."""
+        self.state = NS.resized(self.state, 2 * NS.ns_count(self.state) + 16, self.mesh.n_nodes)
+
     def _grow_queue(self) -> None:
         bigger = np.empty(2 * len(self.queue), np.int32)
         bigger[: len(self.queue)] = self.queue
@@ -213,7 +226,10 @@ class CameraState:
 
     def _add_base(self, a: dict) -> None:
         roots = np.flatnonzero(a["node_parent"] < 0).astype(np.int32)
-        self.state[roots] = K.ACTIVE | K.IN_LIST
+        # The node bytes of what a camera holds: its active and split nodes (a
+        # hash table while that is smaller than a byte per node).
+        self.state = NS.new_node_states(len(roots) + len(roots) // 4 + 16, self.mesh.n_nodes)
+        NS.ns_fill(self.state, roots, K.ACTIVE | K.IN_LIST)
         size = max(len(roots) + len(roots) // 4, 16)
         self.active = np.empty(size, np.int32)
         self.texp = np.full(size, -np.inf, np.float32)
@@ -322,6 +338,8 @@ class CameraState:
                     self._grow_list()
                 elif status == K.NEED_QUEUE:
                     self._grow_queue()
+                elif status == K.NEED_NODES:
+                    self._grow_nodes()
                 elif status == K.DAMAGED:
                     raise self.mesh.mark_damaged(f"refinement found an impossible hierarchy at node {int(material)}")
                 else:  # pragma: no cover - the kernel has no other status
@@ -393,7 +411,7 @@ class CameraState:
         for arr in (self.active, self.texp, self.aexp):
             arr[w: w + n - i] = arr[i:n].copy()
         self.n_active[0] = w + n - i
-        self.state[self.queue[:q]] &= np.uint8(0xFF & ~K.QUEUED)
+        NS.ns_clear(self.state, self.queue[:q], K.QUEUED)
         self._resume[:] = 0
 
     def _collect_delta(self) -> Delta:
@@ -477,7 +495,12 @@ class CameraState:
 
     def active_nodes(self) -> np.ndarray:
         """(k,) int32 ids of the active nodes (the front), sorted."""
-        return np.flatnonzero((self.state & K.STATE_MASK) == K.ACTIVE).astype(np.int32)
+        nodes, states = NS.ns_items(self.state, self.mesh.n_nodes)
+        return nodes[(states & K.STATE_MASK) == K.ACTIVE]
+
+    def node_states(self) -> np.ndarray:
+        """(n,) uint8 every node's state byte (:mod:`caveclod.kernels.refine`), for checks: O(mesh)."""
+        return NS.ns_dense(self.state, self.mesh.n_nodes)
 
     @property
     def n_faces(self) -> int:

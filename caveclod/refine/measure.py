@@ -96,7 +96,7 @@ def forced_splits(camera, view: View) -> dict:
     ``forced_share`` (forced faces / faces).
     """
     from ..kernels import refine as K
-    split = np.flatnonzero((camera.state & K.STATE_MASK) == K.SPLIT)
+    split = np.flatnonzero((camera.node_states() & K.STATE_MASK) == K.SPLIT)
     split = split[split >= camera.mesh.n_positions]
     forced = int((~needs_detail(camera.mesh, split, view)).sum())
     faces = camera.n_faces

@@ -18,7 +18,8 @@ def validate_camera(cam) -> None:
     mesh = cam.mesh
     e = mesh.n_positions
     parent = np.asarray(mesh.node_parent)
-    state = cam.state & K.STATE_MASK
+    byte = cam.node_states()
+    state = byte & K.STATE_MASK
     n = len(parent)
 
     # The front: ancestors of active nodes are split, split nodes' parents split.
@@ -52,13 +53,13 @@ def validate_camera(cam) -> None:
     listed = cam.active[: cam.n_active[0]]
     if len(np.unique(listed)) != len(listed):
         _fail("a node is listed twice in the active list")
-    if (cam.state & K.QUEUED).any():
+    if (byte & K.QUEUED).any():
         _fail("a collapse candidate is still marked queued after the pass")
     if not np.array_equal(np.sort(listed[state[listed] == K.ACTIVE]), active):
         _fail("active list does not hold exactly the active nodes")
     inlist = np.zeros(n, bool)
     inlist[listed] = True
-    if not np.array_equal(inlist, (cam.state & K.IN_LIST) != 0):
+    if not np.array_equal(inlist, (byte & K.IN_LIST) != 0):
         _fail("IN_LIST bits disagree with the active list")
 
     # Faces: active exactly when their creator is split (base faces: while their part is shown).

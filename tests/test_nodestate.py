@@ -1,0 +1,84 @@
+"""A camera's node-state table (caveclod.kernels.nodestate) against a dict, in both forms,
+and a camera whose table grows, turns dense and shrinks back as it refines and coarsens."""
+
+from __future__ import annotations
+
+import numpy as np
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from caveclod.builder.builtin import default_terrain
+from caveclod.builder.hierarchy import build_static_mesh
+from caveclod.kernels import nodestate as NS
+from caveclod.refine.view import View
+
+N_NODES = 301          # not a multiple of 4: the dense form's last word is part-used
+OPS = st.lists(st.tuples(st.integers(0, N_NODES - 1), st.integers(0, 255), st.integers(0, 255)), max_size=400)
+
+
+@settings(max_examples=200, deadline=None)
+@given(ops=OPS, room=st.integers(1, 200), dense=st.booleans())
+def test_table_is_a_dict_of_non_zero_bytes(ops, room, dense):
+    """Each op clears some bits of a node's byte and sets others; the table must read back what a
+    dict of the non-zero bytes holds, count them, and keep a hash table at most half full (it is
+    grown, as the camera grows it, whenever an op would need a row it lacks)."""
+    t = np.zeros((NS.dense_words(N_NODES) + 1, 1), np.int32) if dense else NS.new_node_states(room, 10**6)
+    assert NS.is_dense(t) == dense
+    want: dict[int, int] = {}
+    for x, clear, add in ops:
+        new = ((want.get(x, 0) & ~clear) | add) & 0xFF
+        if x not in want and new and not NS.ns_room(t, 1):
+            t = NS.resized(t, 2 * NS.ns_count(t) + 16, 10**6)
+        NS.ns_update(t, x, clear, add)
+        if new:
+            want[x] = new
+        else:
+            want.pop(x, None)
+        assert NS.ns_get(t, x) == new
+        assert NS.ns_count(t) == len(want)
+        if not NS.is_dense(t):
+            assert NS.ns_count(t) <= (len(t) - 1) // 2
+    for x in range(N_NODES):
+        assert NS.ns_get(t, x) == want.get(x, 0), x
+    nodes, vals = NS.ns_items(t, N_NODES)
+    assert nodes.tolist() == sorted(want) and vals.tolist() == [want[x] for x in sorted(want)]
+    dense_bytes = NS.ns_dense(t, N_NODES)
+    assert dense_bytes.tolist() == [want.get(x, 0) for x in range(N_NODES)]
+    # Either form copies into the other unchanged.
+    for other in (np.zeros((NS.dense_words(N_NODES) + 1, 1), np.int32), NS.new_node_states(len(want) + 1, 10**6)):
+        NS.ns_copy(t, other)
+        assert NS.ns_dense(other, N_NODES).tolist() == dense_bytes.tolist()
+        assert NS.ns_count(other) == len(want)
+
+
+def test_form_follows_size():
+    assert NS.new_node_states(100, 10**6).shape == (257, 2)
+    assert NS.new_node_states(100, 1000).shape == (251, 1)
+    assert NS.hash_is_smaller(10, 10**4) and not NS.hash_is_smaller(10**4, 10**4)
+
+
+def test_camera_table_grows_turns_dense_and_shrinks_back():
+    """Refined fully, every node has a byte: the table grows through NEED_NODES and ends dense (a
+    byte a node, Equation 1's 4n at most). Seen from afar again it goes back to a hash table of the
+    base mesh's size, and the state it holds is the one a fresh camera reaches."""
+    mesh = build_static_mesh(default_terrain(96))
+    lo, hi = mesh.bounds()
+    target = tuple((lo + hi) / 2)
+    far = tuple((lo + hi) / 2 + np.array([0.0, 0.0, 1e4 * float(np.linalg.norm(hi - lo))]))
+    cam = mesh.new_camera()
+    start = cam.state.shape
+    assert not NS.is_dense(cam.state)
+    cam.update(View(eye=far, target=target, up=(0, 1, 0), tolerance_px=0.0, prune=False))
+    cam.validate()
+    assert cam.n_faces == mesh.n_faces and NS.is_dense(cam.state)
+    assert NS.ns_count(cam.state) == mesh.n_nodes, "every node is active or split"
+    assert cam.state.nbytes <= mesh.n_nodes + 8
+    coarse = View(eye=far, target=target, up=(0, 1, 0), tolerance_px=1.0, prune=False)
+    for _ in range(5):                    # coarsen, then an update with nothing to do trims
+        cam.update(coarse)
+    cam.validate()
+    fresh = mesh.new_camera()
+    fresh.update(coarse)
+    assert not NS.is_dense(cam.state) and cam.state.shape[0] <= 4 * start[0]
+    assert np.array_equal(cam.node_states() & 3, fresh.node_states() & 3)
+    assert np.array_equal(cam.active_nodes(), fresh.active_nodes())
