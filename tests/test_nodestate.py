@@ -20,14 +20,14 @@ OPS = st.lists(st.tuples(st.integers(0, N_NODES - 1), st.integers(0, 255), st.in
 @given(ops=OPS, room=st.integers(1, 200), dense=st.booleans())
 def test_table_is_a_dict_of_non_zero_bytes(ops, room, dense):
     """Each op clears some bits of a node's byte and sets others; the table must read back what a
-    dict of the non-zero bytes holds, count them, and keep a hash table at most half full (it is
-    grown, as the camera grows it, whenever an op would need a row it lacks)."""
-    t = np.zeros((NS.dense_words(N_NODES) + 1, 1), np.int32) if dense else NS.new_node_states(room, 10**6)
+    dict of the non-zero bytes holds, count the blocks holding them, and keep a hash table at most
+    half full (it is grown, as the camera grows it, whenever an op would need a row it lacks)."""
+    t = dense_table() if dense else NS.new_node_states(room, 10**6)
     assert NS.is_dense(t) == dense
     want: dict[int, int] = {}
     for x, clear, add in ops:
         new = ((want.get(x, 0) & ~clear) | add) & 0xFF
-        if x not in want and new and not NS.ns_room(t, 1):
+        if new and not NS.ns_room(t, 1):
             t = NS.resized(t, 2 * NS.ns_count(t) + 16, 10**6)
         NS.ns_update(t, x, clear, add)
         if new:
@@ -35,7 +35,7 @@ def test_table_is_a_dict_of_non_zero_bytes(ops, room, dense):
         else:
             want.pop(x, None)
         assert NS.ns_get(t, x) == new
-        assert NS.ns_count(t) == len(want)
+        assert NS.ns_count(t) == len({y // NS.BLOCK for y in want}), "blocks in use"
         if not NS.is_dense(t):
             assert NS.ns_count(t) <= (len(t) - 1) // 2
     for x in range(N_NODES):
@@ -45,15 +45,21 @@ def test_table_is_a_dict_of_non_zero_bytes(ops, room, dense):
     dense_bytes = NS.ns_dense(t, N_NODES)
     assert dense_bytes.tolist() == [want.get(x, 0) for x in range(N_NODES)]
     # Either form copies into the other unchanged.
-    for other in (np.zeros((NS.dense_words(N_NODES) + 1, 1), np.int32), NS.new_node_states(len(want) + 1, 10**6)):
+    for other in (dense_table(), NS.new_node_states(len(want) + 1, 10**6)):
         NS.ns_copy(t, other)
         assert NS.ns_dense(other, N_NODES).tolist() == dense_bytes.tolist()
-        assert NS.ns_count(other) == len(want)
+        assert NS.ns_count(other) == NS.ns_count(t)
+
+
+def dense_table() -> np.ndarray:
+    t = NS.new_node_states(10**6, N_NODES)
+    assert NS.is_dense(t) and t.shape == (NS.WORDS * NS.n_blocks(N_NODES) + 1, 1)
+    return t
 
 
 def test_form_follows_size():
-    assert NS.new_node_states(100, 10**6).shape == (257, 2)
-    assert NS.new_node_states(100, 1000).shape == (251, 1)
+    assert NS.new_node_states(100, 10**6).shape == (257, 5)
+    assert NS.new_node_states(100, 1000).shape == (4 * 63 + 1, 1)
     assert NS.hash_is_smaller(10, 10**4) and not NS.hash_is_smaller(10**4, 10**4)
 
 
@@ -71,8 +77,8 @@ def test_camera_table_grows_turns_dense_and_shrinks_back():
     cam.update(View(eye=far, target=target, up=(0, 1, 0), tolerance_px=0.0, prune=False))
     cam.validate()
     assert cam.n_faces == mesh.n_faces and NS.is_dense(cam.state)
-    assert NS.ns_count(cam.state) == mesh.n_nodes, "every node is active or split"
-    assert cam.state.nbytes <= mesh.n_nodes + 8
+    assert NS.ns_count(cam.state) == NS.n_blocks(mesh.n_nodes), "every node is active or split"
+    assert cam.state.nbytes <= mesh.n_nodes + 64
     coarse = View(eye=far, target=target, up=(0, 1, 0), tolerance_px=1.0, prune=False)
     for _ in range(5):                    # coarsen, then an update with nothing to do trims
         cam.update(coarse)
@@ -82,3 +88,35 @@ def test_camera_table_grows_turns_dense_and_shrinks_back():
     assert not NS.is_dense(cam.state) and cam.state.shape[0] <= 4 * start[0]
     assert np.array_equal(cam.node_states() & 3, fresh.node_states() & 3)
     assert np.array_equal(cam.active_nodes(), fresh.active_nodes())
+
+
+@settings(max_examples=100, deadline=None)
+@given(notes=st.lists(st.integers(0, N_NODES - 1), max_size=60),
+       bytes_after=st.lists(st.sampled_from([0, NS.IN_LIST | NS.ACTIVE, NS.IN_LIST | NS.SPLIT, NS.ACTIVE,
+                                             NS.IN_LIST | NS.ACTIVE | NS.RECHECK]), min_size=N_NODES,
+                            max_size=N_NODES))
+def test_changed_set_notes_listed_nodes_and_keeps_the_stale(notes, bytes_after):
+    """The set of listed nodes changed since their check (refine's "Clean lists"): a note of a
+    listed node makes its entry suspect, a node without an entry is not noted, more notes than
+    half the rows overflow (every entry suspect); settling keeps just the entries still stale
+    (listed, and not active or marked RECHECK) and reports an overflow once."""
+    t = NS.new_node_states(10**6, N_NODES)                       # dense, every byte 0
+    listed = [x for x in range(N_NODES) if x % 3]
+    NS.ns_fill(t, np.array(listed, np.int32), NS.IN_LIST | NS.ACTIVE)
+    c = NS.new_changed_set(N_NODES)             # 64 rows: 32 notes, then it overflows
+    assert len(c) == 65
+    rows = len(c) - 1
+    assert not any(NS.cs_suspect(c, x) for x in range(N_NODES)), "an empty set suspects nothing"
+    for x in notes:
+        NS.cs_note(c, t, x)
+    want = {x for x in notes if x % 3}
+    overflow = 2 * len(want) > rows
+    for x in range(N_NODES):
+        assert NS.cs_suspect(c, x) == (overflow or x in want), x
+    for x in range(N_NODES):
+        NS.ns_set(t, x, bytes_after[x])
+    assert NS.cs_settle(c, t) == (not overflow)
+    stale = set() if overflow else {x for x in want if bytes_after[x] & NS.IN_LIST and
+                                    (bytes_after[x] & NS.STATE_MASK != NS.ACTIVE or bytes_after[x] & NS.RECHECK)}
+    for x in range(N_NODES):
+        assert NS.cs_suspect(c, x) == (x in stale), x

@@ -62,7 +62,7 @@ def probe(t, key, mask):
 
 @nb.njit(cache=True, nogil=True)
 def remove_row(t, i, mask):
-    """Empty row ``i`` of rows ``0 .. mask`` of table ``t`` (both columns).
+    """Empty row ``i`` of rows ``0 .. mask`` of table ``t`` (every column).
 
     Backward-shift deletion: each later row of the run whose home is not
     between the hole and itself moves up, so every key stays reachable and
@@ -76,11 +76,11 @@ def remove_row(t, i, mask):
             break
         h = home_row(k, mask)
         if (i <= j and (h <= i or h > j)) or (i > j and h <= i and h > j):
-            t[i, 0] = k
-            t[i, 1] = t[j, 1]
+            for c in range(t.shape[1]):
+                t[i, c] = t[j, c]
             i = j
-    t[i, 0] = EMPTY
-    t[i, 1] = EMPTY
+    for c in range(t.shape[1]):
+        t[i, c] = EMPTY
 
 
 @nb.njit(cache=True, nogil=True, inline="always")

@@ -130,7 +130,8 @@ class CameraState:
         self._n_hidden = 0                                    # part_hidden.sum(), kept (servers read it every frame)
         self.queue = np.empty(32, np.int32)                # collapse candidates of a pass
         self.counts = np.zeros(4, np.int64)
-        self._resume = np.zeros(4, np.int64)      # where an interrupted pass goes on
+        self._resume = np.zeros(5, np.int64)      # where an interrupted pass goes on; whether the list is clean
+        self._hashed_blocks_max = NS.most_hashed_blocks(mesh.n_nodes)   # beyond: the dense form is smaller
         self.odo = np.zeros(2)                    # distance travelled, angle turned
         self._last_view = None
         lo, hi = mesh.bounds()
@@ -192,15 +193,16 @@ class CameraState:
             size = n + n // 4 + 8
             for name in ("active", "texp", "aexp"):
                 setattr(self, name, getattr(self, name)[:size].copy())
+            self._size_changed_set()
         wasted = self.cap > 2 * self.cnt + self._slack + 4
         if wasted.any():
             self._relayout(np.where(wasted, self.cnt + self.cnt // 4 + self._slack // 4 + 4, self.cap))
         # The node-state table likewise: a hash table over four times the need
         # halves; a dense one becomes a hash table when that is half its size.
-        held = NS.ns_count(self.state)
+        held = int(self.state[-1, 0])
         want = held + held // 4 + 16
-        if NS.is_dense(self.state):
-            shrink = NS.hash_is_smaller(2 * want, self.mesh.n_nodes)
+        if self.state.shape[1] == 1:               # dense
+            shrink = 2 * want <= self._hashed_blocks_max
         else:
             shrink = len(self.state) - 1 > 4 * NS.table_rows(want)
         if shrink:
@@ -214,6 +216,12 @@ class CameraState:
             bigger = np.full(size, fill, old.dtype)
             bigger[: self.n_active[0]] = old[: self.n_active[0]]
             setattr(self, name, bigger)
+        self._size_changed_set()
+
+    def _size_changed_set(self) -> None:
+        """The set of changed listed nodes follows the list's size; its notes are dropped, so
+        the next pass checks every entry (kernels/nodestate.py)."""
+        self.changed = NS.new_changed_set(len(self.active), overflowed=True)
 
     def _grow_nodes(self) -> None:
         """Double the node-state table (or make it dense, when that is smaller)."""
@@ -226,9 +234,10 @@ class CameraState:
 
     def _add_base(self, a: dict) -> None:
         roots = np.flatnonzero(a["node_parent"] < 0).astype(np.int32)
-        # The node bytes of what a camera holds: its active and split nodes (a
-        # hash table while that is smaller than a byte per node).
-        self.state = NS.new_node_states(len(roots) + len(roots) // 4 + 16, self.mesh.n_nodes)
+        # The node bytes of what a camera holds: its active and split nodes, in
+        # blocks of 16 (a hash table while that is smaller than a byte per node).
+        blocks = len(np.unique(roots >> 4))
+        self.state = NS.new_node_states(blocks + blocks // 4 + 16, self.mesh.n_nodes)
         NS.ns_fill(self.state, roots, K.ACTIVE | K.IN_LIST)
         size = max(len(roots) + len(roots) // 4, 16)
         self.active = np.empty(size, np.int32)
@@ -236,6 +245,7 @@ class CameraState:
         self.aexp = np.full(size, -np.inf, np.float32)
         self.active[: len(roots)] = roots
         self.n_active = np.array([len(roots)], np.int64)
+        self._size_changed_set()
         faces = a["base_faces"]
         pos = self.mesh.node_positions(a["base_face_nodes"].ravel()).reshape(-1, 3)
         mat = a["face_material"][faces]
@@ -269,6 +279,8 @@ class CameraState:
         parts_due = not self.expiries or self.odo[0] >= due_t or self.odo[1] >= due_a
         if parts_due:
             self._show_parts(vp)
+            if self._part_counts[0]:
+                self._resume[4] = 0       # node states changed outside a pass: the list is not clean
         if self.max_ops == UNLIMITED and self.max_faces == UNLIMITED:
             self._pass(vp, K.MIXED)
         else:
@@ -280,6 +292,8 @@ class CameraState:
                 self._pass(vp, K.COLLAPSES_ONLY)
         if parts_due:
             self._hide_parts(vp)
+            if self._part_counts[1]:
+                self._resume[4] = 0
         delta = self._collect_delta()
         delta.splits, delta.collapses = int(self.counts[0]), int(self.counts[1])
         delta.parts_shown, delta.parts_hidden = int(self._part_counts[0]), int(self._part_counts[1])
@@ -328,7 +342,7 @@ class CameraState:
                 status, material = K.adapt(*self._static, self.state, self.face_map, self.off, self.cnt,
                                            self.cap, self.rec_tri, self.rec_nbr, self.rec_face, self.dirty,
                                            self.active, self.texp, self.aexp,
-                                           self.n_active, self.queue, vp, self.odo, self.max_ops,
+                                           self.n_active, self.queue, self.changed, vp, self.odo, self.max_ops,
                                            self.max_faces, self.counts, self._resume, mode, expire)
                 if status == K.OK:
                     return
@@ -406,7 +420,7 @@ class CameraState:
         position on were not reached; what lies between is stale. Waiting
         collapse candidates are dropped.
         """
-        i, w, _, q = (int(v) for v in self._resume)
+        i, w, _, q = (int(v) for v in self._resume[:4])
         n = int(self.n_active[0])
         for arr in (self.active, self.texp, self.aexp):
             arr[w: w + n - i] = arr[i:n].copy()
@@ -515,7 +529,7 @@ class CameraState:
     def nbytes(self) -> int:
         """Bytes this camera owns (the static mesh is shared, not counted)."""
         arrays = (self.state, self.face_map, self.rec_tri, self.rec_nbr, self.rec_face, self.dirty, self._slack,
-                  self.active, self.texp, self.aexp, self.n_active, self.queue,
+                  self.active, self.texp, self.aexp, self.n_active, self.queue, self.changed,
                   self.off, self.cnt, self.cap, self._sent, self.counts, self._resume, self.odo,
                   self.part_hidden, self.part_texp, self.part_aexp, self._part_counts)
         return int(sum(x.nbytes for x in arrays))

@@ -57,6 +57,13 @@ def validate_camera(cam) -> None:
         _fail("a collapse candidate is still marked queued after the pass")
     if not np.array_equal(np.sort(listed[state[listed] == K.ACTIVE]), active):
         _fail("active list does not hold exactly the active nodes")
+    if cam._resume[4]:
+        # A clean list (kernels/refine.py, "Clean lists"): the next pass trusts every entry
+        # outside the set of changed nodes to be active and not marked RECHECK.
+        noted = cam.changed[:-1, 0]
+        trusted = listed[~np.isin(listed, noted[noted >= 0])]
+        if ((byte[trusted] & K.STATE_MASK) != K.ACTIVE).any() or (byte[trusted] & K.RECHECK).any():
+            _fail("a clean list trusts an entry whose node is not active, or is marked RECHECK")
     inlist = np.zeros(n, bool)
     inlist[listed] = True
     if not np.array_equal(inlist, (byte & K.IN_LIST) != 0):
