@@ -8,9 +8,10 @@ Four cameras fly the flyover at 30 Hz (1280x720, 1 px) over each of
 camera its own CameraState. Reported per tree and mesh: update time per
 camera-frame (p50, p99; the first second, refining up from the base mesh,
 left out), a camera's bytes at the end of the flight (median of the four)
-and what they are made of: the byte per node of its state, the face ->
-record map (a dense int32 per face of the mesh before issue 16; a hash
-table over the active faces since), and the rest (records, active list).
+and what they are made of: its node states (a byte per node of the mesh
+before issue 16; a hash table of the blocks of nodes it holds since), the
+face -> record map (a dense int32 per face of the mesh before issue 16; a
+hash table over the active faces since), and the rest (records, active list).
 With ``--baseline DIR`` (a checkout of another commit, e.g. ``git worktree
 add DIR HEAD~3``) the same flights run on that tree's code, interleaved
 with this tree's run by run, on the same ``.cvc`` files (built by this tree).
@@ -123,7 +124,7 @@ def _plot(rows, path: Path) -> None:
     fig, (a, b) = plt.subplots(1, 2, figsize=(12, 4.2))
     labels = [f"{r['tree']}\n{r['terrain']}\n{r['mesh_faces'] / 1e6:.1f}M" for r in rows]
     xs = range(len(rows))
-    a.bar(xs, [r["state_bytes"] / 1e6 for r in rows], label="state (a byte per node)")
+    a.bar(xs, [r["state_bytes"] / 1e6 for r in rows], label="node states")
     a.bar(xs, [r["face_map_bytes"] / 1e6 for r in rows], bottom=[r["state_bytes"] / 1e6 for r in rows],
           label="face -> record map")
     a.bar(xs, [(r["camera_bytes"] - r["state_bytes"] - r["face_map_bytes"]) / 1e6 for r in rows],
