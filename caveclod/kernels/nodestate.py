@@ -11,11 +11,13 @@ the blocks with a non-zero byte: the open-addressing table of
 :mod:`caveclod.kernels.facemap`, a row per block (block id, then its 16
 bytes as four int32 words), at most half full. A camera's nodes cluster in
 id order (siblings, a level's nodes of one region, the positions of a
-terrain's rows), so a block holds about four of them on the terrains: 5
-bytes a row per node, and a pass that reads its active list in id order
-finds the next node's byte in the row it just read (a row per node made
-the converged pass 35 % slower: a cache miss per node). A block whose bytes
-all become 0 gives its row back.
+terrain's rows), so a block holds about four of them on the terrains: a
+20-byte row for four held nodes, 10 to 20 bytes a node with the table
+half to a quarter full, against 16 to 32 with a row per node, and
+neighbours share a row. A block whose bytes all become 0 gives its row
+back. A lookup is still a probe into a table larger than the cache, so a
+pass does not read the byte of every active-list entry (see the set at
+the end of this module).
 
 A camera holding much of the mesh would need more bytes for the table than
 a byte a node, so it is *dense* then: every block's four words, the byte per

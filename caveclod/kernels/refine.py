@@ -643,13 +643,14 @@ def adapt(e, parent, links, npos, bound, cone, face_creator, rotation, mat, fsgi
     collapsed (the mesh is damaged: module doc, "Guards"; the camera is not
     to be used again), or NEED_RECORDS for that material /
     NEED_LIST / NEED_QUEUE (``queue``, the collapse candidates) / NEED_NODES
-    (``state``, before a split): grow the arrays and call again, and the call *continues the same pass* where this
-    one stopped: ``resume`` (5,) int64 holds the read and write positions, a
-    flag, the candidates left in ``queue`` and whether the list is clean
-    (module doc; the camera clears it when anything else changes node
-    states); ``changed`` is the set of listed nodes changed since their
-    check (:func:`caveclod.kernels.nodestate.cs_note`), so decisions never depend on
-    how much room the arrays happened to have. (The node being force-split when room
+    (``state``, before a split): grow the arrays and call again, and the
+    call *continues the same pass* where this one stopped: ``resume`` (5,)
+    int64 holds the read and write positions, a flag, the candidates left in
+    ``queue`` and whether the list is clean (module doc; the camera clears
+    it when anything else changes node states), so decisions never depend
+    on how much room the arrays happened to have. ``changed`` is the set of
+    listed nodes changed since their check
+    (:func:`caveclod.kernels.nodestate.cs_note`). (The node being force-split when room
     ran out is visited again; its forced split restarts and, being
     deterministic, makes the same decisions.)
     """

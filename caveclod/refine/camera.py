@@ -197,8 +197,9 @@ class CameraState:
         wasted = self.cap > 2 * self.cnt + self._slack + 4
         if wasted.any():
             self._relayout(np.where(wasted, self.cnt + self.cnt // 4 + self._slack // 4 + 4, self.cap))
-        # The node-state table likewise: a hash table over four times the need
-        # halves; a dense one becomes a hash table when that is half its size.
+        # The node-state table likewise: a hash table of more than four times
+        # the rows the need calls for shrinks to fit it; a dense one becomes a
+        # hash table when one for 2.5 times the need would be smaller.
         held = int(self.state[-1, 0])
         want = held + held // 4 + 16
         if self.state.shape[1] == 1:               # dense
