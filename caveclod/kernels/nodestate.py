@@ -25,6 +25,12 @@ node of before. Both forms end with a row that counts the blocks in use, so
 the kernels can tell a table that must grow before it fills
 (:func:`ns_room`) and the camera which form is smaller, without a scan.
 
+The functions are compiled as calls, not inlined into the refinement
+kernels: inlined at their thirty-odd call sites they made the kernels'
+first compile three times as long (204 s against 68 s on a loaded machine;
+a server's first session waits for it), and as calls they cost no
+measurable time (interleaved runs of the rough flyover).
+
 Layout, int32 both (one array type, so the refinement kernels compile
 once): hash ``(cap + 1, 5)``, rows ``0 .. cap-1`` (block, w0, w1, w2, w3)
 or all -1, row ``cap`` (blocks, 0, 0, 0, 0), ``cap`` a power of two; dense
@@ -88,7 +94,7 @@ def ns_count(t: np.ndarray) -> int:
     return int(t[-1, 0])
 
 
-@nb.njit(cache=True, nogil=True, inline="always")
+@nb.njit(cache=True, nogil=True)
 def ns_get(t, x):
     """The byte of node ``x`` (0 when it has none)."""
     sh = (x & 3) << 3
@@ -101,7 +107,7 @@ def ns_get(t, x):
     return (t[i, 1 + ((x >> 2) & 3)] >> sh) & 0xFF
 
 
-@nb.njit(cache=True, nogil=True, inline="always")
+@nb.njit(cache=True, nogil=True)
 def ns_update(t, x, clear, add):
     """Node ``x``'s byte becomes ``(byte & ~clear) | add``: one probe.
 
@@ -147,13 +153,13 @@ def ns_update(t, x, clear, add):
         t[last, 0] += 1
 
 
-@nb.njit(cache=True, nogil=True, inline="always")
+@nb.njit(cache=True, nogil=True)
 def ns_set(t, x, v):
     """Node ``x``'s byte becomes ``v``."""
     ns_update(t, x, 0xFF, v)
 
 
-@nb.njit(cache=True, nogil=True, inline="always")
+@nb.njit(cache=True, nogil=True)
 def ns_room(t, k):
     """Whether ``k`` more blocks can take a row (a hash table stays at most half full)."""
     if t.shape[1] == 1:
@@ -258,7 +264,7 @@ def new_changed_set(entries: int, overflowed: bool = False) -> np.ndarray:
     return c
 
 
-@nb.njit(cache=True, nogil=True, inline="always")
+@nb.njit(cache=True, nogil=True)
 def cs_suspect(c, x):
     """Whether the entry of listed node ``x`` must have its byte read: in the set, or the set overflowed."""
     k = c[c.shape[0] - 1, 0]
@@ -270,7 +276,7 @@ def cs_suspect(c, x):
     return c[i, 0] == x
 
 
-@nb.njit(cache=True, nogil=True, inline="always")
+@nb.njit(cache=True, nogil=True)
 def cs_note(c, state, x):
     """Listed node ``x``'s byte changed (node ``x`` without an entry needs no note)."""
     last = c.shape[0] - 1
