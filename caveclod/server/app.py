@@ -225,7 +225,11 @@ def grpc_options(config: ServerConfig) -> list:
         # Let clients keep their own keepalive pings every 10 s without being
         # told "too many pings".
         ("grpc.http2.min_recv_ping_interval_without_data_ms", 10_000),
-        ("grpc.http2.max_ping_strikes", 2),
+        # No strikes: while the server compiles its kernels (a cold numba
+        # cache: the first Open waits 1-2 minutes) gRPC answers pings late
+        # and in bursts, and two strikes told a waiting client "too many
+        # pings" (a fresh clone's make demo); our clients ping every 20 s.
+        ("grpc.http2.max_ping_strikes", 0),
         # Client messages are tiny (a pose is ~100 bytes); frames are split
         # at 1 MiB of array data, so 4 MiB bounds a part with its framing.
         ("grpc.max_receive_message_length", 64 * 1024),
