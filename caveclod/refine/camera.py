@@ -200,9 +200,9 @@ class CameraState:
         # The node-state table likewise: a hash table of more than four times
         # the rows the need calls for shrinks to fit it; a dense one becomes a
         # hash table when one for 2.5 times the need would be smaller.
-        held = int(self.state[-1, 0])
+        held = NS.ns_count(self.state)
         want = held + held // 4 + 16
-        if self.state.shape[1] == 1:               # dense
+        if NS.is_dense(self.state):
             shrink = 2 * want <= self._hashed_blocks_max
         else:
             shrink = len(self.state) - 1 > 4 * NS.table_rows(want)
