@@ -30,7 +30,9 @@ the specification of one update:
    comes back (its roots active and listed, its base faces added); after
    it, each visible part that is not to be drawn is hidden, however refined
    (every face on its positions removed, its nodes inactive, its roots
-   hidden, none of them listed). With pruning allowed, a part is not drawn
+   hidden; their list entries stay, to be dropped by the next walk as
+   inactive, or visited where they stand if the node is active again by
+   then: a shown root keeps its entry). With pruning allowed, a part is not drawn
    when the sphere (c, r) around its original positions lies wholly outside
    a frustum plane (culling on), or projects smaller than the tolerance:
    the node test with an error of 2 r.
@@ -528,8 +530,10 @@ class ReferenceCamera:
                 del self.state[x]                 # inactive
             for x in self.part_roots[k]:
                 self.state[x] = HIDDEN
-            self.active = [x for x in self.active if self.node_part[x] != k]
-            self.in_list = set(self.active)
+            # The part's nodes keep their list entries (rule 6): the next
+            # walk drops each when it reaches it, unless the node is active
+            # again by then (a shown root, a node split into), which the
+            # walk then visits there, not at the back.
             self.parts_hidden += 1
 
     def update(self, view):
