@@ -1,6 +1,6 @@
 """The screen-space error a camera really shows, renderer-free.
 
-    python benchmarks/error.py [--size 256] [--tolerances 0.5 1 2 4]
+    python benchmarks/error.py [--size 256] [--tolerances 0.5 1 2 4] [--baseline DIR]
 
 For the smooth default terrain, the rough terrain (fractal relief, no-data
 holes) and a range scan (open border, holes, a cut-up UV atlas), cameras at
@@ -12,11 +12,17 @@ and converted to pixels as the screen-space test converts errors.
 
 Reported per mesh and tolerance: the distribution (p50, p90, p99, p99.9,
 max, in pixels and as a multiple of the tolerance), the positions measured
-and the faces drawn. The other direction too (``lod_to_original``): seven
-points inside each drawn triangle measured against the original surface
+and the faces drawn. The other direction too (``lod_to_original``): 18
+points of each drawn triangle measured against the original surface
 (:func:`caveclod.refine.measure.surface_errors`; a sample, so its max is a
-lower bound), the bulge of the LOD surface between original positions. Writes ``benchmarks/results/error.json`` and
-``error.png`` (the distributions as CDFs).
+lower bound), the bulge of the LOD surface between original positions.
+
+``--baseline DIR`` builds the same meshes with the checkout in DIR (a child
+process there writes ``.cvc`` files) and measures them here, with this
+checkout's refinement and measure, beside this checkout's builds: how a
+change of the build moves the bounds and the faces drawn. Writes
+``benchmarks/results/error.json`` and ``error.png`` (the distributions as
+CDFs, both directions).
 """
 
 from __future__ import annotations
@@ -24,7 +30,10 @@ from __future__ import annotations
 import argparse
 import json
 import math
+import os
+import subprocess
 import sys
+import tempfile
 import time
 from pathlib import Path
 
@@ -80,48 +89,71 @@ def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--size", type=int, default=256, help="cells (samples) per side of each built-in")
     ap.add_argument("--tolerances", type=float, nargs="+", default=[0.5, 1.0, 2.0, 4.0])
+    ap.add_argument("--baseline", type=Path, help="a checkout whose build to measure beside this one's")
     ap.add_argument("--out", type=Path, default=RESULTS / "error.json")
     args = ap.parse_args(argv)
     report = {"size": args.size, "meshes": {}}
+    builds = {"this": None} if args.baseline is None else {"this": None, "baseline": args.baseline.resolve()}
     curves = {}
-    for name in MESHES:
-        t0 = time.perf_counter()
-        mesh = caveclod.build(name, size=args.size)
-        original = original_triangles(mesh)
-        rows = {}
-        for tol in args.tolerances:
-            px, back, faces = measure(mesh, tol, original)
-            rows[str(tol)] = {"positions_measured": int(len(px)), "faces_drawn": faces, **distribution(px, tol),
-                              "lod_to_original": {"points_measured": int(len(back)), **distribution(back, tol)}}
-            curves[(name, tol)] = np.sort(px)
-            d, b = rows[str(tol)], rows[str(tol)]["lod_to_original"]
-            print(f"{name:8s} {tol:4.1f} px: original->LOD p50 {d['p50']:.3f}  p99 {d['p99']:.3f}  max {d['max']:.3f} "
-                  f"px ({d['max_over_tolerance']:.2f} x) over {len(px):,} positions; LOD->original p99 "
-                  f"{b['p99']:.3f}  max {b['max']:.3f} px ({b['max_over_tolerance']:.2f} x) over {len(back):,} "
-                  f"points; {int(np.mean(faces)):,} faces a view", flush=True)
-        report["meshes"][name] = {"faces": mesh.n_faces, "base_faces": len(mesh.base_faces),
-                                  "seconds": round(time.perf_counter() - t0, 1), "tolerances": rows}
+    with tempfile.TemporaryDirectory() as tmp:
+        for name in MESHES:
+            for label, checkout in builds.items():
+                t0 = time.perf_counter()
+                mesh = caveclod.build(name, size=args.size) if checkout is None else \
+                    _build_in(checkout, name, args.size, Path(tmp) / f"{name}.cvc")
+                original = original_triangles(mesh)
+                rows = {}
+                for tol in args.tolerances:
+                    px, back, faces = measure(mesh, tol, original)
+                    rows[str(tol)] = {"positions_measured": int(len(px)), "faces_drawn": faces,
+                                      **distribution(px, tol),
+                                      "lod_to_original": {"points_measured": int(len(back)), **distribution(back, tol)}}
+                    curves[(label, name, tol)] = (np.sort(px), np.sort(back))
+                    d, b = rows[str(tol)], rows[str(tol)]["lod_to_original"]
+                    print(f"{label:8s} {name:8s} {tol:4.1f} px: original->LOD p50 {d['p50']:.3f}  p99 {d['p99']:.3f}  "
+                          f"max {d['max']:.3f} px ({d['max_over_tolerance']:.2f} x) over {len(px):,} positions; "
+                          f"LOD->original p99 {b['p99']:.3f}  max {b['max']:.3f} px ({b['max_over_tolerance']:.2f} x) "
+                          f"over {len(back):,} points; {int(np.mean(faces)):,} faces a view", flush=True)
+                entry = {"faces": mesh.n_faces, "base_faces": len(mesh.base_faces),
+                         "seconds": round(time.perf_counter() - t0, 1), "tolerances": rows}
+                if label == "this":
+                    report["meshes"][name] = entry
+                else:
+                    report.setdefault("baseline", {"checkout": str(checkout), "meshes": {}})["meshes"][name] = entry
     args.out.parent.mkdir(parents=True, exist_ok=True)
     args.out.write_text(json.dumps(report, indent=1))
-    _plot(curves, args.tolerances, args.out.with_suffix(".png"))
+    _plot(curves, args.tolerances, list(builds), args.out.with_suffix(".png"))
     return 0
 
 
-def _plot(curves, tolerances, path: Path) -> None:
+def _build_in(checkout: Path, name: str, size: int, path: Path):
+    """Build a built-in with the caveclod of another checkout; the mesh loaded here."""
+    code = f"import caveclod; caveclod.build({name!r}, size={size}).save({str(path)!r})"
+    env = {**os.environ, "PYTHONPATH": str(checkout)}
+    subprocess.run([sys.executable, "-c", code], cwd=checkout, env=env, check=True)
+    return caveclod.load(path)
+
+
+def _plot(curves, tolerances, labels, path: Path) -> None:
     import matplotlib
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
-    fig, axes = plt.subplots(1, len(MESHES), figsize=(4 * len(MESHES), 3.6), sharey=True)
-    for ax, name in zip(axes, MESHES):
-        for tol in tolerances:
-            x = curves[(name, tol)] / tol
-            ax.plot(x, np.linspace(0, 1, len(x)), label=f"{tol:g} px")
-        ax.axvline(1.0, color="k", lw=1, ls="--")
-        ax.set_xlim(0, 1.6)
-        ax.set_title(name)
-        ax.set_xlabel("error / tolerance")
-    axes[0].set_ylabel("fraction of positions in view")
-    axes[0].legend(title="tolerance")
+    fig, axes = plt.subplots(2, len(MESHES), figsize=(4 * len(MESHES), 6.6), sharey=True, squeeze=False)
+    for col, name in enumerate(MESHES):
+        for row, direction in enumerate(("original -> LOD", "LOD -> original")):
+            ax = axes[row, col]
+            for i, tol in enumerate(tolerances):
+                for label in labels:
+                    x = curves[(label, name, tol)][row] / tol
+                    ax.plot(x, np.linspace(0, 1, len(x)), color=f"C{i}", ls="-" if label == "this" else ":",
+                            label=f"{tol:g} px" + ("" if label == "this" else f" ({label})"))
+            ax.axvline(1.0, color="k", lw=1, ls="--")
+            ax.set_xlim(0, 2.0)
+            ax.set_title(f"{name}: {direction}")
+            ax.set_xlabel("error / tolerance")
+    for row in range(2):
+        axes[row, 0].set_ylabel("fraction of points in view")
+    axes[0, 0].legend(title="tolerance", fontsize=7)
     fig.suptitle("renderer-free screen-space error of converged cameras")
     fig.tight_layout()
     fig.savefig(path, dpi=100)

@@ -21,6 +21,7 @@ from ..errors import InputError
 from ..kernels.bounds import empty_cones, empty_spheres
 from ..kernels.carried import new_store
 from ..kernels.simplify import gather_candidates, init_leaves, perform_collapses, rank_collapses
+from ..kernels.surfacegap import star_lists
 from .normals import add_crease_normals
 from ..progress import Progress, stage
 from .source import SourceMesh
@@ -124,6 +125,7 @@ def collapse_all(positions: np.ndarray, face_pos: np.ndarray, topo: Topology, la
     sphere, cone = empty_spheres(2 * e), empty_cones(2 * e)
     err = np.zeros(2 * e)
     init_leaves(P, F, N, lay.face_group, vface, Q, sphere, cone)
+    star_start, star_faces = star_lists(face_pos, e)       # the original surface, for the other direction
 
     st = _CollapseState(
         P=P, F=F, N=N, vface=vface, Q=Q, sphere=sphere, cone=cone, err=err,
@@ -132,7 +134,7 @@ def collapse_all(positions: np.ndarray, face_pos: np.ndarray, topo: Topology, la
         nfn=np.full((e, 4), -1, np.int32), creator=np.full(p, -1, np.int32), rotation=np.zeros(p, np.uint8),
         pt=new_store(p, e), lock=np.full(e, -1, np.int64), best_t=np.full(e, -1, np.int32), best_c=np.zeros(e),
         group=lay.face_group, cls=lay.position_class, pg_start=lay.pos_vstart, pg_groups=lay.vertex_group,
-        fixed=topo.nonmanifold)
+        fixed=topo.nonmanifold, face_pos=face_pos, face_nbrs=topo.nbrs, star_start=star_start, star_faces=star_faces)
     workers = max(1, min(os.cpu_count() or 1, 8)) if workers is None else max(1, int(workers))
     grid = tile_grid(P, face_pos, tiles_per_side(p, tiles))
     scratch: queue.SimpleQueue = queue.SimpleQueue()      # (mark, stamp counter) per thread at work
@@ -203,6 +205,10 @@ class _CollapseState:
     pg_start: np.ndarray
     pg_groups: np.ndarray
     fixed: np.ndarray
+    face_pos: np.ndarray
+    face_nbrs: np.ndarray
+    star_start: np.ndarray
+    star_faces: np.ndarray
 
 
 def _collapse_region(st: _CollapseState, region: np.ndarray, base: int, scratch: queue.SimpleQueue,
@@ -237,8 +243,9 @@ def _collapse_region(st: _CollapseState, region: np.ndarray, base: int, scratch:
             mark, counter = held[0]
             m = perform_collapses(st.P, st.F, st.N, st.vface, st.alive, st.group, st.cls, st.fixed, st.pg_start,
                                   st.pg_groups, st.Q, st.cur_node, st.parent, st.child, st.npos, st.nfaces, st.nfn,
-                                  st.sphere, st.cone, st.err, st.creator, st.rotation, pt_head, pt, m, st.lock,
-                                  mark, pass_id, PASS_FRACTION, cost, target, src, nc, counter)
+                                  st.sphere, st.cone, st.err, st.creator, st.rotation, pt_head, pt,
+                                  st.face_pos, st.face_nbrs, st.star_start, st.star_faces, m, st.lock, mark, pass_id,
+                                  PASS_FRACTION, cost, target, src, nc, counter)
             pass_id += 1
             if m == before or k - (m - base) <= keep:
                 return m - base, pass_id

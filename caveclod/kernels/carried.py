@@ -3,7 +3,7 @@
 Every position a collapse removes becomes a point carried by a face near
 it; every collapse re-measures the points carried by the faces it reshapes
 (the floating position's fan) against the new surface and hands each to a
-face of the new fan. A node's error is the largest of those distances (see
+face of the new fan. A node's error is at least the largest of those distances (see
 :mod:`caveclod.kernels.simplify`).
 
 Storage: per face a linked list of its points (``pt_head`` (p,) int32, the

@@ -20,10 +20,12 @@ every node its collapse makes adjacent (the ring of the new fan), as terrain
 LOD saturates errors over dependencies (Pajarola 1998; Lindstrom & Pascucci
 2001). Whenever the view needs a neighbour finer, it then needs this node
 finer too, and the runtime mesh stays one the build measured. The bound
-covers the original vertices (and the points carried from them); measured
-renderer-free, the screen-space error of their distances stays near the
-tolerance: p99 under it, the maximum within 1.5 times it in
-tests/test_error_bound.py (benchmarks/error.py has the figures).
+covers both directions: the original positions against the coarse faces
+(carried points), and the new edges and faces of each collapse against the
+original surface (:mod:`caveclod.kernels.surfacegap`). Measured
+renderer-free, both stay near the tolerance: p99 under it, the maximum
+within 1.5 times it in tests/test_error_bound.py (benchmarks/error.py has
+the figures).
 
 Garland & Heckbert quadrics pick the collapses; Hoppe (1997) says what each
 node must remember; Kram & Shaw section 3.3 says which collapses are allowed.
@@ -57,6 +59,7 @@ import numpy as np
 from .bounds import cone_add_cone, quadric_add_plane, quadric_eval, sphere_add_sphere
 from .carried import remeasure
 from .fans import collect_fan, corner_of, replace_in_row
+from .surfacegap import reshaped_gap
 
 FREE, SHARP, RIGID = 0, 1, 2
 BOUNDARY_WEIGHT = 4.0   # keep borders and seams in place, relative to area
@@ -348,6 +351,17 @@ def do_collapse(u, t, fl, fr, P, F, N, vface, alive, Q, cur_node, parent, child,
     return s, nt, inherited
 
 
+@nb.njit(cache=True, nogil=True, inline="always")
+def _third_corner(F, f, t, u):
+    """The corner of face ``f`` (-1: none) that is neither t nor u, or -1."""
+    if f == -1:
+        return -1
+    for k in range(3):
+        if F[f, k] != t and F[f, k] != u:
+            return F[f, k]
+    return -1
+
+
 @nb.njit(cache=True, nogil=True)
 def rank_collapses(P, F, N, vface, fgroup, pclass, fixed, pg_start, pg_groups, Q, lock, mark,
                    best_t, best_c, pass_id, region, counter):
@@ -432,10 +446,16 @@ def gather_candidates(vface, best_t, best_c, region, cost, target, src):
 @nb.njit(cache=True, nogil=True)
 def perform_collapses(P, F, N, vface, alive, fgroup, pclass, fixed, pg_start, pg_groups, Q,
                       cur_node, parent, child, npos, nfaces, nfn, sphere, cone, err, creator, rotation,
-                      pt_head, pt, m, lock, mark, pass_id, fraction, cost, target, src, nc, counter):
+                      pt_head, pt, face_pos, face_nbrs, star_start, star_faces, m, lock, mark, pass_id, fraction,
+                      cost, target, src, nc, counter):
     """Perform the cheapest ranked collapses; returns the new node count m.
 
     ``pt_head``, ``pt``: the carried points (:mod:`caveclod.kernels.carried`).
+    ``face_pos`` (p, 3) int32, the original faces, ``face_nbrs`` (p, 3)
+    int32 their neighbours, and ``star_start``, ``star_faces``, the faces
+    around each position
+    (:func:`caveclod.kernels.surfacegap.star_lists`): the original surface that
+    reshaped faces are measured against.
 
     At most ``fraction`` of the ranked ones (the cheapest) are tried unless
     none of those could be made. Each is checked again on the current mesh.
@@ -486,7 +506,11 @@ def perform_collapses(P, F, N, vface, alive, fgroup, pclass, fixed, pg_start, pg
                                            fan_u, nu, fan_t)
             dev = remeasure(u, u_group, fl, fr, fan_u, nu, fan_t, nt, P, F, N, fgroup, alive, pt_head, pt,
                             heads, inherited)
-            err[s] = dev
+            # Both directions: the original positions to the coarse faces
+            # (dev) and the reshaped coarse faces to the original surface.
+            counter[0] += 1
+            err[s] = reshaped_gap(t, fan_u, nu, fl, fr, _third_corner(F, fl, t, u), _third_corner(F, fr, t, u), F, P,
+                                  pt_head, pt, face_pos, face_nbrs, star_start, star_faces, mark, counter[0], dev)
             # Each point lies within dev of a fan face, and the fan lies in
             # the sphere: growing it by dev makes it hold every point charged
             # to s.

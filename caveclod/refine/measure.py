@@ -104,11 +104,17 @@ def forced_splits(camera, view: View) -> dict:
             "forced_share": 2 * forced / faces if faces else 0.0}
 
 
+def _lattice(n: int) -> np.ndarray:
+    """(k, 3) barycentric points (i, j, l) / n with i + j + l = n, corners left out."""
+    pts = [(i, j, n - i - j) for i in range(n + 1) for j in range(n + 1 - i)]
+    return np.array([p for p in pts if max(p) < n], np.float64) / n
+
+
 # Barycentric points sampled inside each drawn triangle by :func:`surface_errors`:
-# the centroid, the three edge midpoints, and the 2:1:1 points (towards each corner).
-SURFACE_SAMPLES = np.array([[1 / 3, 1 / 3, 1 / 3],
-                            [0.5, 0.5, 0.0], [0.0, 0.5, 0.5], [0.5, 0.0, 0.5],
-                            [2 / 3, 1 / 6, 1 / 6], [1 / 6, 2 / 3, 1 / 6], [1 / 6, 1 / 6, 2 / 3]])
+# the 18 points of the fifths lattice (12 on the edges, 6 inside), none of them
+# a point the build measures (edge midpoints and centroids,
+# caveclod.kernels.surfacegap), so that the check is not the build's own.
+SURFACE_SAMPLES = _lattice(5)
 
 
 def original_triangles(mesh) -> np.ndarray:
@@ -130,7 +136,7 @@ def surface_errors(mesh, triangles, original, view: View) -> np.ndarray:
     """(q,) float64 pixel distance from points of the drawn surface to the original one: the
     other direction of :func:`pixel_errors` (issue 18's two-sided bound).
 
-    Seven points inside each drawn triangle (:data:`SURFACE_SAMPLES`) that
+    Eighteen points of each drawn triangle (:data:`SURFACE_SAMPLES`) that
     lie in ``view``'s frustum are measured against ``original``, the full
     mesh's triangles as vertex-buffer indices (:func:`original_triangles`),
     and converted to pixels as the screen-space test does.
