@@ -94,10 +94,10 @@ def _tri_dist2(g, px, py, pz, P, face_pos):
 
 @nb.njit(cache=True, nogil=True)
 def _surface_dist2(x, px, py, pz, P, face_pos, face_nbrs, star_start, star_faces, worst):
-    """Squared distance from p to the original faces around position ``x``,
-    then to faces across their edges while one is nearer (on thin faces the
-    nearest face need not touch the nearest position). Stops once within
-    ``worst``."""
+    """(squared distance, face) from p to the original faces around position
+    ``x``, then to faces across their edges while one is nearer (on thin
+    faces the nearest face need not touch the nearest position). Stops once
+    within ``worst``."""
     best, g = np.inf, -1
     for j in range(star_start[x], star_start[x + 1]):
         d = _tri_dist2(star_faces[j], px, py, pz, P, face_pos)
@@ -116,7 +116,7 @@ def _surface_dist2(x, px, py, pz, P, face_pos, face_nbrs, star_start, star_faces
         if nxt == -1:
             break
         g = nxt
-    return best
+    return best, g
 
 
 @nb.njit(cache=True, nogil=True, inline="always")
@@ -158,16 +158,21 @@ def sample_gap2(sx, sy, sz, start, f, P, pt_head, pt, face_pos, face_nbrs, star_
 
     Walks from the original position ``start`` over the original mesh's edges
     to the nearest position it can reach, then measures the original faces
-    around it. A walk stuck short of the sample (a hole, a fold) starts
-    again from the nearest point coarse face ``f`` carries.
+    around it and walks across faces' edges while a face is nearer. A walk
+    that ends on a face with a border edge may have stopped short of the
+    sample at a hole or a border: it starts again from the nearest point
+    coarse face ``f`` carries.
     """
     q, d1 = _walk(start, _dist2(start, sx, sy, sz, P), sx, sy, sz, P, face_pos, face_nbrs, star_start, star_faces,
                   worst)
     if d1 <= worst:
         return worst
-    gap = min(d1, _surface_dist2(q, sx, sy, sz, P, face_pos, face_nbrs, star_start, star_faces, worst))
+    gap, g = _surface_dist2(q, sx, sy, sz, P, face_pos, face_nbrs, star_start, star_faces, worst)
+    gap = min(d1, gap)
     if gap <= worst:
         return worst
+    if g >= 0 and face_nbrs[g, 0] >= 0 and face_nbrs[g, 1] >= 0 and face_nbrs[g, 2] >= 0:
+        return gap               # nothing stopped the walk: a border edge is what can
     x = pt_head[f]
     q2, d2 = q, d1
     while x != -1:
@@ -179,7 +184,7 @@ def sample_gap2(sx, sy, sz, start, f, P, pt_head, pt, face_pos, face_nbrs, star_
         q2, d2 = _walk(q2, d2, sx, sy, sz, P, face_pos, face_nbrs, star_start, star_faces, worst)
         gap = min(gap, d2)
         if gap > worst:
-            gap = min(gap, _surface_dist2(q2, sx, sy, sz, P, face_pos, face_nbrs, star_start, star_faces, worst))
+            gap = min(gap, _surface_dist2(q2, sx, sy, sz, P, face_pos, face_nbrs, star_start, star_faces, worst)[0])
     return max(gap, worst)
 
 
