@@ -44,7 +44,12 @@ EDGE_SAMPLES = (0.5,)
 """Where along a new edge the build measures it (with each new face's centroid).
 
 Its thirds instead of its midpoint made the 1M terrain's build 1.7 s slower
-on one core (12.6 s against 10.9)."""
+on one core (12.6 s against 10.9). Sampling long edges about every original
+edge length (at most 8 points) and large faces at 3 more points lowered the
+largest LOD -> original error of benchmarks/error.py from 1.36 to 1.19 t
+on the rough terrain at 1 px (1.14 to 1.12 on the smooth one, 1.25 to 1.18
+on the scan) for 0.5-8 % more faces, but made the 1M terrains' builds
+2.2-3.9 s slower on one core (a quarter): not kept."""
 
 MAX_STEPS = 4096
 """Most steps of a sample's walk to its nearest original position (a walk ends
