@@ -14,9 +14,9 @@ new edge (from t to u's old ring) and the centroid of each face it
 reshaped (u's faces, whose corner u became t). Each sample walks from a
 near original position over the original mesh's edges to the position
 nearest to it, then from the faces around that position across faces'
-edges to the nearest original face it can reach; a walk stuck short of the
-sample (a hole, a fold) starts again from the nearest point the reshaped
-face carries. A distance to part of the original surface is never less
+edges to the nearest original face it can reach; a walk that ends at a
+face with a border edge (a hole or a border may have stopped it short)
+starts again from the nearest point the reshaped face carries. A distance to part of the original surface is never less
 than the distance to all of it, so a measured gap is never too small; it
 is too large only where a walk stops at a local minimum (on the built-in
 terrains and scan, 99.9 to 100 % of samples of drawn faces measured
@@ -52,8 +52,8 @@ on the scan) for 0.5-8 % more faces, but made the 1M terrains' builds
 2.2-3.9 s slower on one core (a quarter): not kept."""
 
 MAX_STEPS = 4096
-"""Most steps of a sample's walk to its nearest original position (a walk ends
-sooner where no neighbour is nearer; the distance reached bounds the gap anyway)."""
+"""Most steps of each of a sample's walks, over positions and then faces (a walk
+ends sooner where no neighbour is nearer; the distance reached bounds the gap anyway)."""
 
 
 def star_lists(face_pos: np.ndarray, n_positions: int) -> tuple[np.ndarray, np.ndarray]:
