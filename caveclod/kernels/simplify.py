@@ -247,8 +247,10 @@ def do_collapse(u, t, fl, fr, P, F, N, vface, alive, Q, cur_node, parent, child,
     corner at which fl's (fr's) source face holds t (u): a split makes the
     face from its nodes, and the rotation lets it list its corners in the
     source's order, so that full refinement gives the source faces back
-    exactly. Returns ``(node, fan size, error the node has anyway)``: its children's and its new neighbours' (saturation,
-    module doc); the caller adds the measured distances.
+    exactly. Returns ``(node, fan size, error the node has anyway, vl, vr)``:
+    the error is its children's and its new neighbours' (saturation, module
+    doc), to which the caller adds the measured distances; vl and vr are the
+    third corners of fl and fr (-1 where absent).
     """
     s = e + m
     tn, un = cur_node[t], cur_node[u]
@@ -348,18 +350,7 @@ def do_collapse(u, t, fl, fr, P, F, N, vface, alive, Q, cur_node, parent, child,
             w = cur_node[q]
             if w >= 0 and err[w] > inherited:
                 inherited = err[w]
-    return s, nt, inherited
-
-
-@nb.njit(cache=True, nogil=True, inline="always")
-def _third_corner(F, f, t, u):
-    """The corner of face ``f`` (-1: none) that is neither t nor u, or -1."""
-    if f == -1:
-        return -1
-    for k in range(3):
-        if F[f, k] != t and F[f, k] != u:
-            return F[f, k]
-    return -1
+    return s, nt, inherited, vl, vr
 
 
 @nb.njit(cache=True, nogil=True)
@@ -501,7 +492,7 @@ def perform_collapses(P, F, N, vface, alive, fgroup, pclass, fixed, pg_start, pg
             u_group = -1
             if pclass[u] == SHARP:
                 u_group = fgroup[fl] if fl != -1 else fgroup[fr]
-            s, nt, inherited = do_collapse(u, t, fl, fr, P, F, N, vface, alive, Q, cur_node, parent, child,
+            s, nt, inherited, vl, vr = do_collapse(u, t, fl, fr, P, F, N, vface, alive, Q, cur_node, parent, child,
                                            npos, nfaces, nfn, sphere, cone, err, creator, rotation, m, e,
                                            fan_u, nu, fan_t)
             dev = remeasure(u, u_group, fl, fr, fan_u, nu, fan_t, nt, P, F, N, fgroup, alive, pt_head, pt,
@@ -509,8 +500,8 @@ def perform_collapses(P, F, N, vface, alive, fgroup, pclass, fixed, pg_start, pg
             # Both directions: the original positions to the coarse faces
             # (dev) and the reshaped coarse faces to the original surface.
             counter[0] += 1
-            err[s] = reshaped_gap(t, fan_u, nu, fl, fr, _third_corner(F, fl, t, u), _third_corner(F, fr, t, u), F, P,
-                                  pt_head, pt, face_pos, face_nbrs, star_start, star_faces, mark, counter[0], dev)
+            err[s] = reshaped_gap(t, fan_u, nu, fl, fr, vl, vr, F, P, pt_head, pt, face_pos, face_nbrs, star_start,
+                                  star_faces, mark, counter[0], dev)
             # Each point lies within dev of a fan face, and the fan lies in
             # the sphere: growing it by dev makes it hold every point charged
             # to s.

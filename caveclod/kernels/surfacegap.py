@@ -39,6 +39,7 @@ import numpy as np
 
 from .carried import NEXT
 from .distance import point_triangle_dist2
+from .fans import corner_of
 
 EDGE_SAMPLES = (0.5,)
 """Where along a new edge the build measures it (with each new face's centroid).
@@ -139,9 +140,7 @@ def _walk(q, d1, sx, sy, sz, P, face_pos, face_nbrs, star_start, star_faces, wor
         at = q
         for j in range(star_start[at], star_start[at + 1]):
             g = star_faces[j]
-            k = 0
-            while face_pos[g, k] != at:
-                k += 1
+            k = corner_of(face_pos, g, at)
             r = face_pos[g, (k + 1) % 3]
             d = _dist2(r, sx, sy, sz, P)
             if d < d1:
@@ -212,9 +211,7 @@ def reshaped_gap(t, fan_u, nu, fl, fr, vl, vr, F, P, pt_head, pt, face_pos, face
         f = fan_u[i]
         if f == fl or f == fr:
             continue
-        k = 0
-        while F[f, k] != t:
-            k += 1
+        k = corner_of(F, f, t)
         for x in (F[f, (k + 1) % 3], F[f, (k + 2) % 3]):
             if x == vl or x == vr or mark[x] == stamp:
                 continue
