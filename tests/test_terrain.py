@@ -69,7 +69,7 @@ def materials_around_samples(cell_class, kept):
 
 def check_dtypes(source):
     assert source.positions.dtype == np.float64 and source.positions.shape[1] == 3
-    assert source.faces.dtype == np.int64
+    assert source.faces.dtype == np.int32          # half of int64: a terrain's faces live all build
     assert source.face_material.dtype == np.int32
     assert source.vertex_position.dtype == np.int64
     assert source.vertex_uv.dtype == np.float32

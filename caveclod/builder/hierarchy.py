@@ -264,23 +264,33 @@ def _number_nodes(st: _CollapseState, e: int, m: int, bases: np.ndarray, made: n
     """
     total = int(made.sum())
     span = int(bases[-1] + made[-1]) - m
-    old = np.concatenate([np.arange(b, b + k) for b, k in zip(bases, made)]).astype(np.int64)
-    remap = np.full(span, -1, np.int64)
-    remap[old - m] = np.arange(m, m + total)
-
-    def renumber(ids: np.ndarray) -> None:         # node ids >= e + m made at this level
-        sel = ids >= e + m
-        ids[sel] = e + remap[ids[sel] - e - m]
-
+    starts = m + np.concatenate([[0], np.cumsum(made)[:-1]]).astype(np.int64)    # each tile's first new id
+    bases = np.asarray(bases, np.int64)
+    # In place and tile by tile: temporaries of a whole level's rows (a sphere
+    # and a cone each) were the build's peak.
     for ids in (st.parent, st.child, st.cur_node, st.creator):
-        renumber(ids)
-    new = np.arange(m, m + total)
-    for a in (st.child, st.npos, st.nfaces, st.nfn):
-        a[new] = a[old]
-    for a in (st.parent, st.sphere, st.cone, st.err):
-        a[e + new] = a[e + old]
+        assert ids.flags.c_contiguous                # reshape(-1) is then a view, changed in place
+        _renumber_level(ids.reshape(-1), e, m, bases, np.asarray(made, np.int64), starts)
+    for b, k, s in zip(bases.tolist(), made.tolist(), starts.tolist()):
+        if k and b != s:                             # s < b: rows move down, never onto rows still to move
+            for a in (st.child, st.npos, st.nfaces, st.nfn):
+                a[s:s + k] = a[b:b + k]
+            for a in (st.parent, st.sphere, st.cone, st.err):
+                a[e + s:e + s + k] = a[e + b:e + b + k]
     st.parent[e + m + total: e + m + span] = -1      # rows left behind: no stale parents for later nodes
     return m + total
+
+
+@nb.njit(cache=True, nogil=True)
+def _renumber_level(ids, e, m, bases, made, starts):
+    """In place: node ids ``ids`` (k,) made at this level (>= e + m), numbered
+    from their tile's base ``bases`` (t,) int64, get their tile's new ``starts``."""
+    for i in range(ids.shape[0]):
+        x = ids[i] - e
+        if x >= m:
+            j = np.searchsorted(bases, x, side="right") - 1
+            if 0 <= j and x < bases[j] + made[j]:
+                ids[i] = e + starts[j] + (x - bases[j])
 
 
 def static_arrays(source: SourceMesh, face_pos: np.ndarray, lay, hier: Hierarchy) -> dict:

@@ -107,7 +107,9 @@ def _wedges(face_pos, nbrs, face_vertex, unit, cos_crease):
     at that position, so existing UV seams stay seams.
     """
     p = face_pos.shape[0]
-    parent = np.arange(3 * p)
+    parent = np.empty(3 * p, np.int32)            # corner ids, int32 like the build's face ids
+    for c in range(3 * p):
+        parent[c] = c
     for f in range(p):
         for k in range(3):
             g = nbrs[f, k]
@@ -128,7 +130,7 @@ def _wedges(face_pos, nbrs, face_vertex, unit, cos_crease):
                 ra, rb = find(parent, 3 * f + cf), find(parent, 3 * g + cg)
                 if ra != rb:
                     parent[ra] = rb
-    out = np.empty((p, 3), np.int64)
+    out = np.empty((p, 3), np.int32)
     for c in range(3 * p):
         out[c // 3, c % 3] = find(parent, c)
     return out
@@ -144,20 +146,25 @@ def _wedge_vertices(wedge, face_vertex, unit, weight):
     of zero-area faces falls back to +z.
     """
     p = wedge.shape[0]
-    label = np.full(3 * p, -1, np.int64)
-    faces = np.empty((p, 3), np.int64)
-    old = np.empty(3 * p, np.int64)
-    acc = np.zeros((3 * p, 3))
+    # Two passes, so that the per-vertex arrays are sized by the vertices
+    # (about p / 2 on a terrain), not by the 3p corners: (3p, 3) float64
+    # sums were the largest spike of the build.
+    label = np.full(3 * p, -1, np.int32)
+    faces = np.empty((p, 3), np.int32)             # int32 like every face array of the build: half the bytes
     v = 0
     for f in range(p):
         for k in range(3):
             w = wedge[f, k]
             if label[w] == -1:
                 label[w] = v
-                old[v] = face_vertex[f, k]
                 v += 1
-            i = label[w]
-            faces[f, k] = i
+            faces[f, k] = label[w]
+    old = np.empty(v, np.int64)
+    acc = np.zeros((v, 3))
+    for f in range(p):
+        for k in range(3):
+            i = faces[f, k]
+            old[i] = face_vertex[f, k]
             for j in range(3):
                 acc[i, j] += weight[f, k] * unit[f, j]
     normals = np.empty((v, 3), np.float32)
@@ -168,4 +175,4 @@ def _wedge_vertices(wedge, face_vertex, unit, weight):
                 normals[i, j] = acc[i, j] / ln
         else:
             normals[i, 0], normals[i, 1], normals[i, 2] = 0.0, 0.0, 1.0
-    return faces, old[:v].copy(), normals
+    return faces, old, normals

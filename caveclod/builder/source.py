@@ -56,7 +56,7 @@ class SourceMesh:
     Attributes:
         positions: (e, 3) float64, unique welded positions.
         vertex_position: (v,) int64, the position id of each vertex.
-        faces: (p, 3) int64 vertex ids, counter-clockwise seen from outside.
+        faces: (p, 3) int32 or int64 vertex ids, counter-clockwise seen from outside.
         face_material: (p,) int32 material id of each face.
         materials: names of the materials, indexed by material id.
         vertex_normal: (v, 3) float32 unit normals, or None to compute them

@@ -462,12 +462,12 @@ def _sample_positions(h: np.ndarray, sample_ids: np.ndarray, cell_size: float, z
 
 
 def _cell_triangles(corner_vertex: np.ndarray) -> np.ndarray:
-    """(2n, 3) int64 faces: cell corners a, b, c, d (CCW) give abc and acd.
+    """(2n, 3) int32 faces: cell corners a, b, c, d (CCW) give abc and acd.
 
     Both are counter-clockwise seen from +z because the corners are; the two
     triangles of a cell are adjacent in the face array.
     """
-    faces = np.empty((2 * len(corner_vertex), 3), dtype=np.int64)
+    faces = np.empty((2 * len(corner_vertex), 3), dtype=np.int32)     # half of int64's bytes, alive all build
     faces[0::2] = corner_vertex[:, [0, 1, 2]]
     faces[1::2] = corner_vertex[:, [0, 2, 3]]
     return faces

@@ -117,13 +117,9 @@ class TileGrid:
         if self.tiles_at(level) == 1:         # one tile: every live position is inside, none on a border
             inside = np.flatnonzero(live).astype(np.int32)
             return ([inside] if len(inside) else []), np.zeros(e, bool)
-        ft = np.repeat(self.face_tiles(level), 3)
-        corners = face_pos.ravel()
-        big = np.iinfo(np.int32).max
-        lo = np.full(e, big, np.int32)
+        lo = np.full(e, np.iinfo(np.int32).max, np.int32)
         hi = np.full(e, -1, np.int32)
-        np.minimum.at(lo, corners, ft)
-        np.maximum.at(hi, corners, ft)
+        _tile_range(self.face_cell, np.ascontiguousarray(face_pos, np.int32), level, self.tiles_at(level), lo, hi)
         border = (hi >= 0) & (lo != hi)
         inside = np.flatnonzero((lo == hi) & live).astype(np.int32)
         tile = lo[inside]
@@ -131,6 +127,20 @@ class TileGrid:
         inside, tile = inside[order], tile[order]
         cuts = np.flatnonzero(np.diff(tile)) + 1
         return [r for r in np.split(inside, cuts) if len(r)], border
+
+
+@nb.njit(cache=True, nogil=True)
+def _tile_range(face_cell, face_pos, level, side, lo, hi):
+    """Lowest and highest tile (``lo``, ``hi`` (e,) int32, updated in place) of the faces
+    around each position at ``level`` (tiles of ``side`` per side; no per-corner temporaries)."""
+    for f in range(face_pos.shape[0]):
+        t = (face_cell[f, 1] >> level) * side + (face_cell[f, 0] >> level)
+        for k in range(3):
+            x = face_pos[f, k]
+            if t < lo[x]:
+                lo[x] = t
+            if t > hi[x]:
+                hi[x] = t
 
 
 def tile_grid(positions: np.ndarray, face_pos: np.ndarray, per_side: int) -> TileGrid:

@@ -24,7 +24,8 @@ class Topology:
 
     Attributes:
         nbrs: (p, 3) int32, face across edge k (corner k -> k+1), -1 if none.
-        edge_faces: (p, 3) int32, how many faces use edge k of each face.
+        edge_faces: (p, 3) uint8, how many faces use edge k of each face (255: 255
+            or more; a byte, not an int32, since it lives as long as the build).
         nonmanifold: (e,) bool, positions on a cut edge or whose faces form
             more than one fan (two sheets touching at a point).
         border: (e,) bool, positions on a border or cut edge.
@@ -66,7 +67,7 @@ def _link_pair(faces, nbrs, h, g):
 
 @nb.njit(cache=True, nogil=True)
 def _link_edges(faces, e):
-    """(nbrs, edge_faces), both (p, 3) int32; see :class:`Topology`.
+    """(nbrs, edge_faces), (p, 3) int32 and uint8; see :class:`Topology`.
 
     Half-edges are bucketed by their lower end (a CSR), so matching an edge
     only scans the few half-edges that start at the same position.
@@ -88,7 +89,7 @@ def _link_edges(faces, e):
             bucket[fill[lo]] = 3 * f + k
             fill[lo] += 1
     nbrs = np.full((p, 3), -1, np.int32)
-    edge_faces = np.zeros((p, 3), np.int32)
+    edge_faces = np.zeros((p, 3), np.uint8)
     for x in range(e):
         lo, hi_end = start[x], start[x + 1]
         if hi_end - lo > 32:
@@ -112,7 +113,7 @@ def _link_edges(faces, e):
                 count = j - i + 1
                 for q in range(i, j + 1):
                     h = bucket[q]
-                    edge_faces[h // 3, h % 3] = count
+                    edge_faces[h // 3, h % 3] = min(count, 255)
                 if count == 2:
                     _link_pair(faces, nbrs, bucket[i], bucket[j])
                 i = j + 1
@@ -128,7 +129,7 @@ def _link_edges(faces, e):
                     count += 1
                     if g != h:
                         other = g
-            edge_faces[f, k] = count
+            edge_faces[f, k] = min(count, 255)
             if count == 2 and faces[f, k] == faces[other // 3, (other % 3 + 1) % 3]:
                 nbrs[f, k] = other // 3               # opposite directions: a manifold pair
     return nbrs, edge_faces
