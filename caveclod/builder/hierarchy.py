@@ -78,7 +78,9 @@ class Hierarchy:
     Attributes:
         m: collapses made (internal nodes). passes: passes run.
         parent: (2e,) int32; child, nfaces: (e, 2); nfn: (e, 4); npos: (e,).
-        sphere, cone: (2e, 4) float64; err: (2e,) float64 (leaves first).
+        sphere: (e, 4) float64 and err: (e,) float64, internal nodes only (node
+            e + i at row i: a leaf's sphere is its position, its error 0);
+            cone: (2e, 4) float64 (leaves first).
         creator: (p,) int32 node whose split makes each face, -1 for base.
         rotation: (p,) uint8 corner of each such face that its split's first
             node (t for fl, u for fr) takes, as in the source face.
@@ -122,9 +124,9 @@ def collapse_all(positions: np.ndarray, face_pos: np.ndarray, topo: Topology, la
     N = topo.nbrs.copy()
     vface = np.empty(e, np.int32)
     Q = np.zeros((e, 10))
-    sphere, cone = empty_spheres(2 * e), empty_cones(2 * e)
-    err = np.zeros(2 * e)
-    init_leaves(P, F, N, lay.face_group, vface, Q, sphere, cone)
+    sphere, cone = empty_spheres(e), empty_cones(2 * e)       # no spheres or errors of leaves: points, 0
+    err = np.zeros(e)
+    init_leaves(P, F, N, lay.face_group, vface, Q, cone)
     star_start, star_faces = star_lists(face_pos, e)       # the original surface, for the other direction
 
     st = _CollapseState(
@@ -273,9 +275,9 @@ def _number_nodes(st: _CollapseState, e: int, m: int, bases: np.ndarray, made: n
         _renumber_level(ids.reshape(-1), e, m, bases, np.asarray(made, np.int64), starts)
     for b, k, s in zip(bases.tolist(), made.tolist(), starts.tolist()):
         if k and b != s:                             # s < b: rows move down, never onto rows still to move
-            for a in (st.child, st.npos, st.nfaces, st.nfn):
+            for a in (st.child, st.npos, st.nfaces, st.nfn, st.sphere, st.err):
                 a[s:s + k] = a[b:b + k]
-            for a in (st.parent, st.sphere, st.cone, st.err):
+            for a in (st.parent, st.cone):
                 a[e + s:e + s + k] = a[e + b:e + b + k]
     st.parent[e + m + total: e + m + span] = -1      # rows left behind: no stale parents for later nodes
     return m + total
@@ -321,7 +323,7 @@ def static_arrays(source: SourceMesh, face_pos: np.ndarray, lay, hier: Hierarchy
         "node_parent": hier.parent[:n].copy(),
         "node_links": np.c_[hier.child[:m], hier.nfaces[:m], hier.nfn[:m]].astype(np.int32),
         "node_position": hier.npos[:m].copy(),
-        "node_bound": np.c_[_round_spheres(hier.sphere[e:n], P), _round_up(hier.err[e:n])],
+        "node_bound": np.c_[_round_spheres(hier.sphere[:m], P), _round_up(hier.err[:m])],
         "node_cone": _round_cones(hier.cone[e:n]),
         "base_faces": hier.base,
         "base_face_nodes": hier.base_nodes,

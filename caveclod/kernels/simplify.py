@@ -67,19 +67,19 @@ BUCKETS = 32             # cost slices of a pass, each made in position order
 
 
 @nb.njit(cache=True, nogil=True)
-def init_leaves(P, F, N, fgroup, vface, Q, sphere, cone):
-    """Per-position quadrics, point spheres and normal cones of leaves.
+def init_leaves(P, F, N, fgroup, vface, Q, cone):
+    """Per-position quadrics and normal cones of leaves (a leaf's sphere is its
+    point, so none is stored: see :func:`do_collapse`).
 
     Args:
         P: (e, 3) float64 positions. F: (p, 3) int32 faces over positions.
         N: (p, 3) int32 neighbours. fgroup: (p,) int32 surface groups.
         vface: (e,) int32 out: one face at each position (-1 if none).
-        Q: (e, 10) float64 out. sphere, cone: (>= e, 4) float64 out.
+        Q: (e, 10) float64 out. cone: (>= e, 4) float64 out.
     """
     e = P.shape[0]
     for x in range(e):
         vface[x] = -1
-        sphere[x, 0], sphere[x, 1], sphere[x, 2], sphere[x, 3] = P[x, 0], P[x, 1], P[x, 2], 0.0
     for f in range(F.shape[0]):
         a, b, c = F[f, 0], F[f, 1], F[f, 2]
         e1 = P[b] - P[a]
@@ -237,11 +237,19 @@ def check_collapse(u, t, P, F, N, vface, fgroup, pclass, fixed, pg_start, pg_gro
     return True, fl, fr, nu
 
 
+@nb.njit(cache=True, nogil=True, inline="always")
+def _node_err(err, x, e):
+    """Error of node ``x``: 0 for a leaf (an original position), else its row of ``err`` (e,)."""
+    return err[x - e] if x >= e else 0.0
+
+
 @nb.njit(cache=True, nogil=True)
 def do_collapse(u, t, fl, fr, P, F, N, vface, alive, Q, cur_node, parent, child, npos,
                 nfaces, nfn, sphere, cone, err, creator, rotation, m, e, fan_u, nu, fan_t):
     """Perform a legal collapse and record node ``e + m``.
 
+    ``sphere`` (e, 4) and ``err`` (e,) hold internal nodes only (node
+    ``e + m`` at row m): a leaf's sphere is its position and its error 0.
     ``fan_u[:nu]`` are u's faces, as :func:`check_collapse` left them.
     Fills ``fan_t`` with t's new fan and ``rotation`` (p,) uint8 with the
     corner at which fl's (fr's) source face holds t (u): a split makes the
@@ -312,14 +320,18 @@ def do_collapse(u, t, fl, fr, P, F, N, vface, alive, Q, cur_node, parent, child,
     cur_node[t] = s
     cur_node[u] = -1
     # Node bounds: children's, plus the coarse faces around s.
-    sphere[s, 3] = -1.0
-    sphere_add_sphere(sphere[s], sphere[tn, 0], sphere[tn, 1], sphere[tn, 2], sphere[tn, 3])
-    sphere_add_sphere(sphere[s], sphere[un, 0], sphere[un, 1], sphere[un, 2], sphere[un, 3])
+    sp = sphere[m]
+    sp[3] = -1.0
+    for c in (tn, un):
+        if c < e:                         # a leaf: its position
+            sphere_add_sphere(sp, P[c, 0], P[c, 1], P[c, 2], 0.0)
+        else:
+            sphere_add_sphere(sp, sphere[c - e, 0], sphere[c - e, 1], sphere[c - e, 2], sphere[c - e, 3])
     cone[s, 3] = -1.0
     cone_add_cone(cone[s], cone[tn, 0], cone[tn, 1], cone[tn, 2], cone[tn, 3])
     cone_add_cone(cone[s], cone[un, 0], cone[un, 1], cone[un, 2], cone[un, 3])
     nt, open_fan = collect_fan(F, N, vface[t], t, fan_t)
-    sphere_add_sphere(sphere[s], P[t, 0], P[t, 1], P[t, 2], 0.0)
+    sphere_add_sphere(sp, P[t, 0], P[t, 1], P[t, 2], 0.0)
     cos_cone = math.cos(cone[s, 3]) if cone[s, 3] < math.pi else -2.0
     for i in range(nt):
         f = fan_t[i]
@@ -327,10 +339,10 @@ def do_collapse(u, t, fl, fr, P, F, N, vface, alive, Q, cur_node, parent, child,
         # Each ring position is the "next" corner of one fan face; an open
         # fan also ends on the "previous" corner of its first face.
         x = F[f, (k + 1) % 3]
-        sphere_add_sphere(sphere[s], P[x, 0], P[x, 1], P[x, 2], 0.0)
+        sphere_add_sphere(sp, P[x, 0], P[x, 1], P[x, 2], 0.0)
         if i == 0 and open_fan:
             x = F[f, (k + 2) % 3]
-            sphere_add_sphere(sphere[s], P[x, 0], P[x, 1], P[x, 2], 0.0)
+            sphere_add_sphere(sp, P[x, 0], P[x, 1], P[x, 2], 0.0)
         n = _normal(P, F[f, 0], F[f, 1], F[f, 2])
         ln = math.sqrt(n[0] * n[0] + n[1] * n[1] + n[2] * n[2])
         if ln == 0.0:
@@ -342,14 +354,14 @@ def do_collapse(u, t, fl, fr, P, F, N, vface, alive, Q, cur_node, parent, child,
         cos_cone = math.cos(cone[s, 3]) if cone[s, 3] < math.pi else -2.0
     # The error s has anyway: its children's (monotone up the tree) and its
     # new neighbours' (saturation, module doc).
-    inherited = max(err[tn], err[un])
+    inherited = max(_node_err(err, tn, e), _node_err(err, un, e))
     for i in range(nt):
         f = fan_t[i]
         k = corner_of(F, f, t)
         for q in (F[f, (k + 1) % 3], F[f, (k + 2) % 3]):
             w = cur_node[q]
-            if w >= 0 and err[w] > inherited:
-                inherited = err[w]
+            if w >= 0 and _node_err(err, w, e) > inherited:
+                inherited = _node_err(err, w, e)
     return s, nt, inherited, vl, vr
 
 
@@ -500,12 +512,12 @@ def perform_collapses(P, F, N, vface, alive, fgroup, pclass, fixed, pg_start, pg
             # Both directions: the original positions to the coarse faces
             # (dev) and the reshaped coarse faces to the original surface.
             counter[0] += 1
-            err[s] = reshaped_gap(t, fan_u, nu, fl, fr, vl, vr, F, P, pt_head, pt, face_pos, face_nbrs, star_start,
+            err[s - e] = reshaped_gap(t, fan_u, nu, fl, fr, vl, vr, F, P, pt_head, pt, face_pos, face_nbrs, star_start,
                                   star_faces, mark, counter[0], dev)
             # Each point lies within dev of a fan face, and the fan lies in
             # the sphere: growing it by dev makes it hold every point charged
             # to s.
-            sphere[s, 3] += dev
+            sphere[s - e, 3] += dev
             m += 1
             made += 1
         if made > 0:
