@@ -148,7 +148,7 @@ def _wedge_vertices(wedge, face_vertex, unit, weight):
     p = wedge.shape[0]
     # Two passes, so that the per-vertex arrays are sized by the vertices
     # (about p / 2 on a terrain), not by the 3p corners: (3p, 3) float64
-    # sums were the largest spike of the build.
+    # sums alone were 72 bytes per input triangle.
     label = np.full(3 * p, -1, np.int32)
     faces = np.empty((p, 3), np.int32)             # int32 like every face array of the build: half the bytes
     v = 0

@@ -512,8 +512,8 @@ def perform_collapses(P, F, N, vface, alive, fgroup, pclass, fixed, pg_start, pg
             # Both directions: the original positions to the coarse faces
             # (dev) and the reshaped coarse faces to the original surface.
             counter[0] += 1
-            err[s - e] = reshaped_gap(t, fan_u, nu, fl, fr, vl, vr, F, P, pt_head, pt, face_pos, face_nbrs, star_start,
-                                  star_faces, mark, counter[0], dev)
+            err[s - e] = reshaped_gap(t, fan_u, nu, fl, fr, vl, vr, F, P, pt_head, pt, face_pos, face_nbrs,
+                                      star_start, star_faces, mark, counter[0], dev)
             # Each point lies within dev of a fan face, and the fan lies in
             # the sphere: growing it by dev makes it hold every point charged
             # to s.
