@@ -267,12 +267,12 @@ def _number_nodes(st: _CollapseState, e: int, m: int, bases: np.ndarray, made: n
     total = int(made.sum())
     span = int(bases[-1] + made[-1]) - m
     starts = m + np.concatenate([[0], np.cumsum(made)[:-1]]).astype(np.int64)    # each tile's first new id
-    bases = np.asarray(bases, np.int64)
+    bases, made = np.asarray(bases, np.int64), np.asarray(made, np.int64)
     # In place and tile by tile: temporaries of a whole level's rows (a sphere
     # and a cone each) were the build's peak.
     for ids in (st.parent, st.child, st.cur_node, st.creator):
         assert ids.flags.c_contiguous                # reshape(-1) is then a view, changed in place
-        _renumber_level(ids.reshape(-1), e, m, bases, np.asarray(made, np.int64), starts)
+        _renumber_level(ids.reshape(-1), e, m, bases, made, starts)
     for b, k, s in zip(bases.tolist(), made.tolist(), starts.tolist()):
         if k and b != s:                             # s < b: rows move down, never onto rows still to move
             for a in (st.child, st.npos, st.nfaces, st.nfn, st.sphere, st.err):

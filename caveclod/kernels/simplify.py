@@ -360,8 +360,8 @@ def do_collapse(u, t, fl, fr, P, F, N, vface, alive, Q, cur_node, parent, child,
         k = corner_of(F, f, t)
         for q in (F[f, (k + 1) % 3], F[f, (k + 2) % 3]):
             w = cur_node[q]
-            if w >= 0 and _node_err(err, w, e) > inherited:
-                inherited = _node_err(err, w, e)
+            if w >= 0:
+                inherited = max(inherited, _node_err(err, w, e))
     return s, nt, inherited, vl, vr
 
 
@@ -504,9 +504,9 @@ def perform_collapses(P, F, N, vface, alive, fgroup, pclass, fixed, pg_start, pg
             u_group = -1
             if pclass[u] == SHARP:
                 u_group = fgroup[fl] if fl != -1 else fgroup[fr]
-            s, nt, inherited, vl, vr = do_collapse(u, t, fl, fr, P, F, N, vface, alive, Q, cur_node, parent, child,
-                                           npos, nfaces, nfn, sphere, cone, err, creator, rotation, m, e,
-                                           fan_u, nu, fan_t)
+            s, nt, inherited, vl, vr = do_collapse(u, t, fl, fr, P, F, N, vface, alive, Q, cur_node, parent,
+                                                   child, npos, nfaces, nfn, sphere, cone, err, creator, rotation,
+                                                   m, e, fan_u, nu, fan_t)
             dev = remeasure(u, u_group, fl, fr, fan_u, nu, fan_t, nt, P, F, N, fgroup, alive, pt_head, pt,
                             heads, inherited)
             # Both directions: the original positions to the coarse faces
