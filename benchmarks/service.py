@@ -136,13 +136,14 @@ class Server:
 
 
 def loadtest(port: int, sessions: int, duration: float, plot: Path | None = None, rate: float = 30.0,
-             processes: int = 1, encoding: str = "ops", connections: int = 4) -> dict:
-    """Run ``caveclod loadtest`` (in ``processes`` processes, over ``connections`` connections); its JSON report."""
+             processes: int = 1, encoding: str = "ops", connections: int = 4, transport: str = "auto") -> dict:
+    """Run ``caveclod loadtest`` (in ``processes`` processes, over ``connections`` connections, with
+    ``transport``: h2, grpc or auto); its JSON report."""
     cmd = [sys.executable, "-m", "caveclod.cli", "loadtest", "--target", f"127.0.0.1:{port}", "--sessions",
            str(sessions), "--cameras", "1", "--duration", str(duration), "--rate", str(rate), "--trajectory",
            "flyover", "--tolerance", "1", "--width", "1280", "--height", "720", "--fov", "60", "--json", "--samples",
            "--cache-dir", str(RESULTS / "vertex-cache"), "--processes", str(processes), "--frame-encoding", encoding,
-           "--connections", str(connections)]
+           "--connections", str(connections), "--transport", transport]
     if plot is not None:
         cmd += ["--plot", str(plot)]
     proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.DEVNULL, text=True)
@@ -233,7 +234,7 @@ class Sampler:
 
 
 def capacity(mesh: Path, sessions: int, duration: float, command: list | None = None, processes: int = 1,
-             encoding: str = "ops", connections: int = 4, server_processes: int = 1) -> dict:
+             encoding: str = "ops", connections: int = 4, server_processes: int = 1, transport: str = "auto") -> dict:
     """One load level: server (``caveclod serve``, or ``command``) and load generator, with both processes'
     CPU, and the server's memory: idle (mesh mapped, kernels loaded) and the peak under load. The
     server's CPU is its process tree's (a ``--processes`` supervisor and its servers)."""
@@ -246,7 +247,7 @@ def capacity(mesh: Path, sessions: int, duration: float, command: list | None = 
         sampler = Sampler(server)
         window = SteadyWindow(server, start=t0 + 3.0 + 0.02 * sessions + 1.0, seconds=duration - 3.0)
         report = loadtest(server.port, sessions, duration, processes=processes, encoding=encoding,
-                          connections=connections)
+                          connections=connections, transport=transport)
         peak = sampler.stop()
         report.update(window.result())
         m1, cpu1, busy1, t1 = metrics(server.metrics_port), cpu_seconds(server.proc.pid), machine_busy(), \
@@ -586,6 +587,10 @@ def main() -> int:
                          "a server of several processes to spread, cheaper for the generator than one a session)")
     ap.add_argument("--server-processes", type=int, default=1,
                     help="also measure the server as N processes (caveclod serve --processes N) at each level")
+    ap.add_argument("--loadtest-transport", default="auto",
+                    help="the load test's --transport (h2, grpc, auto: h2 where installed); several, comma-separated, "
+                         "measure this server under each load generator at each level, interleaved "
+                         "(capacity_loadtest_<transport>)")
     ap.add_argument("--baseline", metavar="DIR",
                     help="a checkout of an older caveclod (e.g. git worktree add DIR REV): its server is measured "
                          "right after ours at each load level, as capacity_baseline")
@@ -597,19 +602,23 @@ def main() -> int:
     out.update({"mesh": f"default --size {args.size}", "machine_cores": os.cpu_count()})
     if "capacity" not in skip:
         levels, baseline, multi = [], [], []
-        servers = [("this", None, 1, levels)]
+        transports = args.loadtest_transport.split(",")
+        servers = [("this", None, 1, levels, transports[0])]
+        by_transport = {t: [] for t in transports[1:]}
+        for t in transports[1:]:            # the same server under another load generator
+            servers.append((f"this, loadtest {t}", None, 1, by_transport[t], t))
         if args.server_processes > 1:       # the same server as N processes (caveclod serve --processes N)
-            servers.append((f"processes {args.server_processes}", None, args.server_processes, multi))
+            servers.append((f"processes {args.server_processes}", None, args.server_processes, multi, transports[0]))
         if args.baseline:          # an older checkout's server, run right after ours at each level
             servers.append(("baseline", [sys.executable, "-c", "import sys; sys.path.insert(0, sys.argv.pop(1)); "
                                          "from caveclod.cli import main; sys.exit(main())", args.baseline, "serve"],
-                            1, baseline))
+                            1, baseline, transports[0]))
         for repeat in range(args.repeats):       # interleaved: the machine's drift hits every server alike
             for n in (int(x) for x in args.sessions.split(",")):
-                for name, command, nproc, into in servers:
+                for name, command, nproc, into, transport in servers:
                     r = capacity(mesh, n, args.duration, command=command, processes=args.loadtest_processes,
                                  encoding=args.frame_encoding, connections=args.connections,
-                                 server_processes=nproc)
+                                 server_processes=nproc, transport=transport)
                     r.update(server=name, repeat=repeat)
                     into.append(r)
                     print(f"{name} {n:3d} sessions: p50 {r['latency_ms']['p50']} ms  p99 {r['latency_ms']['p99']} ms  "
@@ -622,17 +631,19 @@ def main() -> int:
                           f" ms), loadtest "
                           f"{r['client_cpu_cores']} ({r['client_cpu_ms_per_frame']} ms a frame), others "
                           f"{r['other_cpu_cores']}", file=sys.stderr)
-        out["summary"] = {name: medians(into) for name, _, _, into in servers}
+        out["summary"] = {name: medians(into) for name, _, _, into, _ in servers}
         plot([r for r in levels if r["repeat"] == 0], path.with_name(f"{path.stem}_latency.png"),
-             {name: medians(into, rows=True) for name, _, _, into in servers[1:]}, medians(levels, rows=True))
+             {name: medians(into, rows=True) for name, _, _, into, _ in servers[1:]}, medians(levels, rows=True))
         for name, rows in out["summary"].items():
             for row in rows:
                 print(f"median {name} {row['sessions']:3d}: {row}", file=sys.stderr)
-        for r in levels + baseline + multi:
+        for r in levels + baseline + multi + sum(by_transport.values(), []):
             r.pop("latencies_ms", None)
         out["capacity"] = levels
         if multi:
             out["capacity_processes"] = {"processes": args.server_processes, "levels": multi}
+        for t, rows in by_transport.items():
+            out[f"capacity_loadtest_{t}"] = rows
         if baseline:
             out["capacity_baseline"] = {"checkout": args.baseline, "levels": baseline}
     if "parallel" not in skip:

@@ -6,7 +6,7 @@ Numpy only, so the thin client runs it (the server's encoder is the compiled
 short, a stream of LEB128 varints:
 
 ``n`` (the number of slot writes), then ``n`` headers, then the payloads of
-the writes, in slot order. A header is ``(gap << 3) | kind``, where ``gap``
+the writes, in slot order. A header is ``(gap << 4) | kind``, where ``gap``
 is the number of slots skipped since the previous write (the first write's
 slot is its gap). Kinds and their payloads, read against the buffer as the
 client holds it *before* this delta (``old``, ``old_count`` rows):
@@ -181,24 +181,21 @@ def _vertices(deltas: np.ndarray, n_vertices: int) -> np.ndarray:
 
 def _decode_small(ops: bytes, old: np.ndarray, count: int, n_vertices: int) -> tuple[np.ndarray, np.ndarray]:
     """:func:`decode`, a varint and a write at a time (short streams); the same checks and errors."""
-    data, end = bytes(ops), len(ops)
-    pos = 0
     values = []
-    while pos < end:                      # every varint first: then the same checks as the numpy path
-        value = shift = 0
-        while True:
-            if pos >= end:
-                raise OpStreamError(f"the op stream's last varint is cut off ({end} bytes)")
-            b = data[pos]
-            pos += 1
-            value |= (b & 0x7F) << shift
-            if b < 0x80:
-                break
-            shift += 7
-            if shift >= 7 * MAX_VARINT_BYTES:
-                raise OpStreamError(f"a varint of more than {MAX_VARINT_BYTES} bytes in the op stream "
-                                    f"(at most {MAX_VARINT_BYTES})")
-        values.append(value)
+    append = values.append
+    value = shift = 0
+    for b in bytes(ops):                 # every varint first: then the same checks as the numpy path
+        if b < 0x80:
+            append(value | (b << shift))
+            value = shift = 0
+            continue
+        value |= (b & 0x7F) << shift
+        shift += 7
+        if shift >= 7 * MAX_VARINT_BYTES:
+            raise OpStreamError(f"a varint of more than {MAX_VARINT_BYTES} bytes in the op stream "
+                                f"(at most {MAX_VARINT_BYTES})")
+    if shift:
+        raise OpStreamError(f"the op stream's last varint is cut off ({len(ops)} bytes)")
     if not values:
         raise OpStreamError("an empty op stream (it starts with the number of writes)")
     n = values[0]

@@ -38,8 +38,8 @@ def make_server(terrain_path):
     servers = []
 
     def make(meshes=None, **overrides):
-        config = ServerConfig(meshes=[str(p) for p in (meshes or [terrain_path])], host="127.0.0.1", port=0,
-                              **overrides)
+        config = ServerConfig(meshes=[str(p) for p in (meshes or [terrain_path])],
+                              **{"host": "127.0.0.1", "port": 0, **overrides})
         server = LodServer(config).start()
         servers.append(server)
         assert server.sessions.ready.wait(60), "the refinement kernels did not load"

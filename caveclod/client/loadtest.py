@@ -32,6 +32,7 @@ a slot: CameraStats.cache_hits over hits + inserts) and
 from __future__ import annotations
 
 import asyncio
+import importlib.util
 import json
 import os
 import subprocess
@@ -112,6 +113,34 @@ async def _fly(session: AsyncSession, index: int, args, lo, hi, t0: float, tally
         tick += period
 
 
+def count_frame(tally: Tally, frame, steady: bool) -> None:
+    """Add one applied frame (:class:`~.protocol.FrameUpdate`) to ``tally``; ``steady``: after the warm-up."""
+    tally.frames += 1
+    tally.bytes += frame.nbytes
+    keyframe = False
+    written = 0
+    for cam in frame.cameras.values():
+        keyframe |= cam.keyframe
+        written += cam.triangles_written
+        tally.vertices_inserted += cam.vertices_written
+        tally.vertex_bytes += cam.vertex_bytes
+        if cam.stats is not None:
+            tally.cache_hits += cam.stats.cache_hits
+            tally.cache_inserts += cam.stats.cache_inserts
+            tally.cache_tolerance_max = max(tally.cache_tolerance_max, cam.stats.cache_tolerance_px)
+        if steady and cam.latency is not None:
+            tally.latencies.append(cam.latency)
+    if keyframe:
+        tally.keyframes += 1
+    else:
+        tally.delta_frames += 1
+        tally.delta_bytes += frame.nbytes
+        tally.delta_triangles += written
+        if steady:
+            tally.steady_bytes += frame.nbytes
+            tally.steady_triangles += written
+
+
 async def _receive(session: AsyncSession, until: float, timed_from: float, tally: Tally) -> None:
     """Apply frames until ``until`` (perf_counter), recording what they cost.
 
@@ -131,29 +160,7 @@ async def _receive(session: AsyncSession, until: float, timed_from: float, tally
                 if end.code is None:          # our Close, answered
                     return
                 raise
-            tally.frames += 1
-            tally.bytes += frame.nbytes
-            for cam in frame.cameras.values():
-                tally.vertices_inserted += cam.vertices_written
-                tally.vertex_bytes += cam.vertex_bytes
-                if cam.stats is not None:
-                    tally.cache_hits += cam.stats.cache_hits
-                    tally.cache_inserts += cam.stats.cache_inserts
-                    tally.cache_tolerance_max = max(tally.cache_tolerance_max, cam.stats.cache_tolerance_px)
-            keyframe = any(cam.keyframe for cam in frame.cameras.values())
-            if keyframe:
-                tally.keyframes += 1
-            else:
-                tally.delta_frames += 1
-                tally.delta_bytes += frame.nbytes
-                written = sum(cam.triangles_written for cam in frame.cameras.values())
-                tally.delta_triangles += written
-            steady = time.perf_counter() >= timed_from
-            if steady and not keyframe:
-                tally.steady_bytes += frame.nbytes
-                tally.steady_triangles += written
-            if steady:
-                tally.latencies.extend(cam.latency for cam in frame.cameras.values() if cam.latency is not None)
+            count_frame(tally, frame, time.perf_counter() >= timed_from)
     finally:
         closing.cancel()
 
@@ -203,6 +210,9 @@ async def fly(args, shard: tuple = (0, 1)) -> tuple:
     """Fly this process's share of the sessions: those whose index is
     ``shard[0]`` modulo ``shard[1]``. Returns (tally, mesh name, mesh faces,
     CPU seconds, wall seconds); ``t0`` is shared through ``args.start_at``."""
+    if transport(args) == "h2":
+        from .h2load import fly_h2           # h2 only where it is used: the thin client imports none of it
+        return await fly_h2(args, shard, Tally(), count_frame, _progress, TAIL_SECONDS)
     token = args.token or os.environ.get("CAVECLOD_TOKEN")
     client = AsyncClient(args.target, token=token, tls_ca=args.tls_ca, cache_dir=args.cache_dir)
     tally = Tally()
@@ -237,6 +247,15 @@ async def fly(args, shard: tuple = (0, 1)) -> tuple:
     return tally, mesh.name, mesh.faces, cpu, wall
 
 
+def transport(args) -> str:
+    """The transport ``args.transport`` names: ``auto`` is h2 where the h2 library is installed and
+    the connection is plaintext, else grpc."""
+    chosen = getattr(args, "transport", "grpc")
+    if chosen == "auto":
+        return "h2" if importlib.util.find_spec("h2") is not None and not args.tls_ca else "grpc"
+    return chosen
+
+
 def _fly_shards(args) -> tuple:
     """Run ``args.processes`` processes of ``caveclod loadtest --shard I/N``; their merged tally."""
     start_at = time.perf_counter() + 1.5 + 0.02 * args.sessions     # processes start, then open their sessions
@@ -263,7 +282,8 @@ def _argv(args) -> list:
     out = []
     for name in ("target", "mesh", "sessions", "connections", "cameras", "duration", "warmup", "rate", "trajectory",
                  "tolerance", "width", "height", "fov", "token", "tls_ca", "cache_dir", "cache_vertices",
-                 "cache_strategy", "cache_pq_fraction", "frame_encoding", "vertex_encoding", "position_bits"):
+                 "cache_strategy", "cache_pq_fraction", "frame_encoding", "vertex_encoding", "position_bits",
+                 "transport"):
         value = getattr(args, name, None)
         if value is not None:
             out += ["--" + name.replace("_", "-"), str(value)]
@@ -291,6 +311,7 @@ def report(args, tally: Tally, mesh: str, faces: int, cpu: float, wall: float) -
         "prune": not getattr(args, "no_prune", False),
         "frame_encoding": getattr(args, "frame_encoding", "ops"),
         "vertex_encoding": getattr(args, "vertex_encoding", "packed"), "processes": getattr(args, "processes", 1),
+        "transport": transport(args),
         "connections": getattr(args, "connections", None) or args.sessions,
         "frames": tally.frames, "frames_per_second": round(tally.frames / args.duration, 1),
         "keyframes": tally.keyframes, "poses_sent": tally.poses_sent, "poses_timed": len(lat),
@@ -335,6 +356,14 @@ def main(args) -> int:
             return 2
     if args.cache_vertices is not None and args.cache_vertices < 1:
         print(f"caveclod: error: --cache-vertices must be at least 1 (slots per camera), got {args.cache_vertices}",
+              file=sys.stderr)
+        return 2
+    if getattr(args, "transport", "auto") == "h2" and importlib.util.find_spec("h2") is None:
+        print("caveclod: error: --transport h2 needs the h2 library: pip install 'caveclod[loadtest]' (or use "
+              "--transport grpc)", file=sys.stderr)
+        return 2
+    if getattr(args, "transport", "auto") == "h2" and args.tls_ca:
+        print("caveclod: error: --transport h2 speaks plaintext HTTP/2 only; use --transport grpc with --tls-ca",
               file=sys.stderr)
         return 2
     processes = getattr(args, "processes", 1)
