@@ -87,6 +87,10 @@ def main(argv=None) -> int:
     ap.add_argument("--seconds", type=float, default=20.0)
     ap.add_argument("--repeats", type=int, default=3)
     ap.add_argument("--out", type=Path, default=RESULTS / "camera_memory.json")
+    ap.add_argument("--mesh-dir", type=Path,
+                    help="keep the built meshes as DIR/TERRAIN_SIZE.cvc and reuse those present (e.g. "
+                         "benchmarks/results, where the other benchmarks keep theirs; default: built afresh in a "
+                         "temporary directory)")
     args = ap.parse_args(argv)
     sys.path.insert(0, str(HERE))
     import caveclod
@@ -96,8 +100,9 @@ def main(argv=None) -> int:
     rows = []
     with tempfile.TemporaryDirectory() as tmp:
         for terrain, size in [(t, n) for t in args.terrains for n in args.sizes]:
-            path = Path(tmp) / f"{terrain}{size}.cvc"
-            caveclod.build(terrain, size=size).save(path)
+            path = (args.mesh_dir or Path(tmp)) / f"{terrain}_{size}.cvc"
+            if args.mesh_dir is None or not path.exists():
+                caveclod.build(terrain, size=size).save(path)
             runs = {name: [] for name in trees}
             for _ in range(args.repeats):
                 for name, tree in trees.items():

@@ -179,8 +179,8 @@ def _undelta_planes(raw: memoryview, d: int) -> np.ndarray:
     return np.cumsum(delta)
 
 
-def _columns(positions, normals, uvs, colors, morph, packing: Packing) -> list[np.ndarray]:
-    """The quantized components, stream order: (d,) int64 each."""
+def _columns(positions, normals, uvs, colors, morph, packing: Packing, first: int = 0) -> list[np.ndarray]:
+    """The quantized components, stream order: (n,) int64 each (``first``: the index of the first vertex)."""
     qp = np.rint((np.asarray(positions, np.float64) - np.asarray(packing.position_origin))
                  / packing.position_step).astype(np.int64)
     qn = encode_normals(normals, packing.normal_bits)
@@ -190,8 +190,25 @@ def _columns(positions, normals, uvs, colors, morph, packing: Packing) -> list[n
         qc = np.asarray(colors, np.uint8).astype(np.int64)
         cols += [qc[:, k] for k in range(4)]
     if morph is not None:
-        cols.append(np.asarray(morph, np.int64) - np.arange(len(morph)))
+        cols.append(np.asarray(morph, np.int64) - np.arange(first, first + len(morph)))
     return cols
+
+
+def _decoded(cols: list, packing: Packing, first: int = 0) -> dict:
+    """{"position", "normal", "texcoord"[, "color"][, "morph_target"]} of the decoded components (n,) int64
+    each, stream order, the first being vertex ``first``: the arithmetic every decoder does."""
+    origin = np.asarray(packing.position_origin, np.float64)
+    out = {
+        "position": (origin + np.stack(cols[0:3], axis=1).astype(np.float64) * packing.position_step)
+        .astype(np.float32),
+        "normal": decode_normals(np.stack(cols[3:5], axis=1), packing.normal_bits),
+        "texcoord": (np.stack(cols[5:7], axis=1).astype(np.float64) * packing.texcoord_step).astype(np.float32),
+    }
+    if packing.has_color:
+        out["color"] = np.stack(cols[7:11], axis=1)
+    if packing.has_morph:
+        out["morph_target"] = cols[-1] + np.arange(first, first + len(cols[-1]))
+    return out
 
 
 def stream_components(has_color: bool, has_morph: bool = False) -> int:
@@ -201,30 +218,76 @@ def stream_components(has_color: bool, has_morph: bool = False) -> int:
 
 # -- pack / unpack ------------------------------------------------------------------------
 
+# Vertices per pass of pack(): numpy's temporaries stay a few MB. Whole-array
+# passes took 31 s for 16.8M vertices (a 33.5M-triangle terrain), mostly in
+# page faults of 100-400 MB temporaries and in inflating again what was
+# just deflated to check it.
+PACK_CHUNK = 1 << 17
+
+
 def pack(positions: np.ndarray, normals: np.ndarray, uvs: np.ndarray, colors: np.ndarray | None,
-         position_bits: int = DEFAULT_POSITION_BITS, morph_targets: np.ndarray | None = None) -> Packed:
+         position_bits: int = DEFAULT_POSITION_BITS, morph_targets: np.ndarray | None = None,
+         chunk: int = PACK_CHUNK) -> Packed:
     """Pack a vertex buffer: positions, normals (d, 3) float32, uvs (d, 2) float32, colors (d, 4) uint8,
     or None or (0, 4) when the mesh has none (as :func:`caveclod.wire.vertex_blocks` takes them), and
-    optionally morph targets (d,) (:func:`caveclod.refine.morphtargets.morph_targets`)."""
+    optionally morph targets (d,) (:func:`caveclod.refine.morphtargets.morph_targets`).
+
+    Works ``chunk`` vertices at a time (the same bytes whatever the chunk).
+    The decoded payload's CRC-32 and the errors are those of the decoder's
+    arithmetic applied to the quantized values as the streams carry them
+    (each delta as the int32 it travels as), without inflating the streams
+    again.
+    """
     check_position_bits(position_bits)
     if colors is not None and not len(colors):
         colors = None
     d = len(positions)
-    origin, step = position_quantization(positions, position_bits)
+    chunk = max(int(chunk), 1)
+    spans = [(lo, min(d, lo + chunk)) for lo in range(0, d, chunk)]
+    if d:
+        lows = np.min([np.asarray(positions[lo:hi]).min(axis=0) for lo, hi in spans], axis=0)
+        highs = np.max([np.asarray(positions[lo:hi]).max(axis=0) for lo, hi in spans], axis=0)
+        origin, step = position_quantization(np.stack([lows, highs]), position_bits)
+        top = max(float(np.abs(np.asarray(uvs[lo:hi])).max(initial=0.0)) for lo, hi in spans)
+    else:
+        origin, step, top = np.zeros(3), 1.0, 0.0
     packing = Packing(vertex_count=d, position_bits=position_bits, position_origin=tuple(float(v) for v in origin),
-                      position_step=step, normal_bits=NORMAL_BITS, texcoord_step=texcoord_step(np.asarray(uvs)),
+                      position_step=step, normal_bits=NORMAL_BITS, texcoord_step=texcoord_step(np.array([top])),
                       has_color=colors is not None, has_morph=morph_targets is not None)
-    raw = b"".join(_delta_planes(c) for c in _columns(positions, normals, uvs, colors, morph_targets, packing))
-    data = zlib.compress(raw, ZLIB_LEVEL)
-    decoded = unpack(packing, data)
-    p = np.asarray(positions, np.float64)
-    err = float(np.sqrt(((decoded["position"].astype(np.float64) - p) ** 2).sum(axis=1)).max()) if d else 0.0
-    n0 = np.asarray(normals, np.float64)
-    n0 = n0 / np.maximum(np.linalg.norm(n0, axis=1), 1e-30)[:, None]
-    cos = np.clip((n0 * decoded["normal"].astype(np.float64)).sum(axis=1), -1.0, 1.0)
-    nonzero = np.abs(np.asarray(normals)).sum(axis=1) > 0
-    angle = float(np.degrees(np.arccos(cos[nonzero])).max()) if nonzero.any() else 0.0
-    return Packed(packing, data, zlib.crc32(planar_payload(decoded)), err, angle)
+    k = stream_components(packing.has_color, packing.has_morph)
+    planes = np.empty((k, 4, d), np.uint8)               # the streams, in their order (module doc)
+    decoded = {"position": np.empty((d, 3), np.float32), "normal": np.empty((d, 3), np.float32),
+               "texcoord": np.empty((d, 2), np.float32)}
+    if packing.has_color:
+        decoded["color"] = np.empty((d, 4), np.uint8)
+    if packing.has_morph:
+        decoded["morph_target"] = np.empty((d, 1), np.uint32)
+    last = np.zeros(k, np.int64)           # each stream's value at the end of the previous chunk, as decoded
+    err = angle = 0.0
+    for lo, hi in spans:
+        cols = _columns(positions[lo:hi], normals[lo:hi], uvs[lo:hi],
+                        None if colors is None else colors[lo:hi],
+                        None if morph_targets is None else morph_targets[lo:hi], packing, lo)
+        carried = []
+        for j, q in enumerate(cols):
+            delta = np.diff(q, prepend=last[j]).astype(np.int32)
+            wide = delta.astype(np.int64)
+            planes[j, :, lo:hi] = ((wide << 1) ^ (wide >> 31)).astype("<u4").view(np.uint8).reshape(-1, 4).T
+            carried.append(last[j] + np.cumsum(wide))        # what a decoder reads back
+            last[j] = carried[-1][-1]
+        part = _decoded(carried, packing, lo)
+        for name, values in part.items():
+            decoded[name][lo:hi] = values.reshape(decoded[name][lo:hi].shape)
+        p = np.asarray(positions[lo:hi], np.float64)
+        err = max(err, float(np.sqrt(((part["position"].astype(np.float64) - p) ** 2).sum(axis=1)).max()))
+        n0 = np.asarray(normals[lo:hi], np.float64)
+        nonzero = np.abs(n0).sum(axis=1) > 0
+        if nonzero.any():
+            n0 = n0 / np.maximum(np.linalg.norm(n0, axis=1), 1e-30)[:, None]
+            cos = np.clip((n0 * part["normal"].astype(np.float64)).sum(axis=1), -1.0, 1.0)
+            angle = max(angle, float(np.degrees(np.arccos(cos[nonzero])).max()))
+    data = zlib.compress(planes, ZLIB_LEVEL)
+    return Packed(packing, data, payload_crc32(decoded), err, angle)
 
 
 def unpack(packing: Packing, data: bytes) -> dict:
@@ -248,21 +311,15 @@ def unpack(packing: Packing, data: bytes) -> dict:
                         f"{d} vertices need {want}; it is damaged or from another format: open the session again")
     view = memoryview(raw)
     cols = [_undelta_planes(view[4 * d * j: 4 * d * (j + 1)], d) for j in range(k)]
-    origin = np.asarray(packing.position_origin, np.float64)
-    out = {
-        "position": (origin + np.stack(cols[0:3], axis=1).astype(np.float64) * packing.position_step)
-        .astype(np.float32),
-        "normal": decode_normals(np.stack(cols[3:5], axis=1), packing.normal_bits),
-        "texcoord": (np.stack(cols[5:7], axis=1).astype(np.float64) * packing.texcoord_step).astype(np.float32),
-    }
+    out = _decoded(cols, packing)
     if packing.has_color:
-        c = np.stack(cols[7:11], axis=1)
+        c = out["color"]
         if d and (c.min() < 0 or c.max() > 255):
             raise WireError("the packed vertex buffer's colours fall outside 0..255; it is damaged: open the "
                             "session again")
         out["color"] = c.astype(np.uint8)
     if packing.has_morph:
-        target = cols[-1] + np.arange(d)
+        target = out["morph_target"]
         if d and (target.min() < 0 or target.max() >= d):
             raise WireError("the packed vertex buffer's morph targets fall outside the buffer; it is damaged: "
                             "open the session again")
@@ -270,15 +327,27 @@ def unpack(packing: Packing, data: bytes) -> dict:
     return out
 
 
-def planar_payload(arrays: dict) -> bytes:
-    """The PLANAR float32 payload (caveclod.proto's VertexFormat) of decoded arrays."""
+def _planar_blocks(arrays: dict) -> list:
     parts = [np.ascontiguousarray(arrays["position"], "<f4"), np.ascontiguousarray(arrays["normal"], "<f4"),
              np.ascontiguousarray(arrays["texcoord"], "<f4")]
     if "color" in arrays:
         parts.append(np.ascontiguousarray(arrays["color"], np.uint8))
     if "morph_target" in arrays:
         parts.append(np.ascontiguousarray(arrays["morph_target"], "<u4"))
-    return b"".join(p.tobytes() for p in parts)
+    return parts
+
+
+def payload_crc32(arrays: dict) -> int:
+    """zlib.crc32 of :func:`planar_payload` of ``arrays``, without joining the blocks."""
+    crc = 0
+    for block in _planar_blocks(arrays):
+        crc = zlib.crc32(block.reshape(-1).view(np.uint8), crc)
+    return crc
+
+
+def planar_payload(arrays: dict) -> bytes:
+    """The PLANAR float32 payload (caveclod.proto's VertexFormat) of decoded arrays."""
+    return b"".join(p.tobytes() for p in _planar_blocks(arrays))
 
 
 # -- on the wire ---------------------------------------------------------------------------

@@ -152,6 +152,26 @@ def test_any_buffer_round_trips_within_its_quantization(seed, d, bits, offset, e
         _check_bounds(packed, p, n.astype(np.float64), uv, c, decoded)
 
 
+@settings(max_examples=30, deadline=None)
+@given(seed=st.integers(0, 2**31), d=st.integers(1, 300), chunk=st.integers(1, 64), colors=st.booleans(),
+       morph=st.booleans(), bits=st.integers(8, 24))
+def test_packing_in_chunks_gives_the_same_bytes_and_the_decoders_errors(seed, d, chunk, colors, morph, bits):
+    p, n, uv, c = _random_buffer(seed, d, offset=-3.0, extent=50.0, uv_scale=3.0, colors=colors)
+    targets = np.maximum(np.arange(d) - np.random.default_rng(seed).integers(0, 9, d), 0) if morph else None
+    whole = vertexpack.pack(p, n, uv, c, bits, targets, chunk=d)
+    parts = vertexpack.pack(p, n, uv, c, bits, targets, chunk=chunk)
+    assert parts == whole
+    # The CRC and the errors pack reports are those of what the numpy decoder makes of the bytes.
+    decoded = vertexpack.unpack(whole.packing, whole.data)
+    assert zlib.crc32(vertexpack.planar_payload(decoded)) == whole.decoded_crc32
+    err = np.sqrt(((decoded["position"].astype(np.float64) - p.astype(np.float64)) ** 2).sum(axis=1)).max()
+    assert whole.max_position_error == float(err)
+    n0 = n.astype(np.float64) / np.maximum(np.linalg.norm(n.astype(np.float64), axis=1), 1e-30)[:, None]
+    cos = np.clip((n0 * decoded["normal"].astype(np.float64)).sum(axis=1), -1.0, 1.0)
+    nonzero = np.abs(n).sum(axis=1) > 0
+    assert whole.max_normal_degrees == (float(np.degrees(np.arccos(cos[nonzero])).max()) if nonzero.any() else 0.0)
+
+
 def test_zero_normals_decode_as_up_and_the_lower_hemisphere_folds_back():
     n = np.array([[0, 0, 0], [0, 0, -1], [0.6, 0, -0.8], [-0.6, 0.8, 0], [0, -0.6, -0.8]], np.float32)
     codes = vertexpack.encode_normals(n)

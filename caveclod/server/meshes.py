@@ -43,6 +43,7 @@ class ServedMesh:
         self._crc: int | None = None
         self._info: pb.MeshInfo | None = None
         self._packed: dict = {}             # (position_bits, morph) -> (Packed, VertexPacking, VertexFormat)
+        self._packing: dict = {}            # (position_bits, morph) -> the lock held while it is packed
 
     @cached_property
     def blocks(self) -> list[wire.VertexBlock]:
@@ -101,21 +102,30 @@ class ServedMesh:
         """(Packed, VertexPacking, VertexFormat) of the vertex buffer packed at ``position_bits``,
         with morph targets when ``morph`` (caveclod.vertexpack).
 
-        Packed on the first Open that asks (0.2-0.5 s per million vertices,
-        off the event loop) and kept: a few bytes per vertex per variant.
+        Packed once and kept (a few bytes per vertex per variant): the
+        server's default variant right after start (:meth:`LodServer._warm_up`),
+        any other on the first Open that asks (about 0.8 s per million
+        vertices, off the event loop). Opens that ask while it is packed
+        wait for that one packing instead of starting their own.
         """
         from .. import vertexpack
         key = (position_bits, bool(morph))
         with self._lock:
             found = self._packed.get(key)
-        if found is None:
-            m = self.mesh
-            packed = vertexpack.pack(m.vertex_positions, m.vertex_normals, m.vertex_uvs, m.vertex_colors,
-                                     position_bits, self.morph_targets if morph else None)
-            found = (packed, vertexpack.to_message(packed, m.vertex_buffer_hash),
-                     vertexpack.vertex_format(self.blocks, morph))
-            with self._lock:        # two first Opens may pack at once: the same bytes, keep one
-                found = self._packed.setdefault(key, found)
+            if found is not None:
+                return found
+            packing = self._packing.setdefault(key, threading.Lock())
+        with packing:
+            with self._lock:
+                found = self._packed.get(key)
+            if found is None:
+                m = self.mesh
+                packed = vertexpack.pack(m.vertex_positions, m.vertex_normals, m.vertex_uvs, m.vertex_colors,
+                                         position_bits, self.morph_targets if morph else None)
+                found = (packed, vertexpack.to_message(packed, m.vertex_buffer_hash),
+                         vertexpack.vertex_format(self.blocks, morph))
+                with self._lock:
+                    self._packed[key] = found
         return found
 
     def packed_chunks(self, position_bits: int, morph: bool = False, max_bytes: int = wire.MAX_CHUNK_BYTES):

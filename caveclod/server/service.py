@@ -98,7 +98,7 @@ class LodService:
     def _open(self, opened: pb.Open) -> tuple:
         """(session, generation, resumed, packed) of an Open, in a thread: ``packed`` is
         ServedMesh.packed's (Packed, VertexPacking, VertexFormat) when the buffer travels packed,
-        else None (packing takes 0.2-0.5 s per million vertices, once per mesh and variant)."""
+        else None (packing takes about 0.8 s per million vertices, once per mesh and variant)."""
         session, generation, resumed = self.sessions.open(opened)
         bits = vertexpack.requested_bits(opened)       # None in cache mode; its range checked by open
         try:
