@@ -322,7 +322,7 @@ def load(path: str | os.PathLike, check: bool = True) -> StaticMesh:
     line saying what is wrong. ``check`` (the default) then runs
     :func:`caveclod.meshcheck.check_mesh`, the structural check of every id
     the refinement kernels index with (numba checks no bounds): it reads the
-    index arrays once, about 70 ms per million triangles, but never the
+    index arrays once (about 60-70 ms per million triangles), but never the
     vertex attributes beyond the positions. ``check=False`` is for tools
     that only read the header or re-hash the file.
     """

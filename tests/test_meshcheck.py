@@ -34,6 +34,7 @@ from service import WAIT, open_message, pose_message, raw_stream
 
 import caveclod
 from caveclod.errors import FileFormatError, MeshDamagedError
+from caveclod import meshcheck
 from caveclod.meshcheck import find_problem
 from caveclod.paths import flyover
 from caveclod.staticmesh import StaticMesh, load
@@ -328,13 +329,24 @@ EDITS = {
 }
 
 
+@pytest.mark.parametrize("threads", ["one thread", "two threads in blocks"])
 @pytest.mark.parametrize("edit", EDITS, ids=list(EDITS))
-def test_the_check_names_what_is_wrong(terrain_path, edit):
+def test_the_check_names_what_is_wrong(terrain_path, edit, threads, monkeypatch):
+    if threads != "one thread":            # the path of meshes past PARALLEL_FACES, in blocks of 7 nodes
+        monkeypatch.setattr(meshcheck, "PARALLEL_FACES", 0)
+        monkeypatch.setattr(meshcheck, "ROWS", 7)
     change, phrase = EDITS[edit]
     arrays, materials = arrays_of(terrain_path)
     change(arrays)
     problem = find_problem(StaticMesh(arrays=arrays, materials=materials))
     assert problem is not None and phrase in problem, problem
+
+
+def test_two_threads_in_blocks_pass_a_good_mesh(terrain_path, monkeypatch):
+    monkeypatch.setattr(meshcheck, "PARALLEL_FACES", 0)
+    monkeypatch.setattr(meshcheck, "ROWS", 5)
+    assert find_problem(load(terrain_path, check=False)) is None
+    assert find_problem(caveclod.build("rough", size=24, seed=3)) is None
 
 
 def test_load_refuses_what_the_check_finds_naming_the_file(terrain_path, tmp_path):
