@@ -262,30 +262,47 @@ def pack(positions: np.ndarray, normals: np.ndarray, uvs: np.ndarray, colors: np
         decoded["color"] = np.empty((d, 4), np.uint8)
     if packing.has_morph:
         decoded["morph_target"] = np.empty((d, 1), np.uint32)
-    last = np.zeros(k, np.int64)           # each stream's value at the end of the previous chunk, as decoded
-    err = angle = 0.0
-    for lo, hi in spans:
-        cols = _columns(positions[lo:hi], normals[lo:hi], uvs[lo:hi],
-                        None if colors is None else colors[lo:hi],
-                        None if morph_targets is None else morph_targets[lo:hi], packing, lo)
+    if packing.has_morph and d >= 1 << 30:
+        # A morph stream's delta could then leave int32: it would travel wrapped.
+        raise ValueError(f"{d} vertices: morph targets are packed for fewer than 2**30 vertices")
+
+    def one(span: tuple) -> tuple:
+        """Streams and decoded values of vertices lo .. hi; (largest position error, largest normal angle)."""
+        lo, hi = span
+        first = max(lo - 1, 0)     # the vertex before the block: its values start the block's deltas
+        cols = _columns(positions[first:hi], normals[first:hi], uvs[first:hi],
+                        None if colors is None else colors[first:hi],
+                        None if morph_targets is None else morph_targets[first:hi], packing, first)
         carried = []
         for j, q in enumerate(cols):
-            delta = np.diff(q, prepend=last[j]).astype(np.int32)
-            wide = delta.astype(np.int64)
+            # Each delta as the int32 it travels as; no stream's deltas leave int32 (positions and
+            # texcoords keep |q| < 2**25, morph targets < 2**30 vertices), so the value before
+            # the block is what a decoder holds there.
+            start = q[0] if lo else 0
+            wide = (np.diff(q) if lo else np.diff(q, prepend=0)).astype(np.int32).astype(np.int64)
             planes[j, :, lo:hi] = ((wide << 1) ^ (wide >> 31)).astype("<u4").view(np.uint8).reshape(-1, 4).T
-            carried.append(last[j] + np.cumsum(wide))        # what a decoder reads back
-            last[j] = carried[-1][-1]
+            carried.append(start + np.cumsum(wide))          # what a decoder reads back
         part = _decoded(carried, packing, lo)
         for name, values in part.items():
             decoded[name][lo:hi] = values.reshape(decoded[name][lo:hi].shape)
         p = np.asarray(positions[lo:hi], np.float64)
-        err = max(err, float(np.sqrt(((part["position"].astype(np.float64) - p) ** 2).sum(axis=1)).max()))
+        err = float(np.sqrt(((part["position"].astype(np.float64) - p) ** 2).sum(axis=1)).max())
         n0 = np.asarray(normals[lo:hi], np.float64)
         nonzero = np.abs(n0).sum(axis=1) > 0
-        if nonzero.any():
-            n0 = n0 / np.maximum(np.linalg.norm(n0, axis=1), 1e-30)[:, None]
-            cos = np.clip((n0 * part["normal"].astype(np.float64)).sum(axis=1), -1.0, 1.0)
-            angle = max(angle, float(np.degrees(np.arccos(cos[nonzero])).max()))
+        if not nonzero.any():
+            return err, 0.0
+        n0 = n0 / np.maximum(np.linalg.norm(n0, axis=1), 1e-30)[:, None]
+        cos = np.clip((n0 * part["normal"].astype(np.float64)).sum(axis=1), -1.0, 1.0)
+        return err, float(np.degrees(np.arccos(cos[nonzero])).max())
+
+    if len(spans) >= 4:           # blocks write disjoint slices; numpy releases the GIL in their passes
+        from concurrent.futures import ThreadPoolExecutor
+        with ThreadPoolExecutor(2, thread_name_prefix="caveclod-pack") as pool:
+            found = list(pool.map(one, spans))
+    else:
+        found = [one(span) for span in spans]
+    err = max((e for e, _ in found), default=0.0)
+    angle = max((a for _, a in found), default=0.0)
     data = zlib.compress(planes, ZLIB_LEVEL)
     return Packed(packing, data, payload_crc32(decoded), err, angle)
 
