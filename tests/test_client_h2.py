@@ -211,6 +211,36 @@ def test_sessions_fail_over_to_fresh_ones_when_the_server_restarts(make_server, 
     assert restarted[0].metrics.total("frames") > 0
 
 
+def test_sessions_a_server_never_opens_are_errors_not_a_hang(tmp_path, capsys):
+    """A server that lists a mesh but never answers an Open: each session counts DEADLINE_EXCEEDED."""
+    from caveclod.v1 import caveclod_pb2 as pb
+    listing = pb.ListMeshesResponse(meshes=[pb.MeshInfo(name="mute", bounds_max=pb.Vec3(x=1, y=1, z=1))])
+
+    def respond(conn, sid):
+        conn.send_headers(sid, OK_HEADERS)
+        if sid == 1:                                   # ListMeshes, the first call
+            conn.send_data(sid, framed(listing.SerializeToString()))
+            conn.send_headers(sid, [("grpc-status", "0")], end_stream=True)
+        # A Session call: headers, then nothing.
+
+    loop = asyncio.new_event_loop()
+    server = loop.run_until_complete(_scripted(respond))
+    thread = threading.Thread(target=loop.run_forever, daemon=True)
+    thread.start()
+    try:
+        status = cli.main(["loadtest", "--target", f"127.0.0.1:{server.sockets[0].getsockname()[1]}",
+                           "--sessions", "2", "--connections", "1", "--duration", "1", "--transport", "h2",
+                           "--json", "--cache-dir", str(tmp_path)])
+    finally:
+        loop.call_soon_threadsafe(server.close)
+        loop.call_soon_threadsafe(loop.stop)
+        thread.join(10)
+    out, err = capsys.readouterr()
+    report = json.loads(out)
+    assert status == 1 and report["errors"] == {"DEADLINE_EXCEEDED": 2} and report["frames"] == 0
+    assert "no SessionInfo" in err
+
+
 def test_h2_needs_plaintext(server, capsys):
     assert cli.main(["loadtest", "--target", f"127.0.0.1:{server.port}", "--transport", "h2",
                      "--tls-ca", "ca.pem"]) == 2

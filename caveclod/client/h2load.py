@@ -126,7 +126,10 @@ async def fly_h2(args, shard: tuple, tally, count_frame, progress, tail_seconds:
             loop.call_at(offset + t0 + at, send, members, at, 0.0)
 
         await asyncio.sleep(max(t0 + args.duration + tail_seconds - time.perf_counter(), 0.0))
-        for session in sessions:
+        for index, session in zip(mine, sessions):
+            if not session.ready.done():          # never opened: as the grpc.aio flights' open timeout
+                ended(index, SessionEnded(grpc.StatusCode.DEADLINE_EXCEEDED,
+                                          "no SessionInfo and vertex buffer before the load test ended"))
             session.begin_close("loadtest done")
         for target in targets:
             target.flush()
