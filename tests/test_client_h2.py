@@ -87,6 +87,7 @@ def test_a_reply_split_over_frames_arrives_whole():
     ("reset", grpc.StatusCode.INTERNAL, "RST_STREAM"),
     ("two replies", grpc.StatusCode.INTERNAL, "2 replies to a unary call"),
     ("goaway", grpc.StatusCode.UNAVAILABLE, "GOAWAY"),
+    ("status not a number", grpc.StatusCode.UNKNOWN, "not a number"),
 ])
 def test_every_way_a_call_ends_is_a_status_that_says_why(case, code, words):
     def respond(conn, sid):
@@ -97,6 +98,8 @@ def test_every_way_a_call_ends_is_a_status_that_says_why(case, code, words):
             conn.send_headers(sid, [(":status", "404")], end_stream=True)
         elif case == "goaway":
             conn.close_connection(last_stream_id=0)
+        elif case == "status not a number":
+            conn.send_headers(sid, OK_HEADERS + [("grpc-status", "five")], end_stream=True)
         elif case == "reset":
             conn.send_headers(sid, OK_HEADERS)
             conn.reset_stream(sid, error_code=2)
@@ -163,6 +166,34 @@ def test_a_connection_going_away_is_replaced_for_the_next_call():
             target.close()
             server.close()
     assert asyncio.run(asyncio.wait_for(main(), 20)) == (b"fine", True)
+
+
+def test_a_server_message_that_does_not_parse_ends_the_session_with_data_loss():
+    from caveclod.client.h2session import H2Session
+    from caveclod.client.protocol import SessionProtocol
+    from caveclod.client.session import refine_options
+
+    def respond(conn, sid):
+        conn.send_headers(sid, OK_HEADERS)
+        conn.send_data(sid, framed(b"\xff\xff\xff\xff"))      # not a ServerMessage
+
+    async def main():
+        server = await _scripted(respond)
+        target = H2Target("127.0.0.1", server.sockets[0].getsockname()[1])
+        ends = []
+        protocol = SessionProtocol("m", 1, refine_options(64, 64, None, None, None, None, None, None))
+        session = H2Session(target, protocol, on_frame=lambda f: None, on_end=ends.append)
+        try:
+            await session.open()
+            with pytest.raises(Exception) as info:
+                await asyncio.wait_for(session.ready, 5.0)
+            return info.value, ends
+        finally:
+            target.close()
+            server.close()
+    error, ends = asyncio.run(asyncio.wait_for(main(), 20))
+    assert len(ends) == 1 and ends[0] is error
+    assert error.code == grpc.StatusCode.DATA_LOSS and "does not parse" in error.details
 
 
 def _loadtest(port: int, tmp_path, capsys, *extra: str) -> tuple[int, dict]:

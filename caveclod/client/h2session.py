@@ -22,6 +22,7 @@ import asyncio
 from typing import Callable
 
 import grpc
+from google.protobuf.message import DecodeError
 
 from ..v1 import caveclod_pb2 as pb
 from .h2wire import CallEnded, H2Call, H2Connection
@@ -164,12 +165,13 @@ class H2Session:
     def _message(self, data: bytes) -> None:
         try:
             msg = pb.ServerMessage.FromString(data)
-            out, update = self.protocol.receive(msg)
-        except ProtocolError as exc:
-            self.call._fail(grpc.StatusCode.DATA_LOSS, str(exc))
-            return
-        except Exception as exc:            # a message that does not parse: the stream is broken
+        except DecodeError as exc:          # a message that does not parse: the stream is broken
             self.call._fail(grpc.StatusCode.DATA_LOSS, f"a ServerMessage that does not parse: {exc}")
+            return
+        try:
+            out, update = self.protocol.receive(msg)
+        except ProtocolError as exc:        # as the library's sessions: the stream ends with DATA_LOSS
+            self.call._fail(grpc.StatusCode.DATA_LOSS, str(exc))
             return
         for reply in out:
             self.call.send(reply.SerializeToString())

@@ -128,8 +128,10 @@ class H2Call:
         if status is not None and status != "200":
             self._status = (_http_status_code(status), f"HTTP status {status} (not a gRPC server?)")
         if "grpc-status" in fields:
-            code = STATUS_BY_CODE.get(int(fields["grpc-status"]), grpc.StatusCode.UNKNOWN)
-            self._status = (code, urllib.parse.unquote(fields.get("grpc-message", "")))
+            raw = fields["grpc-status"]
+            code = STATUS_BY_CODE.get(int(raw), grpc.StatusCode.UNKNOWN) if raw.isdigit() else grpc.StatusCode.UNKNOWN
+            self._status = (code, urllib.parse.unquote(fields.get("grpc-message", "")) if raw.isdigit() else
+                            f"a grpc-status that is not a number: {raw[:40]!r}")
 
     def _stream_ended(self) -> None:
         if self._buf:
