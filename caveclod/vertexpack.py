@@ -303,8 +303,45 @@ def pack(positions: np.ndarray, normals: np.ndarray, uvs: np.ndarray, colors: np
         found = [one(span) for span in spans]
     err = max((e for e, _ in found), default=0.0)
     angle = max((a for _, a in found), default=0.0)
-    data = zlib.compress(planes, ZLIB_LEVEL)
+    data = deflate(planes.reshape(-1))
     return Packed(packing, data, payload_crc32(decoded), err, angle)
+
+
+# Streams of more bytes than this are deflated in two halves on two threads
+# (4.5 s on one for the 470 MB of a 16.8M-vertex buffer).
+PARALLEL_DEFLATE_BYTES = 32 << 20
+WINDOW = 32 << 10                   # deflate's window: the second half starts with the first's last 32 KiB as history
+
+
+def deflate(raw: np.ndarray, split_bytes: int | None = None) -> bytes:
+    """``raw`` (n,) uint8 as one zlib stream (RFC 1950) at ZLIB_LEVEL.
+
+    Past ``split_bytes`` (PARALLEL_DEFLATE_BYTES) the two halves are
+    deflated at once, as pigz does: raw deflate, the first half ended by a
+    sync flush (an empty stored block: the stream goes on byte-aligned), the
+    second primed with the first's last 32 KiB so that its matches may reach
+    back across the cut; then zlib's header and the Adler-32 of all of it.
+    Any inflater reads it as one stream (browsers' DecompressionStream, zlib).
+    """
+    split_bytes = PARALLEL_DEFLATE_BYTES if split_bytes is None else split_bytes
+    n = len(raw)
+    if n <= split_bytes:
+        return zlib.compress(raw, ZLIB_LEVEL)
+    half = n // 2
+    first, second = raw[:half], raw[half:]
+
+    def part(k: int) -> bytes:
+        if k == 0:
+            c = zlib.compressobj(ZLIB_LEVEL, zlib.DEFLATED, -15)
+            return c.compress(first) + c.flush(zlib.Z_SYNC_FLUSH)
+        c = zlib.compressobj(ZLIB_LEVEL, zlib.DEFLATED, -15, zdict=first[-WINDOW:].tobytes())
+        return c.compress(second) + c.flush(zlib.Z_FINISH)
+
+    from concurrent.futures import ThreadPoolExecutor
+    with ThreadPoolExecutor(2, thread_name_prefix="caveclod-deflate") as pool:
+        a, b = pool.map(part, (0, 1))
+    header = zlib.compress(b"", ZLIB_LEVEL)[:2]          # CMF and FLG of ZLIB_LEVEL's streams
+    return header + a + b + zlib.adler32(raw).to_bytes(4, "big")
 
 
 def unpack(packing: Packing, data: bytes) -> dict:

@@ -172,6 +172,22 @@ def test_packing_in_chunks_gives_the_same_bytes_and_the_decoders_errors(seed, d,
     assert whole.max_normal_degrees == (float(np.degrees(np.arccos(cos[nonzero])).max()) if nonzero.any() else 0.0)
 
 
+def test_a_buffer_deflated_in_halves_is_one_stream_with_the_same_payload(monkeypatch):
+    mesh = caveclod.build("rough", size=32)
+    p, n, uv, c = mesh.vertex_positions, mesh.vertex_normals, mesh.vertex_uvs, mesh.vertex_colors
+    one = vertexpack.pack(p, n, uv, c)
+    monkeypatch.setattr(vertexpack, "PARALLEL_DEFLATE_BYTES", 0)      # as a buffer past 32 MiB is
+    halves = vertexpack.pack(p, n, uv, c)
+    assert halves.data != one.data and zlib.decompress(halves.data) == zlib.decompress(one.data)
+    assert (halves.packing, halves.decoded_crc32) == (one.packing, one.decoded_crc32)
+    msg = vertexpack.to_message(halves, "cd" * 16)
+    fmt = vertexpack.vertex_format(wire.vertex_blocks(p, n, uv, c), False)
+    payload = reference_decode(msg, fmt, halves.data)
+    assert payload == vertexpack.planar_payload(vertexpack.unpack(halves.packing, halves.data))
+    assert zlib.crc32(payload) == halves.decoded_crc32
+    assert len(halves.data) <= len(one.data) + 64, "the cut costs a few bytes, not the history"
+
+
 def test_zero_normals_decode_as_up_and_the_lower_hemisphere_folds_back():
     n = np.array([[0, 0, 0], [0, 0, -1], [0.6, 0, -0.8], [-0.6, 0.8, 0], [0, -0.6, -0.8]], np.float32)
     codes = vertexpack.encode_normals(n)

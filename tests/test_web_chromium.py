@@ -12,6 +12,7 @@ and the server's message on the page when a session is refused or drained.
 from __future__ import annotations
 
 import io
+import itertools
 import threading
 import time
 from urllib.parse import urlparse
@@ -320,9 +321,10 @@ UNPACK_IN_PAGE = """async (cases) => {
 }"""
 
 
-def test_the_pages_vertex_unpacker_makes_pythons_bytes(browser, make_server, textured_path):
+def test_the_pages_vertex_unpacker_makes_pythons_bytes(browser, make_server, textured_path, monkeypatch):
     """The page decodes packed buffers (terrain, a coloured random buffer, bits 8-24, with and without
-    morph targets) to the very bytes caveclod.vertexpack makes, and refuses damaged ones."""
+    morph targets, deflated whole and in two halves) to the very bytes caveclod.vertexpack makes, and
+    refuses damaged ones."""
     import caveclod
     from caveclod import vertexpack, wire
     server = make_server(web_port=0)
@@ -335,24 +337,27 @@ def test_the_pages_vertex_unpacker_makes_pythons_bytes(browser, make_server, tex
                     (n / np.linalg.norm(n, axis=1)[:, None]).astype(np.float32),
                     (rng.random((d, 2)) * 700 - 30).astype(np.float32), rng.integers(0, 256, (d, 4), dtype=np.uint8)))
     cases, want = [], []
-    for p, nrm, uv, col in buffers:
-        for bits, morph in ((8, False), (20, True), (24, False)):
-            targets = np.maximum(np.arange(len(p)) - rng.integers(0, 40, len(p)), 0) if morph else None
-            packed = vertexpack.pack(p, nrm, uv, col, bits, targets)
-            blocks = wire.vertex_blocks(p, nrm, uv, np.zeros((0, 4), np.uint8) if col is None else col)
-            fmt = vertexpack.vertex_format(blocks, morph)
-            msg = vertexpack.to_message(packed, "ab" * 16)       # as protobufjs names its fields
-            o = msg.position_origin
-            packing = {"positionOrigin": {"x": o.x, "y": o.y, "z": o.z}, "positionStep": msg.position_step,
-                       "normalBits": msg.normal_bits, "texcoordStep": msg.texcoord_step}
-            fmt_dict = {"vertexCount": int(fmt.vertex_count),
-                        "attributes": [{"semantic": a.semantic} for a in fmt.attributes]}
-            cases.append((packing, fmt_dict, list(packed.data)))
-            want.append(packed.decoded_crc32)
-            bad = bytearray(packed.data)
-            bad[len(bad) // 3] ^= 0x04
-            cases.append((packing, fmt_dict, list(bad)))
-            want.append(None)
+    whole = vertexpack.PARALLEL_DEFLATE_BYTES
+    for (p, nrm, uv, col), (bits, morph, halves) in itertools.product(
+            buffers, ((8, False, False), (20, True, False), (24, False, False), (16, True, True))):
+        # halves: deflated in two halves at once, as buffers past PARALLEL_DEFLATE_BYTES are
+        monkeypatch.setattr(vertexpack, "PARALLEL_DEFLATE_BYTES", 0 if halves else whole)
+        targets = np.maximum(np.arange(len(p)) - rng.integers(0, 40, len(p)), 0) if morph else None
+        packed = vertexpack.pack(p, nrm, uv, col, bits, targets)
+        blocks = wire.vertex_blocks(p, nrm, uv, np.zeros((0, 4), np.uint8) if col is None else col)
+        fmt = vertexpack.vertex_format(blocks, morph)
+        msg = vertexpack.to_message(packed, "ab" * 16)       # as protobufjs names its fields
+        o = msg.position_origin
+        packing = {"positionOrigin": {"x": o.x, "y": o.y, "z": o.z}, "positionStep": msg.position_step,
+                   "normalBits": msg.normal_bits, "texcoordStep": msg.texcoord_step}
+        fmt_dict = {"vertexCount": int(fmt.vertex_count),
+                    "attributes": [{"semantic": a.semantic} for a in fmt.attributes]}
+        cases.append((packing, fmt_dict, list(packed.data)))
+        want.append(packed.decoded_crc32)
+        bad = bytearray(packed.data)
+        bad[len(bad) // 3] ^= 0x04
+        cases.append((packing, fmt_dict, list(bad)))
+        want.append(None)
     with Page(browser, _base(server) + "?mesh=terrain&trajectory=rotate") as page:
         got = page.page.evaluate(UNPACK_IN_PAGE, cases)
     for g, w in zip(got, want):
