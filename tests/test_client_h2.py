@@ -230,7 +230,8 @@ def test_sessions_fail_over_to_fresh_ones_when_the_server_restarts(make_server, 
     swap = threading.Timer(2.5, restart)
     swap.start()
     try:
-        status, report = _loadtest(port, tmp_path, capsys)
+        # 6 s: room for a slow restart (the sessions retry with backoff meanwhile).
+        status, report = _loadtest(port, tmp_path, capsys, "--duration", "6")
     finally:
         swap.cancel()
         swap.join(60)
