@@ -242,6 +242,9 @@ def pack(positions: np.ndarray, normals: np.ndarray, uvs: np.ndarray, colors: np
     if colors is not None and not len(colors):
         colors = None
     d = len(positions)
+    if morph_targets is not None and d >= 1 << 30:
+        # A morph stream's delta could then leave int32: it would travel wrapped.
+        raise ValueError(f"{d} vertices: morph targets are packed for fewer than 2**30 vertices")
     chunk = max(int(chunk), 1)
     spans = [(lo, min(d, lo + chunk)) for lo in range(0, d, chunk)]
     if d:
@@ -262,9 +265,6 @@ def pack(positions: np.ndarray, normals: np.ndarray, uvs: np.ndarray, colors: np
         decoded["color"] = np.empty((d, 4), np.uint8)
     if packing.has_morph:
         decoded["morph_target"] = np.empty((d, 1), np.uint32)
-    if packing.has_morph and d >= 1 << 30:
-        # A morph stream's delta could then leave int32: it would travel wrapped.
-        raise ValueError(f"{d} vertices: morph targets are packed for fewer than 2**30 vertices")
 
     def one(span: tuple) -> tuple:
         """Streams and decoded values of vertices lo .. hi; (largest position error, largest normal angle)."""
