@@ -1,4 +1,4 @@
-"""``caveclod loadtest --transport h2`` (the default): the flights over :mod:`.h2session`.
+"""``caveclod loadtest --transport h2`` (the default where h2 is installed): the flights over :mod:`.h2session`.
 
 The same sessions, paths, rates, checks and figures as the grpc.aio
 flights in :mod:`.loadtest`, at a fraction of the CPU: no coroutine per
@@ -13,17 +13,17 @@ from __future__ import annotations
 
 import asyncio
 import os
-import sys
 import time
 from functools import partial
 
 import grpc
 
-from ..errors import InputError
 from ..paths import pose as path_pose
 from .cache import VertexBufferCache
 from .h2session import H2Session, H2Target, list_meshes
 from .h2wire import CallEnded
+from .loadtest import (TAIL_SECONDS, Tally, choose_mesh, connection_count, count_error, count_frame, count_protocol,
+                       report_progress, start_time)
 from .protocol import SessionProtocol
 from .session import SessionEnded, cache_mode, metadata, refine_options
 
@@ -31,46 +31,40 @@ POSE_BATCH_SECONDS = 0.004
 CLOSE_SECONDS = 5.0          # after Close: how long the streams may take to end
 
 
-async def fly_h2(args, shard: tuple, tally, count_frame, progress, tail_seconds: float) -> tuple:
+async def fly_h2(args, shard: tuple) -> tuple:
     """Fly this process's share of the sessions (index ``shard[0]`` modulo ``shard[1]``) over h2.
 
     Returns (tally, mesh name, mesh faces, CPU seconds, wall seconds), as
     :func:`caveclod.client.loadtest.fly`.
     """
-    if args.tls_ca:
-        raise InputError("--transport h2 speaks plaintext HTTP/2 only; use --transport grpc for TLS (--tls-ca)")
     token = args.token or os.environ.get("CAVECLOD_TOKEN")
     md = metadata(token)
     mine = list(range(shard[0], args.sessions, shard[1]))
-    n_conn = max(1, min(getattr(args, "connections", None) or len(mine), len(mine)))
+    n_conn = connection_count(args, len(mine))
     targets = [H2Target.parse(args.target) for _ in range(n_conn)]
     cache = None if args.cache_dir is False else VertexBufferCache(args.cache_dir)
     loop = asyncio.get_running_loop()
+    tally = Tally()
     shown = None
     try:
         try:
             meshes = await list_meshes(targets[0], md)
         except CallEnded as exc:         # as grpc.aio reports it, so that the caller says it alike
             raise grpc.aio.AioRpcError(exc.code, grpc.aio.Metadata(), grpc.aio.Metadata(), exc.details) from None
-        names = [m.name for m in meshes]
-        if args.mesh is not None and args.mesh not in names:
-            raise InputError(f"the server has no mesh {args.mesh!r}; it serves {', '.join(names)}")
-        mesh = meshes[names.index(args.mesh)] if args.mesh else meshes[0]
+        mesh = choose_mesh(meshes, args.mesh)
         lo = (mesh.bounds_min.x, mesh.bounds_min.y, mesh.bounds_min.z)
         hi = (mesh.bounds_max.x, mesh.bounds_max.y, mesh.bounds_max.z)
         cpu0, wall0 = time.process_time(), time.perf_counter()
-        t0 = getattr(args, "start_at", None) or time.perf_counter() + 0.5 + 0.02 * args.sessions
+        t0 = start_time(args)
         timed_from = t0 + args.warmup
-        shown = asyncio.ensure_future(progress(tally, args, t0)) if shard[0] == 0 else None
+        shown = asyncio.ensure_future(report_progress(tally, args, t0)) if shard[0] == 0 else None
 
         def frame(update):
             count_frame(tally, update, time.perf_counter() >= timed_from)
 
         def ended(index: int, end: SessionEnded) -> None:
-            if end.code is not None:
-                if not tally.errors[end.code.name]:      # the first of each kind, so that a refusal says why
-                    print(f"loadtest: session {index}: {end}", file=sys.stderr, flush=True)
-                tally.errors[end.code.name] += 1
+            if end.code is not None:         # code None: our Close, answered
+                count_error(tally, index, end)
 
         options = refine_options(args.width, args.height, args.fov, args.tolerance, None, None, None, None,
                                  False if getattr(args, "no_prune", False) else None)
@@ -125,7 +119,7 @@ async def fly_h2(args, shard: tuple, tally, count_frame, progress, tail_seconds:
             at = max(phase for _, _, phase in members)
             loop.call_at(offset + t0 + at, send, members, at, 0.0)
 
-        await asyncio.sleep(max(t0 + args.duration + tail_seconds - time.perf_counter(), 0.0))
+        await asyncio.sleep(max(t0 + args.duration + TAIL_SECONDS - time.perf_counter(), 0.0))
         for index, session in zip(mine, sessions):
             if not session.ready.done():          # never opened: as the grpc.aio flights' open timeout
                 ended(index, SessionEnded(grpc.StatusCode.DEADLINE_EXCEEDED,
@@ -139,10 +133,7 @@ async def fly_h2(args, shard: tuple, tally, count_frame, progress, tail_seconds:
         for session in sessions:
             if not session.over:
                 session.cancel()
-            tally.divergences += session.protocol.divergences
-            tally.bad_frames += session.protocol.bad_frames
-            tally.resumes += session.protocol.resumes
-            tally.failovers += session.protocol.failovers
+            count_protocol(tally, session.protocol)
         cpu, wall = time.process_time() - cpu0, time.perf_counter() - wall0
     finally:
         if shown is not None:

@@ -184,19 +184,50 @@ async def _one(client: AsyncClient, index: int, args, mesh, tally: Tally, t0: fl
         finally:
             flying.cancel()
     except SessionEnded as exc:
-        code = exc.code.name if exc.code is not None else "ENDED"
-        if not tally.errors[code]:                 # the first of each kind, so that a refusal says why
-            print(f"loadtest: session {index}: {exc}", file=sys.stderr, flush=True)
-        tally.errors[code] += 1
+        count_error(tally, index, exc)
     finally:
         if session is not None:
-            tally.divergences += session.protocol.divergences
-            tally.bad_frames += session.protocol.bad_frames
-            tally.resumes += session.protocol.resumes
-            tally.failovers += session.protocol.failovers
+            count_protocol(tally, session.protocol)
 
 
-async def _progress(tally: Tally, args, t0: float) -> None:
+def count_error(tally: Tally, index: int, end: SessionEnded) -> None:
+    """Count a session that ended with an error (by its code); print the first of each kind,
+    so that a refusal says why."""
+    code = end.code.name if end.code is not None else "ENDED"
+    if not tally.errors[code]:
+        print(f"loadtest: session {index}: {end}", file=sys.stderr, flush=True)
+    tally.errors[code] += 1
+
+
+def count_protocol(tally: Tally, protocol) -> None:
+    """Add what a session's :class:`~.protocol.SessionProtocol` counted over its streams."""
+    tally.divergences += protocol.divergences
+    tally.bad_frames += protocol.bad_frames
+    tally.resumes += protocol.resumes
+    tally.failovers += protocol.failovers
+
+
+def choose_mesh(meshes: list, name: str | None):
+    """The MeshInfo named ``name`` (None: the first) of ``meshes``; InputError naming those served."""
+    names = [m.name for m in meshes]
+    if name is not None and name not in names:
+        raise InputError(f"the server has no mesh {name!r}; it serves {', '.join(names)}")
+    return meshes[names.index(name)] if name else meshes[0]
+
+
+def start_time(args) -> float:
+    """``t0`` (perf_counter) of every session of every process: ``--start-at``, or after the time to open them all."""
+    return getattr(args, "start_at", None) or time.perf_counter() + 0.5 + 0.02 * args.sessions
+
+
+def connection_count(args, sessions: int) -> int:
+    """Connections this process's ``sessions`` share: ``--connections``, else one a session (as viewers have,
+    and a server of several processes spreads connections, not streams)."""
+    return max(1, min(getattr(args, "connections", None) or sessions, sessions))
+
+
+async def report_progress(tally: Tally, args, t0: float) -> None:
+    """A progress line on stderr every second (the first process's)."""
     while True:
         await asyncio.sleep(1.0)
         lat = np.asarray(tally.latencies[-2000:]) * 1e3
@@ -212,25 +243,17 @@ async def fly(args, shard: tuple = (0, 1)) -> tuple:
     CPU seconds, wall seconds); ``t0`` is shared through ``args.start_at``."""
     if transport(args) == "h2":
         from .h2load import fly_h2           # h2 only where it is used: the thin client imports none of it
-        return await fly_h2(args, shard, Tally(), count_frame, _progress, TAIL_SECONDS)
+        return await fly_h2(args, shard)
     token = args.token or os.environ.get("CAVECLOD_TOKEN")
     client = AsyncClient(args.target, token=token, tls_ca=args.tls_ca, cache_dir=args.cache_dir)
     tally = Tally()
     try:
-        meshes = await client.list_meshes()
-        names = [m.name for m in meshes]
-        if args.mesh is not None and args.mesh not in names:
-            raise InputError(f"the server has no mesh {args.mesh!r}; it serves {', '.join(names)}")
-        mesh = meshes[names.index(args.mesh)] if args.mesh else meshes[0]
+        mesh = choose_mesh(await client.list_meshes(), args.mesh)
         cpu0, wall0 = time.process_time(), time.perf_counter()
-        # A start time for every session (of every process), after the time to open them all.
-        t0 = getattr(args, "start_at", None) or time.perf_counter() + 0.5 + 0.02 * args.sessions
-        progress = asyncio.ensure_future(_progress(tally, args, t0)) if shard[0] == 0 else None
+        t0 = start_time(args)
+        progress = asyncio.ensure_future(report_progress(tally, args, t0)) if shard[0] == 0 else None
         mine = range(shard[0], args.sessions, shard[1])
-        # Viewers each have a connection of their own (and a server of several
-        # processes spreads connections, not streams): a channel per session
-        # unless --connections says fewer.
-        connections = max(1, min(getattr(args, "connections", None) or len(mine), len(mine)))
+        connections = connection_count(args, len(mine))
         clients = [client] + [AsyncClient(args.target, token=token, tls_ca=args.tls_ca, cache_dir=args.cache_dir)
                               for _ in range(connections - 1)]
         try:
@@ -249,10 +272,16 @@ async def fly(args, shard: tuple = (0, 1)) -> tuple:
 
 def transport(args) -> str:
     """The transport ``args.transport`` names: ``auto`` is h2 where the h2 library is installed and
-    the connection is plaintext, else grpc."""
+    the connection is plaintext, else grpc. InputError for h2 asked for where it cannot be."""
     chosen = getattr(args, "transport", "grpc")
+    installed = importlib.util.find_spec("h2") is not None
     if chosen == "auto":
-        return "h2" if importlib.util.find_spec("h2") is not None and not args.tls_ca else "grpc"
+        return "h2" if installed and not args.tls_ca else "grpc"
+    if chosen == "h2" and not installed:
+        raise InputError("--transport h2 needs the h2 library: pip install 'caveclod[loadtest]' (or use "
+                         "--transport grpc)")
+    if chosen == "h2" and args.tls_ca:
+        raise InputError("--transport h2 speaks plaintext HTTP/2 only; use --transport grpc with --tls-ca")
     return chosen
 
 
@@ -358,13 +387,10 @@ def main(args) -> int:
         print(f"caveclod: error: --cache-vertices must be at least 1 (slots per camera), got {args.cache_vertices}",
               file=sys.stderr)
         return 2
-    if getattr(args, "transport", "auto") == "h2" and importlib.util.find_spec("h2") is None:
-        print("caveclod: error: --transport h2 needs the h2 library: pip install 'caveclod[loadtest]' (or use "
-              "--transport grpc)", file=sys.stderr)
-        return 2
-    if getattr(args, "transport", "auto") == "h2" and args.tls_ca:
-        print("caveclod: error: --transport h2 speaks plaintext HTTP/2 only; use --transport grpc with --tls-ca",
-              file=sys.stderr)
+    try:
+        transport(args)
+    except InputError as exc:
+        print(f"caveclod: error: {exc}", file=sys.stderr)
         return 2
     processes = getattr(args, "processes", 1)
     if processes < 1:
