@@ -115,9 +115,8 @@ def position_quantization(positions: np.ndarray, bits: int) -> tuple[np.ndarray,
     return origin, (extent / ((1 << bits) - 1) if extent > 0 else 1.0)
 
 
-def texcoord_step(uvs: np.ndarray) -> float:
-    """The power-of-two step of ``uvs`` (d, 2): 2**-16, or coarser when |uv| reaches 2**8."""
-    top = float(np.abs(uvs).max()) if len(uvs) else 0.0
+def texcoord_step(top: float) -> float:
+    """The power-of-two step of texcoords whose largest |uv| is ``top``: 2**-16, or coarser when it reaches 2**8."""
     e = TEXCOORD_MAX_EXPONENT
     while e > -64 and top * 2.0 ** e >= 2 ** TEXCOORD_RANGE_BITS:
         e -= 1
@@ -251,11 +250,11 @@ def pack(positions: np.ndarray, normals: np.ndarray, uvs: np.ndarray, colors: np
         lows = np.min([np.asarray(positions[lo:hi]).min(axis=0) for lo, hi in spans], axis=0)
         highs = np.max([np.asarray(positions[lo:hi]).max(axis=0) for lo, hi in spans], axis=0)
         origin, step = position_quantization(np.stack([lows, highs]), position_bits)
-        top = max(float(np.abs(np.asarray(uvs[lo:hi])).max(initial=0.0)) for lo, hi in spans)
+        top = float(np.max([np.abs(np.asarray(uvs[lo:hi])).max(initial=0.0) for lo, hi in spans]))   # NaN stays NaN
     else:
         origin, step, top = np.zeros(3), 1.0, 0.0
     packing = Packing(vertex_count=d, position_bits=position_bits, position_origin=tuple(float(v) for v in origin),
-                      position_step=step, normal_bits=NORMAL_BITS, texcoord_step=texcoord_step(np.array([top])),
+                      position_step=step, normal_bits=NORMAL_BITS, texcoord_step=texcoord_step(top),
                       has_color=colors is not None, has_morph=morph_targets is not None)
     k = stream_components(packing.has_color, packing.has_morph)
     planes = np.empty((k, 4, d), np.uint8)               # the streams, in their order (module doc)
@@ -304,7 +303,7 @@ def pack(positions: np.ndarray, normals: np.ndarray, uvs: np.ndarray, colors: np
     err = max((e for e, _ in found), default=0.0)
     angle = max((a for _, a in found), default=0.0)
     data = deflate(planes.reshape(-1))
-    return Packed(packing, data, payload_crc32(decoded), err, angle)
+    return Packed(packing, data, wire.payload_crc32(_planar_blocks(decoded)), err, angle)   # not joined
 
 
 # Streams of more bytes than this are deflated in two halves on two threads
@@ -382,6 +381,7 @@ def unpack(packing: Packing, data: bytes) -> dict:
 
 
 def _planar_blocks(arrays: dict) -> list:
+    """The PLANAR payload's blocks of decoded ``arrays``, in order, little-endian and contiguous."""
     parts = [np.ascontiguousarray(arrays["position"], "<f4"), np.ascontiguousarray(arrays["normal"], "<f4"),
              np.ascontiguousarray(arrays["texcoord"], "<f4")]
     if "color" in arrays:
@@ -389,14 +389,6 @@ def _planar_blocks(arrays: dict) -> list:
     if "morph_target" in arrays:
         parts.append(np.ascontiguousarray(arrays["morph_target"], "<u4"))
     return parts
-
-
-def payload_crc32(arrays: dict) -> int:
-    """zlib.crc32 of :func:`planar_payload` of ``arrays``, without joining the blocks."""
-    crc = 0
-    for block in _planar_blocks(arrays):
-        crc = zlib.crc32(block.reshape(-1).view(np.uint8), crc)
-    return crc
 
 
 def planar_payload(arrays: dict) -> bytes:
