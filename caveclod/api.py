@@ -19,7 +19,7 @@ DEFAULT_SIZE = 256
 def build(source, *, cell_size: float = 1.0, z_scale: float = 1.0, materials=None,
           crease_angle: float | None = None, size: int = DEFAULT_SIZE, seed: int | None = None, nodata: float | None = None,
           weld: float | None = None, progress: bool = False, tiles: int | None = None,
-          workers: int | None = None) -> StaticMesh:
+          workers: int | None = None, packed: bool = True) -> StaticMesh:
     """Build the static CAVECLOD mesh of ``source``.
 
     Args:
@@ -49,6 +49,11 @@ def build(source, *, cell_size: float = 1.0, z_scale: float = 1.0, materials=Non
             2 x 2 (:mod:`caveclod.builder.tiles`).
         workers: threads the build uses (None: the cores, at most 8); the
             file is the same whatever their number.
+        packed: also pack the vertex buffer for download as most clients ask
+            for it (the default precision, with and without geomorph
+            targets), kept in the mesh's attachments and its file, so that a
+            server need not pack it when it starts
+            (:func:`caveclod.vertexpack.attach_packed`).
     """
     from .builder.hierarchy import build_static_mesh
     from .builder.tiles import check_tiles
@@ -60,7 +65,11 @@ def build(source, *, cell_size: float = 1.0, z_scale: float = 1.0, materials=Non
     if weld is not None:
         from .builder.weld import weld_positions
         src = weld_positions(src, weld)
-    return build_static_mesh(src, crease_angle=crease_angle, progress=progress, tiles=tiles, workers=workers)
+    mesh = build_static_mesh(src, crease_angle=crease_angle, progress=progress, tiles=tiles, workers=workers)
+    if packed:
+        from .vertexpack import attach_packed
+        attach_packed(mesh, progress=progress)
+    return mesh
 
 
 def _check_workers(workers) -> None:

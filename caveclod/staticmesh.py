@@ -10,6 +10,12 @@ File layout (version 2, little-endian)::
 
     b"CAVECLOD" | uint32 version | uint32 header length | header JSON | pad
     arrays, each aligned to 64 bytes at the offset the header gives
+    attachments (optional), each aligned likewise
+
+Attachments are named byte strings with JSON metadata that the build
+derives from the arrays so that a server need not at start (the packed
+vertex downloads, :func:`caveclod.vertexpack.attach_packed`). A reader
+ignores names it does not know, so files with or without them load alike.
 
 Loading reads only the header; arrays are ``np.memmap`` views, so a server
 can open a multi-gigabyte mesh at once and share its pages between processes.
@@ -60,6 +66,15 @@ VERTEX_BUFFER = ("vertex_positions", "vertex_normals", "vertex_uvs", "vertex_col
 
 
 @dataclass
+class Attachment:
+    """A named byte string stored beside the arrays (module doc): ``meta`` (JSON
+    object) says what it is, ``data`` (nbytes,) uint8 holds it (mapped when loaded)."""
+
+    meta: dict
+    data: np.ndarray
+
+
+@dataclass
 class StaticMesh:
     """A built CAVECLOD hierarchy; see the module docstring for node ids.
 
@@ -76,6 +91,7 @@ class StaticMesh:
     content_hash: str = ""
     vertex_buffer_hash: str = ""
     damaged: str = ""
+    attachments: dict = field(default_factory=dict)     # name -> Attachment
 
     def __post_init__(self):
         missing = set(ARRAYS) - set(self.arrays)
@@ -258,6 +274,7 @@ class StaticMesh:
             "equation1_static_bytes": self.equation1_bytes,
             "content_hash": self.content_hash,
             "vertex_buffer_hash": self.vertex_buffer_hash,
+            "attachments": {name: int(a.data.nbytes) for name, a in sorted(self.attachments.items())},
         }
         out.update({k: v for k, v in self.info.items() if k not in out})
         return out
@@ -290,9 +307,13 @@ class StaticMesh:
             table[name] = {"dtype": ARRAYS[name][0], "shape": list(a.shape), "offset": offset,
                            "nbytes": int(a.nbytes)}
             offset += _aligned(a.nbytes)
+        attached = {}
+        for name, att in sorted(self.attachments.items()):
+            attached[name] = {"offset": offset, "nbytes": int(att.data.nbytes), "meta": att.meta}
+            offset += _aligned(att.data.nbytes)
         header = {"format": "caveclod-static", "version": VERSION, "materials": list(self.materials),
                   "info": self.info, "content_hash": self.content_hash,
-                  "vertex_buffer_hash": self.vertex_buffer_hash, "arrays": table}
+                  "vertex_buffer_hash": self.vertex_buffer_hash, "arrays": table, "attachments": attached}
         blob = json.dumps(header, sort_keys=True).encode()
         data_start = _aligned(len(MAGIC) + 8 + len(blob))
         tmp = path.with_name(path.name + ".tmp")
@@ -303,6 +324,10 @@ class StaticMesh:
                 a = _as_declared(name, self.arrays[name])
                 fh.write(a.tobytes())
                 fh.write(b"\0" * (_aligned(a.nbytes) - a.nbytes))
+            for name in attached:
+                data = np.ascontiguousarray(self.attachments[name].data).reshape(-1).view(np.uint8)
+                fh.write(data)
+                fh.write(b"\0" * (_aligned(data.nbytes) - data.nbytes))
         os.replace(tmp, path)
         self.path = str(path)
 
@@ -331,6 +356,9 @@ def load(path: str | os.PathLike, check: bool = True) -> StaticMesh:
     header = _parse_header(path, blob)
     data_start = _aligned(len(MAGIC) + 8 + hlen)
     table = _array_table(path, header["arrays"], data_start, size)
+    attached = _attachment_table(path, header.get("attachments", {}), data_start, size)
+    _check_overlaps(path, [(start, start + nbytes, f"array {name}") for name, (_, start, nbytes) in table.items()]
+                    + [(start, start + nbytes, f"attachment {name}") for name, (_, start, nbytes) in attached.items()])
     arrays = {}
     for name, (dtype, _) in ARRAYS.items():
         shape, start, nbytes = table[name]
@@ -341,8 +369,14 @@ def load(path: str | os.PathLike, check: bool = True) -> StaticMesh:
             arrays[name] = np.memmap(path, dtype=dtype, mode="r", offset=start, shape=shape)
         except (OSError, ValueError) as exc:     # the file changed since its size was read, or mmap failed
             raise FileFormatError(f"{path}: cannot map array {name}: {exc}; copy the file again") from None
+    attachments = {}
+    for name, (meta, start, nbytes) in attached.items():
+        data = np.memmap(path, dtype=np.uint8, mode="r", offset=start, shape=(nbytes,)) if nbytes else \
+            np.zeros(0, np.uint8)
+        attachments[name] = Attachment(meta, data)
     mesh = StaticMesh(arrays=arrays, materials=header["materials"], info=header["info"], path=str(path),
-                      content_hash=header["content_hash"], vertex_buffer_hash=header["vertex_buffer_hash"])
+                      content_hash=header["content_hash"], vertex_buffer_hash=header["vertex_buffer_hash"],
+                      attachments=attachments)
     if check:
         from .meshcheck import check_mesh
         check_mesh(mesh)
@@ -355,6 +389,7 @@ MAX_HEADER_BYTES = 64 << 20      # the header JSON (a build's is a few KiB)
 MAX_MATERIALS = 65536            # face_material is uint16: more names could never be used
 MAX_NAME_CHARS = 1024            # characters of one material name
 MAX_INFO_DEPTH = 32              # nesting of the build report (a build's is 3 deep)
+MAX_ATTACHMENTS = 256            # a build writes two
 
 
 def damaged_error(path, what: str) -> FileFormatError:
@@ -461,11 +496,35 @@ def _array_table(path: Path, table: dict, data_start: int, size: int) -> dict:
             raise FileFormatError(f"{path}: file is truncated ({size} bytes, array {name} needs "
                                   f"{data_start + offset + nbytes}); rebuild or copy it again")
         out[name] = (tuple(shape), data_start + offset, nbytes)
-    spans = sorted((start, start + nbytes, name) for name, (_, start, nbytes) in out.items() if nbytes)
+    return out
+
+
+def _attachment_table(path: Path, table, data_start: int, size: int) -> dict:
+    """{name: (meta, file offset, nbytes)} of the header's attachments, each checked like an array's entry."""
+    if not isinstance(table, dict) or len(table) > MAX_ATTACHMENTS:
+        raise damaged_error(path, f"the header's attachments are not a JSON object of at most {MAX_ATTACHMENTS}")
+    out = {}
+    for name, t in table.items():
+        if len(name) > MAX_NAME_CHARS or not isinstance(t, dict):
+            raise damaged_error(path, f"attachment {name[:40]!r} is not a JSON object")
+        offset, nbytes, meta = t.get("offset"), t.get("nbytes"), t.get("meta")
+        if not (_is_count(offset) and _is_count(nbytes)) or offset % ALIGN:
+            raise damaged_error(path, f"attachment {name[:40]!r} has a bad offset or byte count")
+        if not isinstance(meta, dict) or _depth(meta) > MAX_INFO_DEPTH:
+            raise damaged_error(path, f"attachment {name[:40]!r} has no metadata object of sane depth")
+        if data_start + offset + nbytes > size:
+            raise FileFormatError(f"{path}: file is truncated ({size} bytes, attachment {name[:40]!r} needs "
+                                  f"{data_start + offset + nbytes}); rebuild or copy it again")
+        out[name] = (meta, data_start + offset, nbytes)
+    return out
+
+
+def _check_overlaps(path: Path, spans: list) -> None:
+    """Refuse the file when two of ``spans`` [(start, end, what)] share a byte."""
+    spans = sorted(s for s in spans if s[1] > s[0])
     for (_, end, a), (start, _, b) in itertools.pairwise(spans):
         if start < end:
-            raise damaged_error(path, f"arrays {a} and {b} overlap")
-    return out
+            raise damaged_error(path, f"{a} and {b} overlap")
 
 
 def _is_count(v) -> bool:

@@ -163,6 +163,18 @@ def test_packing_in_chunks_gives_the_same_bytes_and_the_decoders_errors(seed, d,
     assert parts == whole
     # The CRC and the errors pack reports are those of what the numpy decoder makes of the bytes.
     decoded = vertexpack.unpack(whole.packing, whole.data)
+    # ... whatever the decoder's block and its threads (two halves past PARALLEL_UNPACK vertices).
+    in_blocks = vertexpack.unpack(whole.packing, whole.data, chunk=chunk)
+    saved = vertexpack.PARALLEL_UNPACK
+    try:
+        vertexpack.PARALLEL_UNPACK = 1
+        in_halves = vertexpack.unpack(whole.packing, whole.data, chunk=chunk)
+    finally:
+        vertexpack.PARALLEL_UNPACK = saved
+    for other in (in_blocks, in_halves):
+        assert other.keys() == decoded.keys()
+        assert all(other[name].dtype == decoded[name].dtype and np.array_equal(other[name], decoded[name])
+                   for name in decoded)
     assert zlib.crc32(vertexpack.planar_payload(decoded)) == whole.decoded_crc32
     err = np.sqrt(((decoded["position"].astype(np.float64) - p.astype(np.float64)) ** 2).sum(axis=1)).max()
     assert whole.max_position_error == float(err)

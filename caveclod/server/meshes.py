@@ -25,6 +25,7 @@ from pathlib import Path
 import numpy as np
 
 from .. import wire
+from . import logs
 from ..v1 import caveclod_pb2 as pb
 
 
@@ -41,9 +42,11 @@ class ServedMesh:
         self.mesh = mesh
         self._lock = threading.Lock()
         self._crc: int | None = None
+        self._crc_lock = threading.Lock()
         self._info: pb.MeshInfo | None = None
         self._packed: dict = {}             # (position_bits, morph) -> (Packed, VertexPacking, VertexFormat)
         self._packing: dict = {}            # (position_bits, morph) -> the lock held while it is packed
+        self.stored: set = set()            # (position_bits, morph) of the variants taken from the file
 
     @cached_property
     def blocks(self) -> list[wire.VertexBlock]:
@@ -69,8 +72,9 @@ class ServedMesh:
 
     @property
     def payload_crc32(self) -> int:
-        """CRC-32 of the planar vertex payload (reads it once: ~10 ms per million vertices)."""
-        with self._lock:
+        """CRC-32 of the planar vertex payload (reads it once: ~15 ms per million vertices; under a
+        lock of its own, so that Opens asking for ``info`` meanwhile do not wait)."""
+        with self._crc_lock:
             if self._crc is None:
                 self._crc = wire.payload_crc32(b.data for b in self.blocks)
             return self._crc
@@ -102,9 +106,11 @@ class ServedMesh:
         """(Packed, VertexPacking, VertexFormat) of the vertex buffer packed at ``position_bits``,
         with morph targets when ``morph`` (caveclod.vertexpack).
 
-        Packed once and kept (a few bytes per vertex per variant): the
+        Taken from the file where its build stored the variant
+        (:func:`caveclod.vertexpack.attach_packed`: its CRC read once), else
+        packed once and kept (a few bytes per vertex per variant): the
         server's default variant right after start (:meth:`LodServer._warm_up`),
-        any other on the first Open that asks (about 0.8 s per million
+        any other on the first Open that asks (about 0.5 s per million
         vertices, off the event loop). Opens that ask while it is packed
         wait for that one packing instead of starting their own.
         """
@@ -120,13 +126,29 @@ class ServedMesh:
                 found = self._packed.get(key)
             if found is None:
                 m = self.mesh
-                packed = vertexpack.pack(m.vertex_positions, m.vertex_normals, m.vertex_uvs, m.vertex_colors,
-                                         position_bits, self.morph_targets if morph else None)
+                packed = self._stored_packed(position_bits, morph)
+                if packed is None:
+                    packed = vertexpack.pack(m.vertex_positions, m.vertex_normals, m.vertex_uvs, m.vertex_colors,
+                                             position_bits, self.morph_targets if morph else None)
                 found = (packed, vertexpack.to_message(packed, m.vertex_buffer_hash),
                          vertexpack.vertex_format(self.blocks, morph))
                 with self._lock:
                     self._packed[key] = found
         return found
+
+    def _stored_packed(self, position_bits: int, morph: bool):
+        """The file's stored variant (a vertexpack.Packed) or None; one the file holds damaged or
+        stale is logged and left (the caller packs afresh)."""
+        from .. import vertexpack
+        try:
+            packed = vertexpack.stored_packed(self.mesh, position_bits, morph)
+        except ValueError as exc:
+            logs.event("server.stored_packing_refused", mesh=self.name, position_bits=position_bits, morph=morph,
+                       reason=str(exc), what_to_do="packing it now; rebuild the file to store it again")
+            return None
+        if packed is not None:
+            self.stored.add((position_bits, bool(morph)))
+        return packed
 
     def packed_chunks(self, position_bits: int, morph: bool = False, max_bytes: int = wire.MAX_CHUNK_BYTES):
         """The packed vertex buffer as VertexChunk ServerMessages (``packed`` first)."""
