@@ -3,10 +3,11 @@ with damaged copies of a small built mesh.
 
 :func:`fuzz_cvc` mutates a copy of a tiny terrain (:func:`make_base`: 2,048
 triangles) per case (:func:`mutate`): bit flips, pokes and swaps inside
-arrays picked by name through the header's offsets, bit flips and edits of
-the header JSON (wrong counts, offsets, byte counts, dtypes and types,
-missing keys, huge materials lists, deep nesting), a damaged prefix, byte
-pokes and truncations. Each file goes through a :class:`fuzzing.CliWorker`,
+arrays picked by name through the header's offsets, bit flips in the
+stored packed downloads (attachments), bit flips and edits of the header
+JSON (wrong counts, offsets, byte counts, dtypes and types, missing keys,
+huge materials lists, deep nesting, attachment entries and their
+metadata), a damaged prefix, byte pokes and truncations. Each file goes through a :class:`fuzzing.CliWorker`,
 which survives crashes and hangs: ``caveclod inspect F``, and when that
 accepts it, ``caveclod inspect --verify F`` and :func:`refine_a_little`
 (two cameras, one in cache mode, flown near and far over the terrain).
@@ -85,6 +86,7 @@ class Layout:
     header: dict
     data_start: int
     arrays: dict
+    attachments: dict       # name -> (file offset, nbytes) of the stored packed downloads
 
     @classmethod
     def of(cls, data: bytes) -> Layout:
@@ -93,13 +95,15 @@ class Layout:
         start = _aligned(PREFIX + hlen)
         arrays = {name: (start + t["offset"], t["nbytes"], np.dtype(t["dtype"]), tuple(t["shape"]))
                   for name, t in header["arrays"].items()}
-        return cls(header, start, arrays)
+        attachments = {name: (start + t["offset"], t["nbytes"]) for name, t in header.get("attachments", {}).items()}
+        return cls(header, start, arrays, attachments)
 
     def moved(self, data_start: int) -> Layout:
         """The same arrays behind a header of another length."""
         shift = data_start - self.data_start
         return replace(self, data_start=data_start,
-                       arrays={k: (a + shift, b, c, d) for k, (a, b, c, d) in self.arrays.items()})
+                       arrays={k: (a + shift, b, c, d) for k, (a, b, c, d) in self.arrays.items()},
+                       attachments={k: (a + shift, b) for k, (a, b) in self.attachments.items()})
 
 
 def _aligned(n: int) -> int:
@@ -164,6 +168,19 @@ def swap_rows(data, layout, rng):
     return bytes(out), layout, f"{name} rows {i} and {j} swapped"
 
 
+def flip_attachment_bit(data, layout, rng):
+    """One bit flipped in a stored packed download (a server must refuse it and pack afresh)."""
+    names = [n for n, (_, nbytes) in layout.attachments.items() if nbytes]
+    if not names:
+        return flip_array_bit(data, layout, rng)
+    name = rng.choice(names)
+    start, nbytes = layout.attachments[name]
+    at, bit = rng.randrange(nbytes), rng.randrange(8)
+    out = bytearray(data)
+    out[start + at] ^= 1 << bit
+    return bytes(out), layout, f"bit {bit} at byte {at} of attachment {name}"
+
+
 def flip_header_bit(data, layout, rng):
     """One bit flipped in the header JSON (``nbytes`` -> ``njytes``, a digit, a quote)."""
     hlen = struct.unpack("<I", data[len(MAGIC) + 4:PREFIX])[0]
@@ -223,7 +240,8 @@ def edit_header(data, layout, rng):
 def _header_edit(header: dict, layout: Layout, rng: random.Random) -> str:
     """Change ``header`` in place; returns what was done."""
     kind = rng.choice(("shape", "shape", "offset", "nbytes", "dtype", "field type", "field missing",
-                       "array missing", "materials", "materials", "info", "hash", "top"))
+                       "array missing", "materials", "materials", "info", "hash", "top", "attachment",
+                       "attachment"))
     name = rng.choice(list(layout.arrays))
     entry = header["arrays"][name]
     weird = rng.choice((None, "12", 1.5, True, [], {}, -1, 2 ** 62, 2 ** 31))
@@ -271,6 +289,24 @@ def _header_edit(header: dict, layout: Layout, rng: random.Random) -> str:
             deep = [deep]
         header["info"] = rng.choice(({"deep": deep}, [], "info", None, {"notes": ["x" * 100] * 1000}))
         return "info edited"
+    if kind == "attachment" and header.get("attachments"):
+        table = header["attachments"]
+        name = rng.choice(sorted(table))
+        entry = table[name]
+        what = rng.choice(("offset", "nbytes", "meta", "meta", "table"))
+        if what == "offset":
+            entry["offset"] = rng.choice((entry["offset"] + 64, 0, header["arrays"]["node_links"]["offset"], 2 ** 40,
+                                          entry["offset"] + 1, weird))
+        elif what == "nbytes":
+            entry["nbytes"] = rng.choice((0, entry["nbytes"] - 1, entry["nbytes"] + 64, 2 ** 40, weird))
+        elif what == "meta":
+            key = rng.choice(sorted(entry["meta"]))
+            entry["meta"][key] = rng.choice((weird, 0, -1.0, float("nan"), "0" * 32, 2 ** 33))
+            return f"attachment {name} meta {key} = {entry['meta'][key]!r}"
+        else:
+            header["attachments"] = weird
+            return f"attachments = {weird!r}"
+        return f"attachment {name} {what} = {entry[what]!r}"
     if kind == "hash":
         key = rng.choice(("content_hash", "vertex_buffer_hash"))
         header[key] = rng.choice(("", "0" * 32, "zz", 5, None))
@@ -291,7 +327,7 @@ def raw_header(data, layout, rng):
 # (mutator, weight); at most one header rewrite per case, done first.
 HEADER_MUTATORS = ((edit_header, 20), (raw_header, 3))
 BYTE_MUTATORS = ((flip_array_bit, 40), (poke_array, 15), (swap_rows, 6), (flip_header_bit, 8), (damage_prefix, 2),
-                 (poke_bytes, 4), (truncate, 5), (append_junk, 1))
+                 (poke_bytes, 4), (truncate, 5), (append_junk, 1), (flip_attachment_bit, 4))
 
 
 def mutate(base: bytes, layout: Layout, rng: random.Random) -> tuple[bytes, list[str]]:
