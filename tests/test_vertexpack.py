@@ -175,6 +175,9 @@ def test_packing_in_chunks_gives_the_same_bytes_and_the_decoders_errors(seed, d,
         assert other.keys() == decoded.keys()
         assert all(other[name].dtype == decoded[name].dtype and np.array_equal(other[name], decoded[name])
                    for name in decoded)
+    # The payload decoded in place is the arrays' PLANAR payload, and nobody can change it.
+    payload = vertexpack.unpack_payload(whole.packing, whole.data, chunk=chunk)
+    assert payload.readonly and payload == vertexpack.planar_payload(decoded)
     assert zlib.crc32(vertexpack.planar_payload(decoded)) == whole.decoded_crc32
     err = np.sqrt(((decoded["position"].astype(np.float64) - p.astype(np.float64)) ** 2).sum(axis=1)).max()
     assert whole.max_position_error == float(err)

@@ -27,23 +27,23 @@ def default_cache_dir() -> Path:
 
 
 class VertexBufferCache:
-    """get/put of vertex buffer payloads (bytes) by their hash."""
+    """get/put of vertex buffer payloads (bytes, or read-only memoryviews: never copied) by their hash."""
 
     def __init__(self, directory: str | os.PathLike | None = None):
         self.directory = Path(directory) if directory is not None else default_cache_dir()
-        self._memory: dict[str, tuple[bytes, int]] = {}     # key -> (payload, crc32), oldest first
+        self._memory: dict[str, tuple] = {}     # key -> (payload, crc32), oldest first
 
     def _path(self, key: str) -> Path:
         if not _HASH.match(key):           # the key names a file: never let it be a path
             raise ValueError(f"not a vertex_buffer_hash: {key!r}")
         return self.directory / key
 
-    def get(self, key: str) -> bytes | None:
+    def get(self, key: str) -> bytes | memoryview | None:
         """The payload stored under ``key``, or None (absent, unreadable or corrupt: then removed)."""
         found = self.lookup(key)
         return None if found is None else found[0]
 
-    def lookup(self, key: str) -> tuple[bytes, int] | None:
+    def lookup(self, key: str) -> tuple[bytes | memoryview, int] | None:
         """``(payload, its zlib.crc32)`` stored under ``key``, or None.
 
         Payloads read or stored lately stay in memory (the last
@@ -58,7 +58,8 @@ class VertexBufferCache:
             blob = path.read_bytes()
         except OSError:
             return None
-        payload, trailer = blob[:-4], blob[-4:]
+        view = memoryview(blob)                 # read-only: a slice of it copies nothing
+        payload, trailer = view[:-4], bytes(view[-4:])
         crc = zlib.crc32(payload)
         if len(trailer) < 4 or struct.unpack("<I", trailer)[0] != crc:
             self.discard(key)
@@ -72,8 +73,9 @@ class VertexBufferCache:
         while len(self._memory) > MEMORY_ENTRIES:
             del self._memory[next(iter(self._memory))]
 
-    def put(self, key: str, payload: bytes) -> None:
-        """Store ``payload`` under ``key`` atomically; a cache that cannot be written is skipped."""
+    def put(self, key: str, payload: bytes | memoryview, crc: int | None = None) -> None:
+        """Store ``payload`` under ``key`` atomically (``crc``: its zlib.crc32 where the caller has it);
+        a cache that cannot be written is skipped."""
         path = self._path(key)
         try:
             self.directory.mkdir(parents=True, exist_ok=True)
@@ -81,12 +83,16 @@ class VertexBufferCache:
         except OSError:
             return
         try:
-            crc = zlib.crc32(payload)
+            crc = zlib.crc32(payload) if crc is None else crc
             with os.fdopen(fd, "wb") as fh:
                 fh.write(payload)
                 fh.write(struct.pack("<I", crc))
             os.replace(tmp, path)
-            self._remember(key, bytes(payload), crc)
+            # Kept as it is when nobody can change it (bytes, a read-only view: the vertex buffer's own
+            # memory, not a second copy of it); anything writable is copied.
+            held = payload if isinstance(payload, bytes) or isinstance(payload, memoryview) and payload.readonly \
+                else bytes(payload)
+            self._remember(key, held, crc)
         except OSError:
             Path(tmp).unlink(missing_ok=True)
 

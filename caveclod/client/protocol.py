@@ -49,7 +49,8 @@ class VertexBuffer:
 
     Attributes:
         hash: its vertex_buffer_hash.
-        payload: the planar payload bytes.
+        payload: the planar payload: bytes, or a read-only memoryview of the
+            buffer a packed download was decoded into.
         positions: (d, 3) float32 view. normals: (d, 3) float32.
         uvs: (d, 2) float32. colors: (d, 4) uint8, or None.
         morph_targets: (d,) uint32 geomorph targets (each vertex's own index
@@ -57,7 +58,7 @@ class VertexBuffer:
     """
 
     hash: str
-    payload: bytes
+    payload: bytes | memoryview
     positions: np.ndarray
     normals: np.ndarray
     uvs: np.ndarray
@@ -355,7 +356,8 @@ class SessionProtocol:
         self._chunks = None
         if self.info.HasField("vertex_packing"):
             payload = self._unpack(payload)
-        if zlib.crc32(payload) != self.info.vertex_payload_crc32:
+        crc = zlib.crc32(payload)
+        if crc != self.info.vertex_payload_crc32:
             raise ProtocolError("the vertex buffer's CRC-32 differs from SessionInfo.vertex_payload_crc32; "
                                 + ("it was damaged in transit, open the session again"
                                    if not self.info.HasField("vertex_packing") else
@@ -364,16 +366,16 @@ class SessionProtocol:
         key = self._buffer_key()
         self._set_vertex(key, payload)
         if self.cache is not None:
-            self.cache.put(key, payload)
+            self.cache.put(key, payload, crc)
 
-    def _unpack(self, packed: bytes) -> bytes:
-        """The PLANAR payload decoded from the packed download (caveclod.vertexpack)."""
+    def _unpack(self, packed: bytes) -> memoryview:
+        """The PLANAR payload decoded from the packed download (caveclod.vertexpack; read-only)."""
         if zlib.crc32(packed) != self.info.vertex_packing.packed_crc32:
             raise ProtocolError("the packed vertex buffer's CRC-32 differs from VertexPacking.packed_crc32; it was "
                                 "damaged in transit, open the session again")
         try:
             packing = vertexpack.from_message(self.info.vertex_packing, self.info.vertex_format)
-            return vertexpack.planar_payload(vertexpack.unpack(packing, packed))
+            return vertexpack.unpack_payload(packing, packed)
         except wire.WireError as exc:
             raise ProtocolError(str(exc)) from None
 
