@@ -359,21 +359,9 @@ def load(path: str | os.PathLike, check: bool = True) -> StaticMesh:
     attached = _attachment_table(path, header.get("attachments", {}), data_start, size)
     _check_overlaps(path, [(start, start + nbytes, f"array {name}") for name, (_, start, nbytes) in table.items()]
                     + [(start, start + nbytes, f"attachment {name}") for name, (_, start, nbytes) in attached.items()])
-    arrays = {}
-    for name, (dtype, _) in ARRAYS.items():
-        shape, start, nbytes = table[name]
-        if nbytes == 0:
-            arrays[name] = np.zeros(shape, dtype)
-            continue
-        try:
-            arrays[name] = np.memmap(path, dtype=dtype, mode="r", offset=start, shape=shape)
-        except (OSError, ValueError) as exc:     # the file changed since its size was read, or mmap failed
-            raise FileFormatError(f"{path}: cannot map array {name}: {exc}; copy the file again") from None
-    attachments = {}
-    for name, (meta, start, nbytes) in attached.items():
-        data = np.memmap(path, dtype=np.uint8, mode="r", offset=start, shape=(nbytes,)) if nbytes else \
-            np.zeros(0, np.uint8)
-        attachments[name] = Attachment(meta, data)
+    arrays = {name: _mapped(path, f"array {name}", dtype, *table[name]) for name, (dtype, _) in ARRAYS.items()}
+    attachments = {name: Attachment(meta, _mapped(path, f"attachment {name}", np.uint8, (nbytes,), start, nbytes))
+                   for name, (meta, start, nbytes) in attached.items()}
     mesh = StaticMesh(arrays=arrays, materials=header["materials"], info=header["info"], path=str(path),
                       content_hash=header["content_hash"], vertex_buffer_hash=header["vertex_buffer_hash"],
                       attachments=attachments)
@@ -525,6 +513,16 @@ def _check_overlaps(path: Path, spans: list) -> None:
     for (_, end, a), (start, _, b) in itertools.pairwise(spans):
         if start < end:
             raise damaged_error(path, f"{a} and {b} overlap")
+
+
+def _mapped(path: Path, what: str, dtype, shape: tuple, start: int, nbytes: int) -> np.ndarray:
+    """A read-only memmap of ``shape`` at file offset ``start`` (an empty array when ``nbytes`` is 0)."""
+    if nbytes == 0:
+        return np.zeros(shape, dtype)
+    try:
+        return np.memmap(path, dtype=dtype, mode="r", offset=start, shape=shape)
+    except (OSError, ValueError) as exc:     # the file changed since its size was read, or mmap failed
+        raise FileFormatError(f"{path}: cannot map {what}: {exc}; copy the file again") from None
 
 
 def _is_count(v) -> bool:
