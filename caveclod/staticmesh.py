@@ -189,8 +189,10 @@ class StaticMesh:
         CSR ``pos_vstart``; derived once per process, not stored)."""
         ids = self.__dict__.get("_vertex_position_ids")
         if ids is None:
+            from .kernels.positions import fill_vertex_positions
             start = np.asarray(self.arrays["pos_vstart"])
-            ids = np.repeat(np.arange(len(start) - 1, dtype=np.int32), np.diff(start))
+            ids = np.zeros(self.n_vertices, np.int32)
+            fill_vertex_positions(start, ids)
             self.__dict__["_vertex_position_ids"] = ids
         return ids
 

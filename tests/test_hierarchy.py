@@ -254,3 +254,27 @@ def test_high_valence_fan_links_like_a_small_one():
                 assert topo.nbrs[f, k] == -1
     mesh = caveclod.build(cyl)
     assert len(mesh.base_faces) <= 300
+
+
+@settings(max_examples=60, deadline=None)
+@given(counts=st.lists(st.integers(0, 4), min_size=0, max_size=40))
+def test_each_vertex_s_position_is_the_inverse_of_the_csr(counts):
+    """The kernel's table against np.repeat, positions without vertices included."""
+    from caveclod.kernels.positions import fill_vertex_positions
+    start = np.concatenate([[0], np.cumsum(counts)]).astype(np.int32)
+    out = np.full(int(start[-1]), -1, np.int32)
+    fill_vertex_positions(start, out)
+    assert np.array_equal(out, np.repeat(np.arange(len(counts), dtype=np.int32), counts))
+
+
+def test_a_damaged_csr_writes_nothing_outside_the_table():
+    from caveclod.kernels.positions import fill_vertex_positions
+    out = np.full(4, -1, np.int32)
+    fill_vertex_positions(np.array([0, 3, 1, -5, 2_000_000_000], np.int32), out)    # back, negative, huge
+    assert out.tolist() == [3, 3, 3, 3]          # position 3 claims 0 .. 2e9: clipped to the table
+
+
+def test_a_built_mesh_s_vertex_positions_follow_its_csr():
+    mesh = caveclod.build(holey_scan(), packed=False)
+    start = np.asarray(mesh.pos_vstart)
+    assert np.array_equal(mesh.vertex_position_ids, np.repeat(np.arange(len(start) - 1), np.diff(start)))

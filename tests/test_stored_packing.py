@@ -176,3 +176,16 @@ def test_a_server_sends_the_stored_variant_and_the_same_buffer_as_one_that_packs
     assert meshes_["rough"].stored == {(20, False), (20, True)} and meshes_["bare"].stored == set()
     packed = {r.fields["mesh"]: r.fields["stored"] for r in caplog.records if r.getMessage() == "server.packed"}
     assert packed == {"rough": True, "bare": False}
+
+
+def test_a_mesh_the_build_cannot_simplify_stores_its_variants_too():
+    """No collapse at all (one triangle): the morph variant's targets are every vertex itself."""
+    from caveclod.builder.source import SourceMesh
+    src = SourceMesh(positions=np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0]], np.float64),
+                     vertex_position=np.arange(3), faces=np.array([[0, 1, 2]]), face_material=np.zeros(1, np.int32),
+                     materials=["m"])
+    mesh = caveclod.build(src)
+    assert mesh.n_internal == 0
+    morph = vertexpack.stored_packed(mesh, 20, True)
+    decoded = vertexpack.unpack(morph.packing, morph.data)
+    assert decoded["morph_target"].reshape(-1).tolist() == [0, 1, 2]

@@ -47,12 +47,14 @@ def morph_targets(mesh) -> np.ndarray:
         up = nxt
     top = up[:e]
     p = parent[top]
-    target_pos = np.where(p >= 0, npos[np.maximum(p, e) - e], np.arange(e))
+    target_pos = np.arange(e)
+    inner = p >= 0
+    target_pos[inner] = npos[p[inner] - e]    # (a mesh of no collapses has no node_position to read)
     # Each vertex: the vertex of its surface group at the target position.
     vstart = np.asarray(a["pos_vstart"], np.int64)
     sgid = np.asarray(a["vertex_sgid"])
     d = len(sgid)
-    own_pos = np.repeat(np.arange(e), np.diff(vstart))
+    own_pos = mesh.vertex_position_ids
     tp = target_pos[own_pos]
     lo, hi = vstart[tp], vstart[tp + 1]
     target = np.arange(d, dtype=np.int64)
