@@ -101,6 +101,14 @@ def _parser() -> argparse.ArgumentParser:
     i.add_argument("--verify", action="store_true", help="re-hash the whole file and check it is intact")
     i.set_defaults(run=_inspect)
 
+    k = sub.add_parser("pack", help="store the packed vertex downloads in a .cvc built before caveclod stored them "
+                                    "(a server then need not pack them at start)")
+    k.add_argument("path")
+    k.add_argument("-o", "--output", help="write here instead of rewriting PATH")
+    k.add_argument("--json", action="store_true", help="print one JSON object on stdout")
+    k.add_argument("--quiet", action="store_true", help="no progress bar")
+    k.set_defaults(run=_pack)
+
     s = sub.add_parser("serve", help="serve .cvc meshes to thin clients over gRPC (caveclod.v1)",
                        description="Serve static meshes over gRPC. Each mesh is served under its file stem. "
                                    "SIGTERM or SIGINT drains: health goes NOT_SERVING, new sessions are refused, "
@@ -330,6 +338,21 @@ def _build(args) -> int:
     report = mesh.summary()
     report["output"] = args.output
     _print(report, args.json)
+    return 0
+
+
+def _pack(args) -> int:
+    from .staticmesh import load
+    from .vertexpack import attach_packed
+    mesh = load(args.path)       # checked, as serve would
+    attach_packed(mesh, progress=not args.quiet)
+    output = args.output or args.path
+    try:
+        mesh.save(output)        # a new file renamed into place: the mapped one stays readable meanwhile
+    except OSError as exc:
+        raise CaveclodError(f"cannot write {output}: {exc.strerror}; check the directory is writable and has "
+                            "room for a copy of the file") from None
+    _print({"path": str(output), "attachments": mesh.summary()["attachments"]}, args.json)
     return 0
 
 

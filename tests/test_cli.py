@@ -92,3 +92,19 @@ def test_garbage_files_are_refused(tmp_path):
 def test_unwritable_output_is_refused(tmp_path):
     proc = run("build", "default", "--size", 8, "-o", tmp_path / "no" / "such" / "dir" / "x.cvc", "--quiet")
     assert_refused(proc, "cannot write")
+
+
+def test_pack_stores_the_downloads_in_a_file_built_without_them(tmp_path):
+    import caveclod
+    from caveclod import vertexpack
+    bare = tmp_path / "old.cvc"
+    caveclod.build("rough", size=24, packed=False).save(bare)
+    before = caveclod.load(bare)
+    proc = run("pack", bare, "--json", "--quiet")
+    assert proc.returncode == 0, proc.stderr
+    assert set(json.loads(proc.stdout)["attachments"]) == {"packed-20", "packed-20-morph"}
+    after = caveclod.load(bare)
+    assert after.content_hash == before.content_hash and after.vertex_buffer_hash == before.vertex_buffer_hash
+    for bits, morph in vertexpack.STORED_VARIANTS:
+        assert vertexpack.stored_packed(after, bits, morph) is not None
+    assert_refused(run("pack", tmp_path / "missing.cvc"), "missing.cvc")

@@ -156,9 +156,11 @@ class LodServer:
             except Exception as exc:
                 logs.event("server.pack_failed", mesh=served.name, error=repr(exc))
                 continue
-            logs.event("server.packed", mesh=served.name, position_bits=DEFAULT_POSITION_BITS,
-                       stored=(DEFAULT_POSITION_BITS, False) in served.stored,
-                       seconds=round(time.perf_counter() - t1, 3))
+            stored = (DEFAULT_POSITION_BITS, False) in served.stored
+            logs.event("server.packed", mesh=served.name, position_bits=DEFAULT_POSITION_BITS, stored=stored,
+                       seconds=round(time.perf_counter() - t1, 3),
+                       **({} if stored else {"what_to_do": f"'caveclod pack {served.mesh.path}' stores it in the "
+                                                            "file, so that a restart need not pack it"}))
         for served in self.catalogue.meshes.values():
             try:
                 served.payload_crc32    # float32 downloads': reads the payload once (0.26 s at 16.8M vertices)
