@@ -49,8 +49,8 @@ class VertexBuffer:
 
     Attributes:
         hash: its vertex_buffer_hash.
-        payload: the planar payload: bytes, or a read-only memoryview of the
-            buffer a packed download was decoded into.
+        payload: the planar payload, read-only: a memoryview of the
+            downloaded (or decoded) bytes, or bytes.
         positions: (d, 3) float32 view. normals: (d, 3) float32.
         uvs: (d, 2) float32. colors: (d, 4) uint8, or None.
         morph_targets: (d,) uint32 geomorph targets (each vertex's own index
@@ -352,7 +352,7 @@ class SessionProtocol:
             self._finish_vertex_buffer()
 
     def _finish_vertex_buffer(self) -> None:
-        payload = bytes(self._chunks)
+        payload = memoryview(self._chunks).toreadonly()     # the downloaded bytes themselves, not a copy
         self._chunks = None
         if self.info.HasField("vertex_packing"):
             payload = self._unpack(payload)
