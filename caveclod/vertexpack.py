@@ -43,6 +43,7 @@ bound at its nearest distance) and the largest normal angle.
 from __future__ import annotations
 
 import hashlib
+import json
 import zlib
 from dataclasses import dataclass
 
@@ -526,6 +527,13 @@ STORED_VARIANTS = ((DEFAULT_POSITION_BITS, False), (DEFAULT_POSITION_BITS, True)
 STORED_FORMAT = "caveclod.packed.v1"      # the format of the streams (module doc), as packed_hash names it
 
 
+def stored_meta_crc32(meta: dict) -> int:
+    """CRC-32 of a stored variant's metadata but ``meta_crc32`` itself (its JSON, keys sorted): a
+    header edit or bit flip that leaves valid JSON (a CRC's digit, a step) changes it."""
+    rest = {k: v for k, v in meta.items() if k != "meta_crc32"}
+    return zlib.crc32(json.dumps(rest, sort_keys=True).encode())
+
+
 def attachment_name(position_bits: int, morph: bool) -> str:
     """The attachment of the variant packed at ``position_bits`` (with morph targets when ``morph``)."""
     return f"packed-{position_bits}" + ("-morph" if morph else "")
@@ -552,6 +560,7 @@ def attach_packed(mesh, variants=STORED_VARIANTS, progress: bool = False) -> Non
                 "normal_bits": p.normal_bits, "texcoord_step": p.texcoord_step, "has_color": p.has_color,
                 "has_morph": p.has_morph, "decoded_crc32": packed.decoded_crc32, "packed_crc32": packed.packed_crc32,
                 "max_position_error": packed.max_position_error, "max_normal_degrees": packed.max_normal_degrees}
+        meta["meta_crc32"] = stored_meta_crc32(meta)
         mesh.attachments[attachment_name(bits, morph)] = Attachment(meta, np.frombuffer(packed.data, np.uint8))
         bar.update(done + 1)
     bar.close()
@@ -561,14 +570,16 @@ def stored_packed(mesh, position_bits: int, morph: bool) -> Packed | None:
     """The variant ``mesh`` stores (:func:`attach_packed`), or None where it stores none.
 
     Reads the packed bytes once to check their CRC. Raises ValueError (what is
-    wrong, in a phrase) for a stored variant that does not belong to this
-    vertex buffer, is of another format, or whose bytes changed: the caller
-    packs afresh instead.
+    wrong, in a phrase) for a stored variant whose metadata or bytes changed
+    (each has its CRC-32), that does not belong to this vertex buffer, or is
+    of another format: the caller packs afresh instead.
     """
     att = mesh.attachments.get(attachment_name(position_bits, morph))
     if att is None:
         return None
     m = att.meta
+    if m.get("meta_crc32") != stored_meta_crc32(m):
+        raise ValueError("its metadata do not match their CRC-32 (damaged)")
     want = {"format": STORED_FORMAT, "vertex_buffer_hash": mesh.vertex_buffer_hash, "vertex_count": mesh.n_vertices,
             "position_bits": position_bits, "has_morph": bool(morph), "normal_bits": NORMAL_BITS}
     wrong = [key for key, value in want.items() if m.get(key) != value or type(m.get(key)) is not type(value)]
@@ -579,9 +590,11 @@ def stored_packed(mesh, position_bits: int, morph: bool) -> Packed | None:
         numbers = [float(m[k]) for k in ("position_step", "texcoord_step", "max_position_error",
                                          "max_normal_degrees")]
         crcs = [int(m[k]) for k in ("decoded_crc32", "packed_crc32")]
+        if not all(0 <= c < 1 << 32 for c in crcs):
+            raise ValueError
         has_color = m["has_color"]
     except (KeyError, TypeError, ValueError):
-        raise ValueError("its metadata lacks a field or holds one of the wrong type") from None
+        raise ValueError("its metadata lacks a field or holds one of the wrong type or range") from None
     if len(origin) != 3 or not np.isfinite([*origin, *numbers]).all() or min(numbers[:2]) <= 0 \
             or not isinstance(has_color, bool) or has_color != bool(len(mesh.vertex_colors)):
         raise ValueError("its packing parameters are not ones pack makes for this mesh")

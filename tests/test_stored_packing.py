@@ -121,16 +121,32 @@ def test_damaged_or_stale_stored_bytes_are_refused_and_packed_afresh(rough, tmp_
     served.packed(20, morph=True)
     assert served.stored == {(20, True)}
 
-    # Metadata that belongs to another vertex buffer (a file edited by hand, or a tool's bug).
+    # Metadata edited where JSON stays valid (a digit of the decoded payload's CRC): its own CRC says so.
+    edited = _copy(rough, tmp_path / "edited.cvc")
+    _rewrite_header(edited, lambda h: h["attachments"]["packed-20"]["meta"].update(
+        decoded_crc32=h["attachments"]["packed-20"]["meta"]["decoded_crc32"] ^ 1))
+    with pytest.raises(ValueError, match="metadata do not match their CRC-32"):
+        vertexpack.stored_packed(caveclod.load(edited), 20, False)
+
+    def consistent(**fields):
+        """An edit of the metadata that also rewrites its CRC (a tool's bug, not damage)."""
+        def edit(h):
+            meta = h["attachments"]["packed-20"]["meta"]
+            meta.update(fields)
+            meta["meta_crc32"] = vertexpack.stored_meta_crc32(meta)
+        return edit
+
+    # Metadata that belongs to another vertex buffer.
     stale = _copy(rough, tmp_path / "stale.cvc")
-    _rewrite_header(stale, lambda h: h["attachments"]["packed-20"]["meta"].update(vertex_buffer_hash="0" * 32))
+    _rewrite_header(stale, consistent(vertex_buffer_hash="0" * 32))
     with pytest.raises(ValueError, match="vertex_buffer_hash"):
         vertexpack.stored_packed(caveclod.load(stale), 20, False)
-    # A field of the wrong type.
-    odd = _copy(rough, tmp_path / "odd.cvc")
-    _rewrite_header(odd, lambda h: h["attachments"]["packed-20"]["meta"].update(position_step="big"))
-    with pytest.raises(ValueError, match="wrong type"):
-        vertexpack.stored_packed(caveclod.load(odd), 20, False)
+    # Fields of the wrong type or out of range.
+    for fields in ({"position_step": "big"}, {"decoded_crc32": 1 << 33}, {"packed_crc32": -1}):
+        odd = _copy(rough, tmp_path / "odd.cvc")
+        _rewrite_header(odd, consistent(**fields))
+        with pytest.raises(ValueError, match="wrong type"):
+            vertexpack.stored_packed(caveclod.load(odd), 20, False)
 
 
 def _shift_onto_an_array(h):

@@ -144,7 +144,7 @@ class ServedMesh:
             packed = vertexpack.stored_packed(self.mesh, position_bits, morph)
         except ValueError as exc:
             logs.event("server.stored_packing_refused", mesh=self.name, position_bits=position_bits, morph=morph,
-                       reason=str(exc), what_to_do="packing it now; rebuild the file to store it again")
+                       reason=str(exc), what_to_do=f"packing it now; 'caveclod pack {self.mesh.path}' stores it again")
             return None
         if packed is not None:
             self.stored.add((position_bits, bool(morph)))
