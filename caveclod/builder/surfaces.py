@@ -24,6 +24,8 @@ from dataclasses import dataclass
 import numba as nb
 import numpy as np
 
+from ..kernels.positions import fill_vertex_positions
+
 FREE, SHARP, RIGID = 0, 1, 2
 CLASS_NAMES = ("free", "sharp", "rigid")
 
@@ -69,7 +71,8 @@ def layout_surfaces(face_pos, face_vertex, face_material, nbrs, nonmanifold, n_p
     n_groups = int(group.max()) + 1
     # One vertex per (group, position) pair in use, listed by position.
     pos_vstart, pair_group, first = _group_pairs(face_pos, group, n_positions)
-    pair_pos = np.repeat(np.arange(n_positions, dtype=np.int32), np.diff(pos_vstart))
+    pair_pos = np.zeros(int(pos_vstart[-1]), np.int32)       # the position of each pair (the inverse CSR)
+    fill_vertex_positions(pos_vstart, pair_pos)
     sgid_of_group = _colour_groups(pair_group, pair_pos, n_groups, n_positions)
     pair_sgid = sgid_of_group[pair_group]
     order = _by_id_within_position(pos_vstart, pair_sgid)
