@@ -1,10 +1,11 @@
 """The build: half-edge collapses chosen by quadric error, recorded as nodes.
 
 Error bounds (what the runtime's screen-space test reads) are measured, not
-estimated: every position a collapse removes becomes a *carried point* of the
-face nearest to it, and every collapse re-measures the points carried by the
+estimated: every position a collapse removes becomes a *carried point* of a
+face near it, and every collapse re-measures the points carried by the
 faces it reshapes (those of the floating position's fan) against the new
-local surface, reassigning each to its new nearest face. A node's error is
+local surface, reassigning each to a face of the new fan (the first within
+the error so far, else the nearest: :mod:`caveclod.kernels.carried`). A node's error is
 the largest such distance, or its children's, so it bounds the real
 distance from the original positions of its region to the coarser surface
 (Hoppe's PM residuals, measured exactly instead of sampled). Interior points
@@ -82,11 +83,12 @@ def init_leaves(P, F, N, fgroup, vface, Q, cone):
         vface[x] = -1
     for f in range(F.shape[0]):
         a, b, c = F[f, 0], F[f, 1], F[f, 2]
-        e1 = P[b] - P[a]
-        e2 = P[c] - P[a]
-        n0 = e1[1] * e2[2] - e1[2] * e2[1]
-        n1 = e1[2] * e2[0] - e1[0] * e2[2]
-        n2 = e1[0] * e2[1] - e1[1] * e2[0]
+        # Scalars, not P[b] - P[a]: that allocated two arrays a face.
+        e10, e11, e12 = P[b, 0] - P[a, 0], P[b, 1] - P[a, 1], P[b, 2] - P[a, 2]
+        e20, e21, e22 = P[c, 0] - P[a, 0], P[c, 1] - P[a, 1], P[c, 2] - P[a, 2]
+        n0 = e11 * e22 - e12 * e21
+        n1 = e12 * e20 - e10 * e22
+        n2 = e10 * e21 - e11 * e20
         ln = math.sqrt(n0 * n0 + n1 * n1 + n2 * n2)
         for k in range(3):
             if vface[F[f, k]] == -1:

@@ -109,6 +109,8 @@ def _surface_dist2(x, px, py, pz, P, face_pos, face_nbrs, star_start, star_faces
         d = _tri_dist2(star_faces[j], px, py, pz, P, face_pos)
         if d < best:
             best, g = d, star_faces[j]
+            if d <= worst:               # the caller needs no nearer face then
+                return best, g
     for _ in range(MAX_STEPS):
         if best <= worst or g == -1:
             break
@@ -145,11 +147,15 @@ def _walk(q, d1, sx, sy, sz, P, face_pos, face_nbrs, star_start, star_faces, wor
             d = _dist2(r, sx, sy, sz, P)
             if d < d1:
                 q, d1 = r, d
+                if d <= worst:
+                    return q, d1
             if face_nbrs[g, (k + 2) % 3] == -1:         # the edge prev -> at is a border
                 r = face_pos[g, (k + 2) % 3]
                 d = _dist2(r, sx, sy, sz, P)
                 if d < d1:
                     q, d1 = r, d
+                    if d <= worst:
+                        return q, d1
         if q == at:
             break
     return q, d1
