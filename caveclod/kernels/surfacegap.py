@@ -50,7 +50,15 @@ edge length (at most 8 points) and large faces at 3 more points lowered the
 largest LOD -> original error of benchmarks/error.py from 1.36 to 1.19 t
 on the rough terrain at 1 px (1.14 to 1.12 on the smooth one, 1.25 to 1.18
 on the scan) for 0.5-8 % more faces, but made the 1M terrains' builds
-2.2-3.9 s slower on one core (a quarter): not kept."""
+2.2-3.9 s slower on one core (a quarter): not kept. Tried again once the
+walks stopped at the first point within the error (2026-11-27): an odd
+number of samples a new edge, about one every original edge length (the
+longest at t) up to 7, and faces whose centroid lies over two such lengths
+from its corners measured halfway to each corner too. The rough 256 terrain
+at 1 px went from 1.36 to 1.29 t, the scan at 1 px from 1.25 to 1.18, but
+the scan at 0.5 px from 1.39 to 1.48 (a different tree), with 0-4 % more
+faces: 8 of the 12 pairs within 1.25 t, as before, for 28 % more CPU in the
+1M rough terrain's build. Not kept."""
 
 MAX_STEPS = 4096
 """Most steps of each of a sample's walks, over positions and then faces (a walk
