@@ -146,7 +146,7 @@ def remeasure(u, u_group, fl, fr, fan_u, nu, fan_t, nt, P, F, N, fgroup, alive, 
             if dead_first:
                 for k in range(3):
                     h = N[f0, k]
-                    if h != fl and h != fr:
+                    if h >= 0 and h != fl and h != fr:
                         if h0 == -1:
                             h0 = h
                         else:
