@@ -1,6 +1,7 @@
 """Build throughput and peak memory on the built-in terrains, in one tile and in tiles.
 
     python benchmarks/build.py [--terrains default rough] [--sizes 708 1024] [--repeats 3] [--modes single tiled]
+                               [--baseline DIR]
 
 Each build runs in a fresh process (so peak memory is that build's own):
 the process imports caveclod, warms the compiled kernels on a tiny terrain,
@@ -19,7 +20,10 @@ measured bounds; a yardstick for speed, not an equal). For the first
 repeat, the refinement it gives: four cameras of the flyover at 1280x720
 and 1 px, converged, their median faces and the share of faces from splits
 their own view does not ask for (:func:`caveclod.refine.measure.forced_splits`).
-Writes ``benchmarks/results/build.json`` and a plot.
+``--baseline DIR`` builds the same inputs with the checkout in DIR too
+(``git worktree add DIR REV``), interleaved with this one's run by run, so
+that the two are compared within one run. Writes
+``benchmarks/results/build.json`` and a plot.
 """
 
 from __future__ import annotations
@@ -99,7 +103,7 @@ row = {"terrain": terrain, "size": size, "triangles": s["faces"], "seconds": sec
        "peak_added_bytes": peak,
        "static_bytes": s["static_bytes"], "equation1_static_bytes": s["equation1_static_bytes"],
        "base_faces": s["base_faces"], "nodes": s["nodes"], "passes": s["passes"], "tiles": mesh.info["tiles"],
-       "height": height(mesh)}
+       "height": height(mesh), "module": caveclod.__file__}
 if extras:
     row.update(refinement(mesh))
     row["meshoptimizer_seconds"], row["meshoptimizer_faces"] = meshoptimizer_chain(source, s["base_faces"])
@@ -109,11 +113,19 @@ print(json.dumps(row))
 MODES = {"single": "1", "tiled": "auto"}
 
 
-def run_one(terrain: str, size: int, mode: str, extras: bool) -> dict:
+HERE = Path(__file__).resolve().parents[1]
+
+
+def run_one(terrain: str, size: int, mode: str, extras: bool, checkout: Path = HERE) -> dict:
+    """One build in a fresh process of ``checkout``'s caveclod (the child runs in
+    that directory, which Python searches before an installed caveclod)."""
     out = subprocess.run([sys.executable, "-c", CHILD, str(size), terrain, MODES[mode], "1" if extras else "0"],
-                         check=True, capture_output=True, text=True,
-                         env={**os.environ, "PYTHONPATH": str(Path(__file__).resolve().parents[1])})
-    return json.loads(out.stdout.strip().splitlines()[-1])
+                         check=True, capture_output=True, text=True, cwd=checkout,
+                         env={**os.environ, "PYTHONPATH": str(checkout)})
+    row = json.loads(out.stdout.strip().splitlines()[-1])
+    if not Path(row["module"]).resolve().is_relative_to(Path(checkout).resolve()):
+        raise SystemExit(f"the build meant for {checkout} imported {row['module']}: check that DIR is a checkout")
+    return row
 
 
 def main(argv=None) -> int:
@@ -124,19 +136,25 @@ def main(argv=None) -> int:
     ap.add_argument("--repeats", type=int, default=3)
     ap.add_argument("--modes", nargs="+", default=list(MODES), choices=list(MODES))
     ap.add_argument("--out", type=Path, default=RESULTS / "build.json")
+    ap.add_argument("--baseline", type=Path, help="a checkout whose build to run beside this one's, interleaved")
     args = ap.parse_args(argv)
+    checkouts = {"this": HERE}
+    if args.baseline is not None:
+        checkouts["baseline"] = args.baseline.resolve()
     rows = []
     for terrain, size in [(t, n) for t in args.terrains for n in args.sizes]:
-        # Modes interleaved repeat by repeat, so that a noisy minute hits both alike.
-        runs = {mode: [] for mode in args.modes}
+        # Modes and checkouts interleaved repeat by repeat, so that a noisy
+        # minute hits them alike.
+        runs = {(mode, name): [] for mode in args.modes for name in checkouts}
         for rep in range(args.repeats):
             for mode in args.modes:
-                runs[mode].append(run_one(terrain, size, mode, extras=rep == 0))
-        for mode in args.modes:
-            rs = runs[mode]
+                for name in (list(checkouts) if rep % 2 == 0 else list(checkouts)[::-1]):
+                    runs[mode, name].append(run_one(terrain, size, mode, extras=rep == 0, checkout=checkouts[name]))
+        for (mode, name), rs in runs.items():
             tri = rs[0]["triangles"]
             row = {
-                "terrain": terrain, "size": size, "mode": mode, "tiles": rs[0]["tiles"], "triangles": tri,
+                "checkout": name, "terrain": terrain, "size": size, "mode": mode, "tiles": rs[0]["tiles"],
+                "triangles": tri,
                 "seconds_median": statistics.median(r["seconds"] for r in rs),
                 "triangles_per_second_median": statistics.median(tri / r["seconds"] for r in rs),
                 "build_triangles_per_second_median": statistics.median(tri / r["build_seconds"] for r in rs),
@@ -151,7 +169,8 @@ def main(argv=None) -> int:
                 "runs": rs,
             }
             rows.append(row)
-            print(f"{terrain} {size} {mode} (tiles {row['tiles']}): {tri:,} triangles, "
+            print(f"{'' if name == 'this' else 'baseline: '}{terrain} {size} {mode} (tiles {row['tiles']}): "
+                  f"{tri:,} triangles, "
                   f"{row['triangles_per_second_median']:,.0f} tri/s ({row['build_triangles_per_second_median']:,.0f} "
                   f"without generating the input), peak {row['peak_bytes_per_triangle_median']:.0f} "
                   f"B/tri, static {row['static_over_equation1']:.2f} of Equation 1, base {row['base_faces']} faces, "
@@ -160,7 +179,9 @@ def main(argv=None) -> int:
                   "meshoptimizer's chain", flush=True)
     args.out.parent.mkdir(parents=True, exist_ok=True)
     args.out.write_text(json.dumps({"command": "python benchmarks/build.py " + " ".join(argv or sys.argv[1:]),
-                                    "machine_cores": os.cpu_count(), "results": rows}, indent=1))
+                                    "machine_cores": os.cpu_count(),
+                                    "checkouts": {k: str(v) for k, v in checkouts.items()}, "results": rows},
+                                   indent=1))
     _plot(rows, args.out.with_suffix(".png"))
     return 0
 
@@ -171,14 +192,15 @@ def _plot(rows, path: Path) -> None:
     import matplotlib.pyplot as plt
     fig, (a, b) = plt.subplots(1, 2, figsize=(10, 3.8))
     inputs = sorted({(r["terrain"], r["size"], r["triangles"]) for r in rows}, key=lambda k: (k[0], k[1]))
-    modes = sorted({r["mode"] for r in rows})
-    width = 0.8 / len(modes)
-    for j, mode in enumerate(modes):
-        sel = [next((r for r in rows if (r["terrain"], r["size"]) == k[:2] and r["mode"] == mode), None)
-               for k in inputs]
+    series = sorted({(r["mode"], r.get("checkout", "this")) for r in rows}, key=lambda m: (m[0], m[1] != "this"))
+    width = 0.8 / len(series)
+    for j, (mode, name) in enumerate(series):
+        sel = [next((r for r in rows if (r["terrain"], r["size"]) == k[:2] and r["mode"] == mode
+                     and r.get("checkout", "this") == name), None) for k in inputs]
         xs = [i + j * width for i in range(len(inputs))]
-        a.bar(xs, [r["build_triangles_per_second_median"] / 1e3 if r else 0 for r in sel], width, label=mode)
-        b.bar(xs, [r["peak_bytes_per_triangle_median"] if r else 0 for r in sel], width, label=mode)
+        label = mode if name == "this" else f"{mode}, baseline"
+        a.bar(xs, [r["build_triangles_per_second_median"] / 1e3 if r else 0 for r in sel], width, label=label)
+        b.bar(xs, [r["peak_bytes_per_triangle_median"] if r else 0 for r in sel], width, label=label)
     labels = [f"{t}\n{n / 1e6:.1f}M" for t, _, n in inputs]
     for ax in (a, b):
         ax.set_xticks([i + 0.4 - width / 2 for i in range(len(inputs))], labels)
