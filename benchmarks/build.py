@@ -165,7 +165,8 @@ def main(argv=None) -> int:
                 "base_faces": rs[0]["base_faces"], "passes": rs[0]["passes"], "height": rs[0]["height"],
                 "faces_1px": rs[0]["faces_1px"], "forced_share_1px": rs[0]["forced_share_1px"],
                 "meshoptimizer_seconds": rs[0]["meshoptimizer_seconds"],
-                "meshoptimizer_ratio": statistics.median(r["build_seconds"] for r in rs) / rs[0]["meshoptimizer_seconds"],
+                "meshoptimizer_ratio": (statistics.median(r["build_seconds"] for r in rs)
+                                        / rs[0]["meshoptimizer_seconds"]),
                 "runs": rs,
             }
             rows.append(row)
