@@ -331,10 +331,7 @@ def _build(args) -> int:
     mesh = build(args.input, cell_size=args.cell_size, z_scale=args.z_scale, materials=args.materials,
                  crease_angle=args.crease_angle, size=args.size, seed=args.seed, nodata=args.nodata, weld=args.weld,
                  progress=not args.quiet, tiles=args.tiles, workers=args.workers)
-    try:
-        mesh.save(args.output)
-    except OSError as exc:
-        raise CaveclodError(f"cannot write {args.output}: {exc.strerror}; check the directory exists and is writable") from None
+    _save(mesh, args.output)
     report = mesh.summary()
     report["output"] = args.output
     _print(report, args.json)
@@ -347,13 +344,18 @@ def _pack(args) -> int:
     mesh = load(args.path)       # checked, as serve would
     attach_packed(mesh, progress=not args.quiet)
     output = args.output or args.path
-    try:
-        mesh.save(output)        # a new file renamed into place: the mapped one stays readable meanwhile
-    except OSError as exc:
-        raise CaveclodError(f"cannot write {output}: {exc.strerror}; check the directory is writable and has "
-                            "room for a copy of the file") from None
+    _save(mesh, output)          # a new file renamed into place: the mapped one stays readable meanwhile
     _print({"path": str(output), "attachments": mesh.summary()["attachments"]}, args.json)
     return 0
+
+
+def _save(mesh, path) -> None:
+    """``mesh.save(path)``, an OSError said as what to do."""
+    try:
+        mesh.save(path)
+    except OSError as exc:
+        raise CaveclodError(f"cannot write {path}: {exc.strerror}; check the directory exists, is writable and has "
+                            "room for the file") from None
 
 
 def _inspect(args) -> int:
