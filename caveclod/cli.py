@@ -198,9 +198,9 @@ def _parser() -> argparse.ArgumentParser:
                    help="gRPC connections the sessions share (default: one per session, as viewers have; a "
                         "server's --processes spreads connections, not streams)")
     t.add_argument("--transport", choices=("auto", "h2", "grpc"), default="auto",
-                   help="h2: the sessions' streams over HTTP/2 with the h2 library (the loadtest extra), about "
-                        "two thirds of grpc.aio's CPU per frame, plaintext only; grpc: grpc.aio; auto (the "
-                        "default): h2 where it is installed and no --tls-ca is given, else grpc")
+                   help="h2: the sessions' streams over HTTP/2 framed by caveclod itself (HPACK from the loadtest "
+                        "extra), about half of grpc.aio's CPU per frame, plaintext only; grpc: grpc.aio; auto (the "
+                        "default): h2 where hpack is installed and no --tls-ca is given, else grpc")
     t.add_argument("--shard", help=argparse.SUPPRESS)        # I/N: the sessions of one of N processes
     t.add_argument("--start-at", type=float, help=argparse.SUPPRESS)   # their shared start (time.perf_counter)
     t.add_argument("--frame-encoding", choices=("ops", "raw"), default="ops",

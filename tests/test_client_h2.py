@@ -1,6 +1,6 @@
-"""`caveclod loadtest --transport h2`: gRPC over HTTP/2 with the h2 library.
+"""`caveclod loadtest --transport h2`: gRPC over HTTP/2, framed by caveclod.client.h2wire.
 
-The framing against a scripted HTTP/2 server (every way a call can end, and
+The framing against a scripted HTTP/2 server (the h2 library's server side) (every way a call can end, and
 a peer that is not gRPC or not HTTP/2), then load tests through a network
 cut (sessions resume with their tokens) and across a server restart (they
 fail over to fresh sessions), with every CRC checked.
@@ -15,7 +15,8 @@ import threading
 import grpc
 import pytest
 
-pytest.importorskip("h2", reason="the h2 library (the loadtest extra) is not installed")
+pytest.importorskip("hpack", reason="the hpack library (the loadtest extra) is not installed")
+pytest.importorskip("h2", reason="the h2 library (the test extra; the scripted servers) is not installed")
 import h2.config  # noqa: E402
 import h2.connection  # noqa: E402
 import h2.events  # noqa: E402
@@ -114,6 +115,48 @@ def test_every_way_a_call_ends_is_a_status_that_says_why(case, code, words):
     result = _unary(respond)
     assert isinstance(result, CallEnded), result
     assert result.code == code and words in result.details, (result.code, result.details)
+
+
+def test_flow_control_padding_pings_and_split_header_blocks(monkeypatch):
+    """What a plain reply does not exercise: a request larger than the server's window (it waits for
+    WINDOW_UPDATEs), padded DATA, a PING to answer, and trailers split over CONTINUATION frames."""
+    from caveclod.client import h2wire
+    monkeypatch.setattr(h2wire, "MAX_FRAME", 16384)        # so that h2 splits a long header block
+    seen = {"pings": 0}
+
+    async def main():
+        async def handle(reader, writer):
+            conn = h2.connection.H2Connection(h2.config.H2Configuration(client_side=False, header_encoding="utf-8"))
+            conn.initiate_connection()
+            writer.write(conn.data_to_send())
+            body = bytearray()
+            while data := await reader.read(65536):
+                for event in conn.receive_data(data):
+                    if isinstance(event, h2.events.DataReceived):
+                        body += event.data
+                        conn.acknowledge_received_data(event.flow_controlled_length, event.stream_id)
+                    elif isinstance(event, h2.events.PingAckReceived):
+                        seen["pings"] += 1
+                    elif isinstance(event, h2.events.StreamEnded):
+                        sid = event.stream_id
+                        conn.ping(b"12345678")
+                        conn.send_headers(sid, OK_HEADERS)
+                        conn.send_data(sid, framed(str(len(body)).encode()), pad_length=17)
+                        conn.send_headers(sid, [("grpc-status", "0"), ("grpc-message", "x" * 40_000)],
+                                          end_stream=True)
+                writer.write(conn.data_to_send())
+            writer.close()
+        server = await asyncio.start_server(handle, "127.0.0.1", 0)
+        target = H2Target("127.0.0.1", server.sockets[0].getsockname()[1])
+        try:
+            reply = await target.unary("/t.T/M", b"r" * 300_000, timeout=5.0)
+            await asyncio.sleep(0.05)                   # the PING's ACK left with the reply's read
+            return reply
+        finally:
+            target.close()
+            server.close()
+    assert asyncio.run(asyncio.wait_for(main(), 20)) == str(5 + 300_000).encode()
+    assert seen["pings"] == 1
 
 
 def test_a_peer_that_is_not_http2_or_not_there_is_unavailable():

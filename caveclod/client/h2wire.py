@@ -1,4 +1,4 @@
-"""gRPC over HTTP/2 with the ``h2`` library: many Session streams on one socket, for the load generator.
+"""gRPC over HTTP/2, framed here: many Session streams on one socket, for the load generator.
 
 grpc.aio spends most of a load generator's CPU on its own machinery: an
 awaited read and an awaited write per message, and a ``sendmsg`` system
@@ -6,10 +6,23 @@ call per message written (``caveclod loadtest`` profiled: 35 % of its CPU
 in the write of each pose). This module speaks the same wire protocol
 (gRPC's HTTP/2 mapping: a POST per call, each message a 5-byte prefix and
 its protobuf bytes, the status in the trailers) from an
-:class:`asyncio.Protocol`: a read of the socket is handed to ``h2`` at
-once and every message in it is dispatched by a plain call, and whatever
-the handlers send (acks, poses of every session due at the same tick) goes
-out in one write.
+:class:`asyncio.Protocol`: a read of the socket is cut into HTTP/2 frames
+at once and every message in it is dispatched by a plain call, and
+whatever the handlers send (acks, poses of every session due at the same
+tick) goes out in one write.
+
+The frames are read and written here, not by the ``h2`` library: a load
+test's traffic is DATA frames both ways and the server's WINDOW_UPDATEs,
+and h2 spent a fifth of the load generator's CPU on them (an event object
+and two state machines per frame, and the ``repr`` of every frame it
+receives, made for a logger that drops it). Only what gRPC's client side
+needs is spoken (RFC 9113): SETTINGS, DATA, HEADERS and CONTINUATION
+(header blocks through ``hpack``, h2's own HPACK codec), WINDOW_UPDATE,
+PING, RST_STREAM and GOAWAY; no server push (disabled in our SETTINGS),
+priorities ignored. Flow control: the server's windows are kept exactly;
+ours are large (STREAM_WINDOW, CONNECTION_WINDOW) and given back once half
+of one is used, so a steady stream costs a WINDOW_UPDATE every few
+thousand frames.
 
 Plaintext HTTP/2 only (``h2c`` with prior knowledge, as gRPC's insecure
 channels): TLS is left to grpc.aio (``caveclod loadtest --transport grpc``).
@@ -26,18 +39,24 @@ import urllib.parse
 from typing import Callable
 
 import grpc
-import h2.config
-import h2.connection
-import h2.errors
-import h2.events
-import h2.exceptions
-import h2.settings
+import hpack
+
+PREFACE = b"PRI * HTTP/2.0\r\n\r\nSM\r\n\r\n"
+# Frame types and flags (RFC 9113, section 6).
+DATA, HEADERS, PRIORITY, RST_STREAM, SETTINGS, PUSH_PROMISE, PING, GOAWAY, WINDOW_UPDATE, CONTINUATION = range(10)
+END_STREAM, ACK, END_HEADERS, PADDED, PRIORITY_FLAG = 0x1, 0x1, 0x4, 0x8, 0x20
+SETTINGS_HEADER_TABLE_SIZE, SETTINGS_ENABLE_PUSH, SETTINGS_MAX_CONCURRENT_STREAMS = 1, 2, 3
+SETTINGS_INITIAL_WINDOW_SIZE, SETTINGS_MAX_FRAME_SIZE = 4, 5
+NO_ERROR, PROTOCOL_ERROR, CANCEL = 0x0, 0x1, 0x8
+MAX_STREAM_ID = (1 << 31) - 1
 
 # Windows large enough that a vertex buffer (a few MiB) or a burst of frames
-# never waits for a WINDOW_UPDATE round trip; h2 sends updates as data is
-# acknowledged.
+# never waits for a WINDOW_UPDATE round trip.
 STREAM_WINDOW = 8 << 20
 CONNECTION_WINDOW = 64 << 20
+# The largest frame the server may send us (advertised in SETTINGS): fewer,
+# larger DATA frames for a vertex buffer.
+MAX_FRAME = 1 << 20
 MAX_MESSAGE = 64 << 20          # a message larger than this is a broken stream, not an allocation
 # Keepalive as the grpc clients' (caveclod.client.session.CHANNEL_OPTIONS): a
 # PING after 20 s without a byte from the server, the connection given up
@@ -55,6 +74,15 @@ class CallEnded(Exception):
         self.code, self.details = code, details
 
 
+class _ProtocolViolation(Exception):
+    """The server broke HTTP/2: the connection is lost (one line saying how)."""
+
+
+def _frame(kind: int, flags: int, stream_id: int, payload: bytes = b"") -> bytes:
+    """One HTTP/2 frame: 9-byte header (24-bit length, type, flags, 31-bit stream id) and payload."""
+    return (len(payload).to_bytes(3, "big") + bytes((kind, flags)) + stream_id.to_bytes(4, "big") + payload)
+
+
 class H2Call:
     """One gRPC call (an HTTP/2 stream) on an :class:`H2Connection`.
 
@@ -63,7 +91,8 @@ class H2Call:
     its last message.
     """
 
-    __slots__ = ("conn", "stream_id", "on_message", "on_end", "_buf", "_status", "ended", "_pending")
+    __slots__ = ("conn", "stream_id", "on_message", "on_end", "_buf", "_status", "ended", "_pending",
+                 "send_window", "_unacked", "_half_close", "local_closed", "remote_closed", "_reset")
 
     def __init__(self, conn: "H2Connection", stream_id: int, on_message: Callable[[bytes], None],
                  on_end: Callable[[grpc.StatusCode, str], None]):
@@ -73,10 +102,15 @@ class H2Call:
         self._status: tuple | None = None       # (code, details) from headers or trailers
         self.ended = False
         self._pending = bytearray()              # framed messages waiting for flow-control window
+        self.send_window = conn._peer_window     # bytes the server lets us send on this stream
+        self._unacked = 0                        # bytes received since our last WINDOW_UPDATE
+        self._half_close = False                 # END_STREAM due once _pending is out
+        self.local_closed = self.remote_closed = False
+        self._reset = False                      # a RST_STREAM went either way
 
     def send(self, message: bytes) -> None:
         """Queue one request message (serialized protobuf); it leaves at the connection's next flush."""
-        if self.ended:
+        if self.ended or self._half_close:
             return
         self._pending += b"\x00" + len(message).to_bytes(4, "big") + message
         self.conn._dirty.add(self)
@@ -85,23 +119,23 @@ class H2Call:
         """Half-close: no more request messages (gRPC's end of the client stream)."""
         if self.ended:
             return
-        self.conn._half_close.add(self)
+        self._half_close = True
         self.conn._dirty.add(self)
 
     def cancel(self) -> None:
         """Reset the stream (CANCEL) and end the call locally as CANCELLED."""
         if self.ended:
             return
-        try:
-            self.conn.h2.reset_stream(self.stream_id, error_code=h2.errors.ErrorCodes.CANCEL)
-        except (h2.exceptions.ProtocolError, h2.exceptions.StreamClosedError):
-            pass
+        self.conn._reset_stream(self, CANCEL)
         self.conn.flush()
         self._finish(grpc.StatusCode.CANCELLED, "cancelled by the client")
 
     # -- what the connection hands over --------------------------------------------------
     def _data(self, data: bytes) -> None:
         buf = self._buf
+        if not buf and len(data) >= 5 and not data[0] and int.from_bytes(data[1:5], "big") == len(data) - 5:
+            self.on_message(data[5:])            # the usual case: one whole message in one DATA frame
+            return
         buf += data
         start = 0
         while len(buf) - start >= 5:
@@ -134,6 +168,7 @@ class H2Call:
                             f"a grpc-status that is not a number: {raw[:40]!r}")
 
     def _stream_ended(self) -> None:
+        self.remote_closed = True
         if self._buf:
             self._finish(grpc.StatusCode.INTERNAL, f"the stream ended inside a message ({len(self._buf)} bytes)")
         elif self._status is None:
@@ -142,24 +177,19 @@ class H2Call:
             self._finish(*self._status)
 
     def _fail(self, code: grpc.StatusCode, details: str) -> None:
-        try:
-            self.conn.h2.reset_stream(self.stream_id, error_code=h2.errors.ErrorCodes.CANCEL)
-        except (h2.exceptions.ProtocolError, h2.exceptions.StreamClosedError):
-            pass
+        self.conn._reset_stream(self, CANCEL)
         self._finish(code, details)
 
     def _finish(self, code: grpc.StatusCode, details: str) -> None:
         if self.ended:
             return
         self.ended = True
-        self.conn.calls.pop(self.stream_id, None)
-        self.conn._dirty.discard(self)
-        self.conn._half_close.discard(self)
-        if self.conn.lost is None:       # free our side of the stream too (a no-op when it is closed)
-            try:
-                self.conn.h2.reset_stream(self.stream_id, error_code=h2.errors.ErrorCodes.NO_ERROR)
-            except (h2.exceptions.ProtocolError, h2.exceptions.StreamClosedError):
-                pass
+        conn = self.conn
+        conn.calls.pop(self.stream_id, None)
+        conn._dirty.discard(self)
+        self._pending.clear()
+        if conn.lost is None and not (self.local_closed and self.remote_closed):
+            conn._reset_stream(self, NO_ERROR)     # free our side of the stream too
         self.on_end(code, details)
 
 
@@ -176,20 +206,24 @@ class H2Connection(asyncio.Protocol):
 
     def __init__(self, authority: str):
         self.authority = authority
-        config = h2.config.H2Configuration(client_side=True, header_encoding="utf-8",
-                                           validate_outbound_headers=False, normalize_outbound_headers=False,
-                                           validate_inbound_headers=False, normalize_inbound_headers=False)
-        self.h2 = h2.connection.H2Connection(config=config)
         self.transport: asyncio.Transport | None = None
         self.calls: dict[int, H2Call] = {}
         self._dirty: set[H2Call] = set()
-        self._half_close: set[H2Call] = set()
+        self._out = bytearray()                  # frames to write at the next flush
+        self._in = bytearray()                   # bytes read that do not make a whole frame yet
+        self._encoder, self._decoder = hpack.Encoder(), hpack.Decoder()
+        self._next_stream = 1
+        self._send_window = 65535                # the connection's window for our DATA (the server's)
+        self._peer_window = 65535                # SETTINGS_INITIAL_WINDOW_SIZE of the server: new streams'
+        self._peer_frame = 16384                 # SETTINGS_MAX_FRAME_SIZE of the server: our DATA frames' limit
+        self._peer_streams = MAX_STREAM_ID       # SETTINGS_MAX_CONCURRENT_STREAMS of the server
+        self._unacked = 0                        # bytes received on the connection since our last WINDOW_UPDATE
+        self._headers_open: tuple | None = None  # (stream id, END_STREAM, fragments) of a header block in progress
         self.lost: str | None = None             # why the connection is gone, once it is
         self._heard = 0.0                        # the loop's time of the last read
         self._spoke_h2 = False                   # the server's SETTINGS arrived
         self._keepalive: asyncio.TimerHandle | None = None
         self.going_away: str | None = None       # why no new call may start (GOAWAY), once so
-        self._in_receive = False
 
     @property
     def usable(self) -> bool:
@@ -210,11 +244,11 @@ class H2Connection(asyncio.Protocol):
     # -- asyncio.Protocol ------------------------------------------------------------------
     def connection_made(self, transport) -> None:
         self.transport = transport
-        self.h2.local_settings = h2.settings.Settings(client=True, initial_values={
-            h2.settings.SettingCodes.INITIAL_WINDOW_SIZE: STREAM_WINDOW,
-            h2.settings.SettingCodes.ENABLE_PUSH: 0})
-        self.h2.initiate_connection()
-        self.h2.increment_flow_control_window(CONNECTION_WINDOW - 65535)
+        settings = b"".join(key.to_bytes(2, "big") + value.to_bytes(4, "big") for key, value in (
+            (SETTINGS_ENABLE_PUSH, 0), (SETTINGS_INITIAL_WINDOW_SIZE, STREAM_WINDOW),
+            (SETTINGS_MAX_FRAME_SIZE, MAX_FRAME)))
+        self._out += PREFACE + _frame(SETTINGS, 0, 0, settings)
+        self._out += _frame(WINDOW_UPDATE, 0, 0, (CONNECTION_WINDOW - 65535).to_bytes(4, "big"))
         self.flush()
         loop = asyncio.get_running_loop()
         self._heard = loop.time()
@@ -230,24 +264,43 @@ class H2Connection(asyncio.Protocol):
             self._lose(f"no answer from the server for {silent:.0f} s (keepalive); the network or the server is gone")
             return
         if silent >= KEEPALIVE_SECONDS:
-            self.h2.ping(b"caveclod")
+            self._out += _frame(PING, 0, 0, b"caveclod")
             self.flush()
         self._keepalive = loop.call_later(KEEPALIVE_TIMEOUT / 2, self._check_alive)
 
     def data_received(self, data: bytes) -> None:
         self._heard = asyncio.get_running_loop().time()
+        if self._in:                             # a frame cut by the last read: join it up
+            self._in += data
+            buf, self._in = bytes(self._in), bytearray()
+        else:
+            buf = data
+        pos, end = 0, len(buf)
         try:
-            events = self.h2.receive_data(data)
-        except h2.exceptions.ProtocolError as exc:
+            while end - pos >= 9 and self.lost is None:
+                length = buf[pos] << 16 | buf[pos + 1] << 8 | buf[pos + 2]
+                if length > MAX_FRAME:
+                    raise _ProtocolViolation(f"a frame of {length} bytes (at most {MAX_FRAME}, as our SETTINGS say)")
+                if end - pos - 9 < length:
+                    break
+                kind, flags = buf[pos + 3], buf[pos + 4]
+                stream_id = (buf[pos + 5] << 24 | buf[pos + 6] << 16 | buf[pos + 7] << 8 | buf[pos + 8]) & MAX_STREAM_ID
+                payload = buf[pos + 9:pos + 9 + length]
+                pos += 9 + length
+                if kind == DATA and self._spoke_h2 and self._headers_open is None:     # the common frame first
+                    self._on_data(flags, stream_id, payload)
+                else:
+                    self._on_frame(kind, flags, stream_id, payload)
+        except _ProtocolViolation as exc:
             self._lose(f"HTTP/2 protocol error from the server: {exc}")
             self.transport.close()
             return
-        self._in_receive = True
-        try:
-            for event in events:
-                self._event(event)
-        finally:
-            self._in_receive = False
+        except hpack.HPACKError as exc:
+            self._lose(f"HTTP/2 protocol error from the server: a header block that does not decode ({exc})")
+            self.transport.close()
+            return
+        if pos < end:
+            self._in += buf[pos:]
         self.flush()
 
     def connection_lost(self, exc) -> None:
@@ -264,21 +317,32 @@ class H2Connection(asyncio.Protocol):
         The request headers leave at the next :meth:`flush`. On a lost
         connection the call ends at once with UNAVAILABLE.
         """
-        stream_id = self.h2.get_next_available_stream_id()
+        stream_id = self._next_stream
         call = H2Call(self, stream_id, on_message, on_end)
+        call.local_closed = call.remote_closed = True       # nothing to reset should it end at once
         if self.lost is not None or self.going_away is not None:
             call._finish(grpc.StatusCode.UNAVAILABLE, self.lost or self.going_away)
             return call
+        if stream_id > MAX_STREAM_ID:
+            self.going_away = "this connection has used every stream id; a new one is opened"
+            call._finish(grpc.StatusCode.UNAVAILABLE, self.going_away)
+            return call
+        if len(self.calls) >= self._peer_streams:
+            call._finish(grpc.StatusCode.UNAVAILABLE, "the server allows no more streams on this connection; "
+                         "use more connections (--connections)")
+            return call
+        self._next_stream += 2
+        call.local_closed = call.remote_closed = False
         headers = [(":method", "POST"), (":scheme", "http"), (":path", path), (":authority", self.authority),
                    ("te", "trailers"), ("content-type", "application/grpc"),
                    ("user-agent", "caveclod-loadtest h2")]
         headers += [(k, v) for k, v in metadata]
-        try:
-            self.h2.send_headers(stream_id, headers)
-        except h2.exceptions.TooManyStreamsError:
-            call._finish(grpc.StatusCode.UNAVAILABLE, "the server allows no more streams on this connection; "
-                         "use more connections (--connections)")
-            return call
+        block = self._encoder.encode(headers)
+        first, rest = block[:self._peer_frame], block[self._peer_frame:]
+        self._out += _frame(HEADERS, END_HEADERS if not rest else 0, stream_id, first)
+        while rest:
+            piece, rest = rest[:self._peer_frame], rest[self._peer_frame:]
+            self._out += _frame(CONTINUATION, END_HEADERS if not rest else 0, stream_id, piece)
         self.calls[stream_id] = call
         return call
 
@@ -289,77 +353,189 @@ class H2Connection(asyncio.Protocol):
         if self._dirty:
             for call in list(self._dirty):
                 self._send_pending(call)
-        out = self.h2.data_to_send()
-        if out:
+        if self._out:
+            out, self._out = self._out, bytearray()
             self.transport.write(out)
 
     def close(self) -> None:
         """End every call (CANCELLED) and close the socket."""
         if self.transport is not None and self.lost is None:
-            try:
-                self.h2.close_connection()
-                self.transport.write(self.h2.data_to_send())
-            except h2.exceptions.ProtocolError:
-                pass
+            # last_stream_id 0: a client processes no stream the server starts.
+            self.transport.write(bytes(self._out) + _frame(GOAWAY, 0, 0, bytes(4) + NO_ERROR.to_bytes(4, "big")))
+            self._out.clear()
             self.transport.close()
         self._lose("the client closed the connection", grpc.StatusCode.CANCELLED)
 
     # -- internals ----------------------------------------------------------------------------
     def _send_pending(self, call: H2Call) -> None:
+        """Frame what ``call`` queued, as far as both windows allow; END_STREAM once it is all out."""
         pending = call._pending
-        sid = call.stream_id
-        try:
-            if pending:
-                room = min(self.h2.local_flow_control_window(sid), len(pending))
-                while room > 0:
-                    size = min(room, self.h2.max_outbound_frame_size)
-                    self.h2.send_data(sid, bytes(pending[:size]))
-                    del pending[:size]
-                    room -= size
-            if not pending:
-                self._dirty.discard(call)
-                if call in self._half_close:
-                    self._half_close.discard(call)
-                    self.h2.end_stream(sid)
-        except (h2.exceptions.StreamClosedError, h2.exceptions.ProtocolError):
+        if call.local_closed or call._reset:
             pending.clear()
             self._dirty.discard(call)
-            self._half_close.discard(call)
+            return
+        room = min(self._send_window, call.send_window, len(pending))
+        if room > 0:
+            sent = 0
+            out, sid, limit = self._out, call.stream_id, self._peer_frame
+            while sent < room:
+                size = min(room - sent, limit)
+                last = call._half_close and sent + size == len(pending)
+                out += _frame(DATA, END_STREAM if last else 0, sid, pending[sent:sent + size])
+                sent += size
+            del pending[:sent]
+            self._send_window -= sent
+            call.send_window -= sent
+            if call._half_close and not pending:
+                call.local_closed = True
+        elif call._half_close and not pending:
+            self._out += _frame(DATA, END_STREAM, call.stream_id)
+            call.local_closed = True
+        if not pending:
+            self._dirty.discard(call)
 
-    def _event(self, event) -> None:
-        sid = getattr(event, "stream_id", None)
-        call = self.calls.get(sid) if sid else None
-        if isinstance(event, h2.events.DataReceived):
-            self.h2.acknowledge_received_data(event.flow_controlled_length, event.stream_id)
-            if call is not None:
-                call._data(event.data)
-        elif isinstance(event, (h2.events.ResponseReceived, h2.events.TrailersReceived)):
-            if call is not None:
-                call._headers(event.headers)
-        elif isinstance(event, h2.events.StreamEnded):
-            if call is not None:
-                call._stream_ended()
-        elif isinstance(event, h2.events.StreamReset):
-            if call is not None:
-                call._finish(grpc.StatusCode.INTERNAL if event.remote_reset else grpc.StatusCode.CANCELLED,
-                             f"Received RST_STREAM with error code {int(event.error_code)}")
-        elif isinstance(event, h2.events.WindowUpdated):
-            if event.stream_id == 0:
+    def _reset_stream(self, call: H2Call, code: int) -> None:
+        """Queue a RST_STREAM of ``call`` (once; not on a lost connection or a stream already reset)."""
+        if self.lost is None and not call._reset:
+            call._reset = True
+            self._out += _frame(RST_STREAM, 0, call.stream_id, code.to_bytes(4, "big"))
+
+    def _give_window(self, stream_id: int, amount: int) -> None:
+        self._out += _frame(WINDOW_UPDATE, 0, stream_id, amount.to_bytes(4, "big"))
+
+    def _on_data(self, flags: int, stream_id: int, payload: bytes) -> None:
+        if stream_id == 0:
+            raise _ProtocolViolation("a DATA frame on stream 0")
+        counted = len(payload)                   # flow control counts the padding too
+        self._unacked += counted
+        if self._unacked >= CONNECTION_WINDOW // 2:
+            self._give_window(0, self._unacked)
+            self._unacked = 0
+        if flags & PADDED:
+            if not payload or payload[0] >= len(payload):
+                raise _ProtocolViolation("a DATA frame whose padding is longer than the frame")
+            payload = payload[1:len(payload) - payload[0]]
+        call = self.calls.get(stream_id)
+        if call is None:
+            return                               # a stream we ended: its data is dropped (the window given back)
+        call._unacked += counted
+        if call._unacked >= STREAM_WINDOW // 2 and not flags & END_STREAM:
+            self._give_window(stream_id, call._unacked)
+            call._unacked = 0
+        if payload:
+            call._data(payload)
+        if flags & END_STREAM and not call.ended:
+            call._stream_ended()
+
+    def _on_frame(self, kind: int, flags: int, stream_id: int, payload: bytes) -> None:
+        """Every frame but the common DATA: connection state, header blocks, stream ends."""
+        if self._headers_open is not None and kind != CONTINUATION:
+            raise _ProtocolViolation(f"a frame of type {kind} inside a header block (CONTINUATION expected)")
+        if not self._spoke_h2 and kind != SETTINGS:
+            raise _ProtocolViolation(f"the server's first frame is of type {kind}, not SETTINGS: is it a gRPC "
+                                     "server, speaking plaintext HTTP/2?")
+        if kind == SETTINGS:
+            self._on_settings(flags, stream_id, payload)
+        elif kind == DATA:
+            self._on_data(flags, stream_id, payload)
+        elif kind in (HEADERS, CONTINUATION):
+            self._on_headers(kind, flags, stream_id, payload)
+        elif kind == WINDOW_UPDATE:
+            if len(payload) != 4:
+                raise _ProtocolViolation(f"a WINDOW_UPDATE of {len(payload)} bytes")
+            amount = int.from_bytes(payload, "big") & MAX_STREAM_ID
+            if stream_id == 0:
+                self._send_window += amount
                 self._dirty.update(c for c in self.calls.values() if c._pending)
-            elif call is not None and call._pending:
-                self._dirty.add(call)
-        elif isinstance(event, h2.events.RemoteSettingsChanged):
-            self._spoke_h2 = True
-        elif isinstance(event, h2.events.ConnectionTerminated):
-            # GOAWAY: calls up to last_stream_id go on (a draining server
-            # finishes them); later ones were never seen, and no new call
-            # may start here.
-            why = f"the server is going away (GOAWAY, error code {int(event.error_code)})"
+            elif (call := self.calls.get(stream_id)) is not None:
+                call.send_window += amount
+                if call._pending:
+                    self._dirty.add(call)
+        elif kind == PING:
+            if len(payload) != 8:
+                raise _ProtocolViolation(f"a PING of {len(payload)} bytes")
+            if not flags & ACK:
+                self._out += _frame(PING, ACK, 0, payload)
+        elif kind == RST_STREAM:
+            if len(payload) != 4:
+                raise _ProtocolViolation(f"a RST_STREAM of {len(payload)} bytes")
+            if (call := self.calls.get(stream_id)) is not None:
+                call._reset = True
+                call._finish(grpc.StatusCode.INTERNAL,
+                             f"Received RST_STREAM with error code {int.from_bytes(payload, 'big')}")
+        elif kind == GOAWAY:
+            if len(payload) < 8:
+                raise _ProtocolViolation(f"a GOAWAY of {len(payload)} bytes")
+            # Calls up to last_stream_id go on (a draining server finishes
+            # them); later ones were never seen, and no new call may start here.
+            last = int.from_bytes(payload[:4], "big") & MAX_STREAM_ID
+            why = f"the server is going away (GOAWAY, error code {int.from_bytes(payload[4:8], 'big')})"
             self.going_away = why
-            last = event.last_stream_id if event.last_stream_id is not None else 0
-            for stream_id, late in list(self.calls.items()):
-                if stream_id > last:
+            for late_id, late in list(self.calls.items()):
+                if late_id > last:
+                    late.local_closed = late.remote_closed = True     # never seen: nothing to reset
                     late._finish(grpc.StatusCode.UNAVAILABLE, why)
+        elif kind == PUSH_PROMISE:
+            raise _ProtocolViolation("a PUSH_PROMISE, though our SETTINGS disable server push")
+        # PRIORITY and unknown frame types are ignored, as RFC 9113 asks.
+
+    def _on_settings(self, flags: int, stream_id: int, payload: bytes) -> None:
+        if stream_id != 0 or len(payload) % 6:
+            raise _ProtocolViolation("a malformed SETTINGS frame")
+        self._spoke_h2 = True
+        if flags & ACK:
+            return
+        for i in range(0, len(payload), 6):
+            key, value = int.from_bytes(payload[i:i + 2], "big"), int.from_bytes(payload[i + 2:i + 6], "big")
+            if key == SETTINGS_HEADER_TABLE_SIZE:
+                self._encoder.header_table_size = value
+            elif key == SETTINGS_MAX_CONCURRENT_STREAMS:
+                self._peer_streams = value
+            elif key == SETTINGS_INITIAL_WINDOW_SIZE:
+                if value > MAX_STREAM_ID:
+                    raise _ProtocolViolation(f"an initial window of {value} bytes")
+                delta, self._peer_window = value - self._peer_window, value
+                for call in self.calls.values():             # the change applies to open streams too
+                    call.send_window += delta
+                    if delta > 0 and call._pending:
+                        self._dirty.add(call)
+            elif key == SETTINGS_MAX_FRAME_SIZE:
+                if not 16384 <= value <= (1 << 24) - 1:
+                    raise _ProtocolViolation(f"a maximum frame size of {value}")
+                self._peer_frame = value
+        self._out += _frame(SETTINGS, ACK, 0)
+
+    def _on_headers(self, kind: int, flags: int, stream_id: int, payload: bytes) -> None:
+        """A HEADERS frame, or a CONTINUATION of one; a complete block is decoded and handed to its call."""
+        if kind == CONTINUATION:
+            if self._headers_open is None or self._headers_open[0] != stream_id:
+                raise _ProtocolViolation("a CONTINUATION that continues no header block")
+            _, ends, fragments = self._headers_open
+        else:
+            if stream_id == 0:
+                raise _ProtocolViolation("a HEADERS frame on stream 0")
+            ends, fragments = bool(flags & END_STREAM), []
+            start, stop = 0, len(payload)
+            if flags & PADDED:
+                if not payload or payload[0] >= len(payload):
+                    raise _ProtocolViolation("a HEADERS frame whose padding is longer than the frame")
+                start, stop = 1, len(payload) - payload[0]
+            if flags & PRIORITY_FLAG:
+                start += 5
+            payload = payload[start:stop]
+        fragments.append(payload)
+        if not flags & END_HEADERS:
+            self._headers_open = (stream_id, ends, fragments)
+            return
+        self._headers_open = None
+        # Every block is decoded, a dropped stream's too: HPACK's table is the connection's.
+        headers = self._decoder.decode(b"".join(fragments))
+        call = self.calls.get(stream_id)
+        if call is None:
+            return
+        call._headers(headers)
+        if ends and not call.ended:
+            call._stream_ended()
 
     def _lose(self, why: str, code: grpc.StatusCode = grpc.StatusCode.UNAVAILABLE) -> None:
         if self.lost is not None:

@@ -271,14 +271,14 @@ async def fly(args, shard: tuple = (0, 1)) -> tuple:
 
 
 def transport(args) -> str:
-    """The transport ``args.transport`` names: ``auto`` is h2 where the h2 library is installed and
-    the connection is plaintext, else grpc. InputError for h2 asked for where it cannot be."""
+    """The transport ``args.transport`` names: ``auto`` is h2 (:mod:`.h2wire`) where the hpack library
+    is installed and the connection is plaintext, else grpc. InputError for h2 asked for where it cannot be."""
     chosen = getattr(args, "transport", "grpc")
-    installed = importlib.util.find_spec("h2") is not None
+    installed = importlib.util.find_spec("hpack") is not None
     if chosen == "auto":
         return "h2" if installed and not args.tls_ca else "grpc"
     if chosen == "h2" and not installed:
-        raise InputError("--transport h2 needs the h2 library: pip install 'caveclod[loadtest]' (or use "
+        raise InputError("--transport h2 needs the hpack library: pip install 'caveclod[loadtest]' (or use "
                          "--transport grpc)")
     if chosen == "h2" and args.tls_ca:
         raise InputError("--transport h2 speaks plaintext HTTP/2 only; use --transport grpc with --tls-ca")
