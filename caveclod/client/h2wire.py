@@ -41,14 +41,12 @@ from typing import Callable
 import grpc
 import hpack
 
-PREFACE = b"PRI * HTTP/2.0\r\n\r\nSM\r\n\r\n"
-# Frame types and flags (RFC 9113, section 6).
-DATA, HEADERS, PRIORITY, RST_STREAM, SETTINGS, PUSH_PROMISE, PING, GOAWAY, WINDOW_UPDATE, CONTINUATION = range(10)
-END_STREAM, ACK, END_HEADERS, PADDED, PRIORITY_FLAG = 0x1, 0x1, 0x4, 0x8, 0x20
-SETTINGS_HEADER_TABLE_SIZE, SETTINGS_ENABLE_PUSH, SETTINGS_MAX_CONCURRENT_STREAMS = 1, 2, 3
-SETTINGS_INITIAL_WINDOW_SIZE, SETTINGS_MAX_FRAME_SIZE = 4, 5
-NO_ERROR, PROTOCOL_ERROR, CANCEL = 0x0, 0x1, 0x8
-MAX_STREAM_ID = (1 << 31) - 1
+from ..http2 import (ACK, CANCEL, CONTINUATION, DATA, DEFAULT_FRAME, DEFAULT_WINDOW, END_STREAM, GOAWAY, HEADERS,
+                     MAX_STREAM_ID, NO_ERROR, PING, PREFACE, PUSH_PROMISE, RST_STREAM, SETTINGS,
+                     SETTINGS_ENABLE_PUSH, SETTINGS_HEADER_TABLE_SIZE, SETTINGS_INITIAL_WINDOW_SIZE,
+                     SETTINGS_MAX_CONCURRENT_STREAMS, SETTINGS_MAX_FRAME_SIZE, WINDOW_UPDATE, FrameReader,
+                     HeaderBlocks, MessageError, Messages, ProtocolViolation, data_payload, frame, goaway,
+                     header_frames, message, parse_settings, settings_frame, window_update)
 
 # Windows large enough that a vertex buffer (a few MiB) or a burst of frames
 # never waits for a WINDOW_UPDATE round trip.
@@ -74,15 +72,6 @@ class CallEnded(Exception):
         self.code, self.details = code, details
 
 
-class _ProtocolViolation(Exception):
-    """The server broke HTTP/2: the connection is lost (one line saying how)."""
-
-
-def _frame(kind: int, flags: int, stream_id: int, payload: bytes = b"") -> bytes:
-    """One HTTP/2 frame: 9-byte header (24-bit length, type, flags, 31-bit stream id) and payload."""
-    return (len(payload).to_bytes(3, "big") + bytes((kind, flags)) + stream_id.to_bytes(4, "big") + payload)
-
-
 class H2Call:
     """One gRPC call (an HTTP/2 stream) on an :class:`H2Connection`.
 
@@ -91,14 +80,14 @@ class H2Call:
     its last message.
     """
 
-    __slots__ = ("conn", "stream_id", "on_message", "on_end", "_buf", "_status", "ended", "_pending",
+    __slots__ = ("conn", "stream_id", "on_message", "on_end", "_messages", "_status", "ended", "_pending",
                  "send_window", "_unacked", "_half_close", "local_closed", "remote_closed", "_reset")
 
     def __init__(self, conn: "H2Connection", stream_id: int, on_message: Callable[[bytes], None],
                  on_end: Callable[[grpc.StatusCode, str], None]):
         self.conn, self.stream_id = conn, stream_id
         self.on_message, self.on_end = on_message, on_end
-        self._buf = bytearray()
+        self._messages = Messages(MAX_MESSAGE)
         self._status: tuple | None = None       # (code, details) from headers or trailers
         self.ended = False
         self._pending = bytearray()              # framed messages waiting for flow-control window
@@ -108,11 +97,11 @@ class H2Call:
         self.local_closed = self.remote_closed = False
         self._reset = False                      # a RST_STREAM went either way
 
-    def send(self, message: bytes) -> None:
+    def send(self, data: bytes) -> None:
         """Queue one request message (serialized protobuf); it leaves at the connection's next flush."""
         if self.ended or self._half_close:
             return
-        self._pending += b"\x00" + len(message).to_bytes(4, "big") + message
+        self._pending += message(data)
         self.conn._dirty.add(self)
 
     def close_send(self) -> None:
@@ -132,29 +121,16 @@ class H2Call:
 
     # -- what the connection hands over --------------------------------------------------
     def _data(self, data: bytes) -> None:
-        buf = self._buf
-        if not buf and len(data) >= 5 and not data[0] and int.from_bytes(data[1:5], "big") == len(data) - 5:
-            self.on_message(data[5:])            # the usual case: one whole message in one DATA frame
+        try:
+            messages = self._messages.feed(data)
+        except MessageError as exc:
+            self._fail(grpc.StatusCode.INTERNAL if exc.kind == "compressed" else grpc.StatusCode.RESOURCE_EXHAUSTED,
+                       str(exc))
             return
-        buf += data
-        start = 0
-        while len(buf) - start >= 5:
-            size = int.from_bytes(buf[start + 1:start + 5], "big")
-            if buf[start]:
-                self._fail(grpc.StatusCode.INTERNAL, "a compressed message (none was asked for)")
-                return
-            if size > MAX_MESSAGE:
-                self._fail(grpc.StatusCode.RESOURCE_EXHAUSTED, f"a message of {size} bytes (at most {MAX_MESSAGE})")
-                return
-            if len(buf) - start - 5 < size:
-                break
-            message = bytes(buf[start + 5:start + 5 + size])
-            start += 5 + size
-            self.on_message(message)
+        for one in messages:
+            self.on_message(one)
             if self.ended:
                 return
-        if start:
-            del buf[:start]
 
     def _headers(self, headers: list) -> None:
         fields = dict(headers)
@@ -169,8 +145,9 @@ class H2Call:
 
     def _stream_ended(self) -> None:
         self.remote_closed = True
-        if self._buf:
-            self._finish(grpc.StatusCode.INTERNAL, f"the stream ended inside a message ({len(self._buf)} bytes)")
+        if self._messages.partial:
+            self._finish(grpc.StatusCode.INTERNAL,
+                         f"the stream ended inside a message ({self._messages.partial} bytes)")
         elif self._status is None:
             self._finish(grpc.StatusCode.UNKNOWN, "the stream ended without a grpc-status")
         else:
@@ -210,15 +187,15 @@ class H2Connection(asyncio.Protocol):
         self.calls: dict[int, H2Call] = {}
         self._dirty: set[H2Call] = set()
         self._out = bytearray()                  # frames to write at the next flush
-        self._in = bytearray()                   # bytes read that do not make a whole frame yet
+        self._reader = FrameReader(MAX_FRAME)
+        self._blocks = HeaderBlocks()
         self._encoder, self._decoder = hpack.Encoder(), hpack.Decoder()
         self._next_stream = 1
-        self._send_window = 65535                # the connection's window for our DATA (the server's)
-        self._peer_window = 65535                # SETTINGS_INITIAL_WINDOW_SIZE of the server: new streams'
-        self._peer_frame = 16384                 # SETTINGS_MAX_FRAME_SIZE of the server: our DATA frames' limit
+        self._send_window = DEFAULT_WINDOW       # the connection's window for our DATA (the server's)
+        self._peer_window = DEFAULT_WINDOW       # SETTINGS_INITIAL_WINDOW_SIZE of the server: new streams'
+        self._peer_frame = DEFAULT_FRAME         # SETTINGS_MAX_FRAME_SIZE of the server: our DATA frames' limit
         self._peer_streams = MAX_STREAM_ID       # SETTINGS_MAX_CONCURRENT_STREAMS of the server
         self._unacked = 0                        # bytes received on the connection since our last WINDOW_UPDATE
-        self._headers_open: tuple | None = None  # (stream id, END_STREAM, fragments) of a header block in progress
         self.lost: str | None = None             # why the connection is gone, once it is
         self._heard = 0.0                        # the loop's time of the last read
         self._spoke_h2 = False                   # the server's SETTINGS arrived
@@ -244,11 +221,9 @@ class H2Connection(asyncio.Protocol):
     # -- asyncio.Protocol ------------------------------------------------------------------
     def connection_made(self, transport) -> None:
         self.transport = transport
-        settings = b"".join(key.to_bytes(2, "big") + value.to_bytes(4, "big") for key, value in (
-            (SETTINGS_ENABLE_PUSH, 0), (SETTINGS_INITIAL_WINDOW_SIZE, STREAM_WINDOW),
-            (SETTINGS_MAX_FRAME_SIZE, MAX_FRAME)))
-        self._out += PREFACE + _frame(SETTINGS, 0, 0, settings)
-        self._out += _frame(WINDOW_UPDATE, 0, 0, (CONNECTION_WINDOW - 65535).to_bytes(4, "big"))
+        self._out += PREFACE + settings_frame(((SETTINGS_ENABLE_PUSH, 0), (SETTINGS_INITIAL_WINDOW_SIZE, STREAM_WINDOW),
+                                               (SETTINGS_MAX_FRAME_SIZE, MAX_FRAME)))
+        self._out += window_update(0, CONNECTION_WINDOW - DEFAULT_WINDOW)
         self.flush()
         loop = asyncio.get_running_loop()
         self._heard = loop.time()
@@ -264,34 +239,21 @@ class H2Connection(asyncio.Protocol):
             self._lose(f"no answer from the server for {silent:.0f} s (keepalive); the network or the server is gone")
             return
         if silent >= KEEPALIVE_SECONDS:
-            self._out += _frame(PING, 0, 0, b"caveclod")
+            self._out += frame(PING, 0, 0, b"caveclod")
             self.flush()
         self._keepalive = loop.call_later(KEEPALIVE_TIMEOUT / 2, self._check_alive)
 
     def data_received(self, data: bytes) -> None:
         self._heard = asyncio.get_running_loop().time()
-        if self._in:                             # a frame cut by the last read: join it up
-            self._in += data
-            buf, self._in = bytes(self._in), bytearray()
-        else:
-            buf = data
-        pos, end = 0, len(buf)
         try:
-            while end - pos >= 9 and self.lost is None:
-                length = buf[pos] << 16 | buf[pos + 1] << 8 | buf[pos + 2]
-                if length > MAX_FRAME:
-                    raise _ProtocolViolation(f"a frame of {length} bytes (at most {MAX_FRAME}, as our SETTINGS say)")
-                if end - pos - 9 < length:
-                    break
-                kind, flags = buf[pos + 3], buf[pos + 4]
-                stream_id = (buf[pos + 5] << 24 | buf[pos + 6] << 16 | buf[pos + 7] << 8 | buf[pos + 8]) & MAX_STREAM_ID
-                payload = buf[pos + 9:pos + 9 + length]
-                pos += 9 + length
-                if kind == DATA and self._spoke_h2 and self._headers_open is None:     # the common frame first
+            for kind, flags, stream_id, payload in self._reader.frames(data):
+                if kind == DATA and self._spoke_h2 and self._blocks.open is None:     # the common frame first
                     self._on_data(flags, stream_id, payload)
                 else:
                     self._on_frame(kind, flags, stream_id, payload)
-        except _ProtocolViolation as exc:
+                if self.lost is not None:
+                    return
+        except ProtocolViolation as exc:
             self._lose(f"HTTP/2 protocol error from the server: {exc}")
             self.transport.close()
             return
@@ -299,8 +261,6 @@ class H2Connection(asyncio.Protocol):
             self._lose(f"HTTP/2 protocol error from the server: a header block that does not decode ({exc})")
             self.transport.close()
             return
-        if pos < end:
-            self._in += buf[pos:]
         self.flush()
 
     def connection_lost(self, exc) -> None:
@@ -337,12 +297,7 @@ class H2Connection(asyncio.Protocol):
                    ("te", "trailers"), ("content-type", "application/grpc"),
                    ("user-agent", "caveclod-loadtest h2")]
         headers += [(k, v) for k, v in metadata]
-        block = self._encoder.encode(headers)
-        first, rest = block[:self._peer_frame], block[self._peer_frame:]
-        self._out += _frame(HEADERS, END_HEADERS if not rest else 0, stream_id, first)
-        while rest:
-            piece, rest = rest[:self._peer_frame], rest[self._peer_frame:]
-            self._out += _frame(CONTINUATION, END_HEADERS if not rest else 0, stream_id, piece)
+        self._out += header_frames(self._encoder.encode(headers), stream_id, False, self._peer_frame)
         self.calls[stream_id] = call
         return call
 
@@ -361,7 +316,7 @@ class H2Connection(asyncio.Protocol):
         """End every call (CANCELLED) and close the socket."""
         if self.transport is not None and self.lost is None:
             # last_stream_id 0: a client processes no stream the server starts.
-            self.transport.write(bytes(self._out) + _frame(GOAWAY, 0, 0, bytes(4) + NO_ERROR.to_bytes(4, "big")))
+            self.transport.write(bytes(self._out) + goaway(0, NO_ERROR))
             self._out.clear()
             self.transport.close()
         self._lose("the client closed the connection", grpc.StatusCode.CANCELLED)
@@ -381,7 +336,7 @@ class H2Connection(asyncio.Protocol):
             while sent < room:
                 size = min(room - sent, limit)
                 last = call._half_close and sent + size == len(pending)
-                out += _frame(DATA, END_STREAM if last else 0, sid, pending[sent:sent + size])
+                out += frame(DATA, END_STREAM if last else 0, sid, pending[sent:sent + size])
                 sent += size
             del pending[:sent]
             self._send_window -= sent
@@ -389,7 +344,7 @@ class H2Connection(asyncio.Protocol):
             if call._half_close and not pending:
                 call.local_closed = True
         elif call._half_close and not pending:
-            self._out += _frame(DATA, END_STREAM, call.stream_id)
+            self._out += frame(DATA, END_STREAM, call.stream_id)
             call.local_closed = True
         if not pending:
             self._dirty.discard(call)
@@ -398,29 +353,23 @@ class H2Connection(asyncio.Protocol):
         """Queue a RST_STREAM of ``call`` (once; not on a lost connection or a stream already reset)."""
         if self.lost is None and not call._reset:
             call._reset = True
-            self._out += _frame(RST_STREAM, 0, call.stream_id, code.to_bytes(4, "big"))
-
-    def _give_window(self, stream_id: int, amount: int) -> None:
-        self._out += _frame(WINDOW_UPDATE, 0, stream_id, amount.to_bytes(4, "big"))
+            self._out += frame(RST_STREAM, 0, call.stream_id, code.to_bytes(4, "big"))
 
     def _on_data(self, flags: int, stream_id: int, payload: bytes) -> None:
         if stream_id == 0:
-            raise _ProtocolViolation("a DATA frame on stream 0")
+            raise ProtocolViolation("a DATA frame on stream 0")
         counted = len(payload)                   # flow control counts the padding too
         self._unacked += counted
         if self._unacked >= CONNECTION_WINDOW // 2:
-            self._give_window(0, self._unacked)
+            self._out += window_update(0, self._unacked)
             self._unacked = 0
-        if flags & PADDED:
-            if not payload or payload[0] >= len(payload):
-                raise _ProtocolViolation("a DATA frame whose padding is longer than the frame")
-            payload = payload[1:len(payload) - payload[0]]
+        payload = data_payload(flags, payload)
         call = self.calls.get(stream_id)
         if call is None:
             return                               # a stream we ended: its data is dropped (the window given back)
         call._unacked += counted
         if call._unacked >= STREAM_WINDOW // 2 and not flags & END_STREAM:
-            self._give_window(stream_id, call._unacked)
+            self._out += window_update(stream_id, call._unacked)
             call._unacked = 0
         if payload:
             call._data(payload)
@@ -429,10 +378,10 @@ class H2Connection(asyncio.Protocol):
 
     def _on_frame(self, kind: int, flags: int, stream_id: int, payload: bytes) -> None:
         """Every frame but the common DATA: connection state, header blocks, stream ends."""
-        if self._headers_open is not None and kind != CONTINUATION:
-            raise _ProtocolViolation(f"a frame of type {kind} inside a header block (CONTINUATION expected)")
+        if self._blocks.open is not None and kind != CONTINUATION:
+            raise ProtocolViolation(f"a frame of type {kind} inside a header block (CONTINUATION expected)")
         if not self._spoke_h2 and kind != SETTINGS:
-            raise _ProtocolViolation(f"the server's first frame is of type {kind}, not SETTINGS: is it a gRPC "
+            raise ProtocolViolation(f"the server's first frame is of type {kind}, not SETTINGS: is it a gRPC "
                                      "server, speaking plaintext HTTP/2?")
         if kind == SETTINGS:
             self._on_settings(flags, stream_id, payload)
@@ -442,7 +391,7 @@ class H2Connection(asyncio.Protocol):
             self._on_headers(kind, flags, stream_id, payload)
         elif kind == WINDOW_UPDATE:
             if len(payload) != 4:
-                raise _ProtocolViolation(f"a WINDOW_UPDATE of {len(payload)} bytes")
+                raise ProtocolViolation(f"a WINDOW_UPDATE of {len(payload)} bytes")
             amount = int.from_bytes(payload, "big") & MAX_STREAM_ID
             if stream_id == 0:
                 self._send_window += amount
@@ -453,19 +402,19 @@ class H2Connection(asyncio.Protocol):
                     self._dirty.add(call)
         elif kind == PING:
             if len(payload) != 8:
-                raise _ProtocolViolation(f"a PING of {len(payload)} bytes")
+                raise ProtocolViolation(f"a PING of {len(payload)} bytes")
             if not flags & ACK:
-                self._out += _frame(PING, ACK, 0, payload)
+                self._out += frame(PING, ACK, 0, payload)
         elif kind == RST_STREAM:
             if len(payload) != 4:
-                raise _ProtocolViolation(f"a RST_STREAM of {len(payload)} bytes")
+                raise ProtocolViolation(f"a RST_STREAM of {len(payload)} bytes")
             if (call := self.calls.get(stream_id)) is not None:
                 call._reset = True
                 call._finish(grpc.StatusCode.INTERNAL,
                              f"Received RST_STREAM with error code {int.from_bytes(payload, 'big')}")
         elif kind == GOAWAY:
             if len(payload) < 8:
-                raise _ProtocolViolation(f"a GOAWAY of {len(payload)} bytes")
+                raise ProtocolViolation(f"a GOAWAY of {len(payload)} bytes")
             # Calls up to last_stream_id go on (a draining server finishes
             # them); later ones were never seen, and no new call may start here.
             last = int.from_bytes(payload[:4], "big") & MAX_STREAM_ID
@@ -476,65 +425,46 @@ class H2Connection(asyncio.Protocol):
                     late.local_closed = late.remote_closed = True     # never seen: nothing to reset
                     late._finish(grpc.StatusCode.UNAVAILABLE, why)
         elif kind == PUSH_PROMISE:
-            raise _ProtocolViolation("a PUSH_PROMISE, though our SETTINGS disable server push")
+            raise ProtocolViolation("a PUSH_PROMISE, though our SETTINGS disable server push")
         # PRIORITY and unknown frame types are ignored, as RFC 9113 asks.
 
     def _on_settings(self, flags: int, stream_id: int, payload: bytes) -> None:
-        if stream_id != 0 or len(payload) % 6:
-            raise _ProtocolViolation("a malformed SETTINGS frame")
+        if stream_id != 0:
+            raise ProtocolViolation("a SETTINGS frame on a stream")
         self._spoke_h2 = True
         if flags & ACK:
             return
-        for i in range(0, len(payload), 6):
-            key, value = int.from_bytes(payload[i:i + 2], "big"), int.from_bytes(payload[i + 2:i + 6], "big")
+        for key, value in parse_settings(payload):
             if key == SETTINGS_HEADER_TABLE_SIZE:
                 self._encoder.header_table_size = value
             elif key == SETTINGS_MAX_CONCURRENT_STREAMS:
                 self._peer_streams = value
             elif key == SETTINGS_INITIAL_WINDOW_SIZE:
                 if value > MAX_STREAM_ID:
-                    raise _ProtocolViolation(f"an initial window of {value} bytes")
+                    raise ProtocolViolation(f"an initial window of {value} bytes")
                 delta, self._peer_window = value - self._peer_window, value
                 for call in self.calls.values():             # the change applies to open streams too
                     call.send_window += delta
                     if delta > 0 and call._pending:
                         self._dirty.add(call)
             elif key == SETTINGS_MAX_FRAME_SIZE:
-                if not 16384 <= value <= (1 << 24) - 1:
-                    raise _ProtocolViolation(f"a maximum frame size of {value}")
+                if not DEFAULT_FRAME <= value <= (1 << 24) - 1:
+                    raise ProtocolViolation(f"a maximum frame size of {value}")
                 self._peer_frame = value
-        self._out += _frame(SETTINGS, ACK, 0)
+        self._out += frame(SETTINGS, ACK, 0)
 
     def _on_headers(self, kind: int, flags: int, stream_id: int, payload: bytes) -> None:
         """A HEADERS frame, or a CONTINUATION of one; a complete block is decoded and handed to its call."""
-        if kind == CONTINUATION:
-            if self._headers_open is None or self._headers_open[0] != stream_id:
-                raise _ProtocolViolation("a CONTINUATION that continues no header block")
-            _, ends, fragments = self._headers_open
-        else:
-            if stream_id == 0:
-                raise _ProtocolViolation("a HEADERS frame on stream 0")
-            ends, fragments = bool(flags & END_STREAM), []
-            start, stop = 0, len(payload)
-            if flags & PADDED:
-                if not payload or payload[0] >= len(payload):
-                    raise _ProtocolViolation("a HEADERS frame whose padding is longer than the frame")
-                start, stop = 1, len(payload) - payload[0]
-            if flags & PRIORITY_FLAG:
-                start += 5
-            payload = payload[start:stop]
-        fragments.append(payload)
-        if not flags & END_HEADERS:
-            self._headers_open = (stream_id, ends, fragments)
+        block = self._blocks.add(kind, flags, stream_id, payload)
+        if block is None:
             return
-        self._headers_open = None
         # Every block is decoded, a dropped stream's too: HPACK's table is the connection's.
-        headers = self._decoder.decode(b"".join(fragments))
+        headers = self._decoder.decode(block[2])
         call = self.calls.get(stream_id)
         if call is None:
             return
         call._headers(headers)
-        if ends and not call.ended:
+        if block[1] and not call.ended:
             call._stream_ended()
 
     def _lose(self, why: str, code: grpc.StatusCode = grpc.StatusCode.UNAVAILABLE) -> None:
