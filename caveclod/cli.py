@@ -150,6 +150,10 @@ def _parser() -> argparse.ArgumentParser:
                    help="N server processes on the one port (SO_REUSEPORT), each with its own event loop, under a "
                         "supervisor that drains them together and sums their metrics (default 1); --max-sessions "
                         "is per process")
+    s.add_argument("--transport", choices=("grpc", "h2"), default="grpc",
+                   help="grpc: grpc.aio (the default; TLS, every gRPC feature); h2: caveclod's own HTTP/2 on the "
+                        "same event loop, the same services (Lod, health, reflection) at less CPU a frame, "
+                        "plaintext only (README, \"Server model\")")
     s.add_argument("--reuse-port", action="store_true", help=argparse.SUPPRESS)      # a process of --processes
     s.add_argument("--announce-metrics", action="store_true", help=argparse.SUPPRESS)  # its metrics port on stdout
     s.set_defaults(run=_serve)

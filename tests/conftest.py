@@ -30,8 +30,26 @@ def terrain_path(tmp_path_factory):
     return path
 
 
+# The service's test modules run once per server transport: grpc.aio, and
+# caveclod's own HTTP/2 (caveclod serve --transport h2), which must behave alike.
+BOTH_TRANSPORTS = {"test_service_session", "test_service_errors", "test_service_acks", "test_service_ops",
+                   "test_service_opstream", "test_service_cache", "test_service_vertexpack", "test_service_resilience",
+                   "test_client_failover", "test_fuzz_protocol", "test_web"}
+
+
+def pytest_generate_tests(metafunc):
+    if "server_transport" in metafunc.fixturenames and metafunc.module.__name__ in BOTH_TRANSPORTS:
+        metafunc.parametrize("server_transport", ["grpc", "h2"], indirect=True)
+
+
 @pytest.fixture
-def make_server(terrain_path):
+def server_transport(request):
+    """The server transport of make_server: "grpc" or "h2" (both, for the modules in BOTH_TRANSPORTS)."""
+    return getattr(request, "param", "grpc")
+
+
+@pytest.fixture
+def make_server(terrain_path, server_transport):
     """``make_server(**config)`` starts an in-process LodServer on 127.0.0.1:0 serving
     the small terrain (ready: kernels loaded); every one is stopped after the test."""
     from caveclod.server import LodServer, ServerConfig
@@ -39,7 +57,9 @@ def make_server(terrain_path):
 
     def make(meshes=None, **overrides):
         config = ServerConfig(meshes=[str(p) for p in (meshes or [terrain_path])],
-                              **{"host": "127.0.0.1", "port": 0, **overrides})
+                              # TLS is grpc.aio's only (caveclod's own HTTP/2 serves plaintext)
+                              **{"host": "127.0.0.1", "port": 0,
+                                 "transport": "grpc" if overrides.get("tls_cert") else server_transport, **overrides})
         server = LodServer(config).start()
         servers.append(server)
         assert server.sessions.ready.wait(60), "the refinement kernels did not load"

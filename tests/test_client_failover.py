@@ -77,7 +77,7 @@ def test_the_affinity_key_stays_with_the_session_across_streams(make_server, tmp
     real = grpc.aio.server
     monkeypatch.setattr(grpc.aio, "server", lambda interceptors=(), **kw: real(
         interceptors=[*interceptors, Recorder()], **kw))
-    server = make_server()
+    server = make_server(transport="grpc")                    # the interceptor above is grpc.aio's
     with proxy_to(server.port) as proxy, Client(f"127.0.0.1:{proxy.port}", cache_dir=tmp_path) as client:
         s1 = client.session("terrain", width=64, height=64)
         s1.send_pose(0, (0, 0, 60), (20, 20, 0))

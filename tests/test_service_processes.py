@@ -10,6 +10,7 @@ import subprocess
 import sys
 import urllib.request
 
+import pytest
 
 from caveclod import cli
 from caveclod.server.processes import sum_metrics
@@ -61,8 +62,9 @@ def _alive(pid: int) -> bool:
         return False
 
 
-def test_processes_share_the_port_drain_together_and_sum_their_metrics(terrain_path, tmp_path, capsys):
-    sup = Supervisor(terrain_path)
+@pytest.mark.parametrize("transport", ["grpc", "h2"])
+def test_processes_share_the_port_drain_together_and_sum_their_metrics(terrain_path, tmp_path, capsys, transport):
+    sup = Supervisor(terrain_path, "--transport", transport)
     children = sup.children()
     try:
         assert len(children) == 2 and all(_alive(p) for p in children)

@@ -211,10 +211,11 @@ def test_killed_clients_are_freed_after_the_resume_ttl(terrain_path):
         stop_process(server)
 
 
-def test_sigterm_drains_then_exits_0(terrain_path):
+@pytest.mark.parametrize("transport", ["grpc", "h2"])
+def test_sigterm_drains_then_exits_0(terrain_path, transport):
     from caveclod.client import SessionProtocol
     from service import Driver
-    server, port = serve_process(str(terrain_path), "--drain-seconds", "2")
+    server, port = serve_process(str(terrain_path), "--drain-seconds", "2", "--transport", transport)
     driver = None
     try:
         options = {"width": 640, "height": 360}

@@ -33,6 +33,11 @@ def _same(a: dict, b: dict) -> bool:
     return sorted(a) == sorted(b) and all(np.array_equal(a[k], b[k]) for k in a)
 
 
+def _rows_sorted(buffers: dict) -> dict:
+    """{material: the (k, 3) triangles in row order}: the buffers' contents, whatever their slots."""
+    return {m: t[np.lexsort(t.T[::-1])] for m, t in buffers.items()}
+
+
 def _check_frame(driver, server, core, views, update):
     """Replay the frame's updates on the core cameras; compare client, mirror and core."""
     p = driver.protocol
@@ -274,4 +279,6 @@ def test_blocking_and_asyncio_clients_see_the_same_frames(server, tmp_path):
 
     asynchronous, divergences = asyncio.run(run())
     assert divergences == 0
-    assert _same(blocking, asynchronous)
+    # The same triangles; their slots may differ: which poses a busy server
+    # answers (latest pose wins) and when it converges set the order of writes.
+    assert _same(_rows_sorted(blocking), _rows_sorted(asynchronous))

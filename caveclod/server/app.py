@@ -44,6 +44,8 @@ MiB = 1 << 20
 # must exceed --drain-seconds plus this: tests/test_deploy_static.py checks
 # that the deploy files do.
 STOP_GRACE_SECONDS = 2.0
+# Client messages are tiny (a pose is ~100 bytes): a larger one is refused.
+MAX_RECEIVE = 64 * 1024
 
 
 class LodServer:
@@ -80,9 +82,15 @@ class LodServer:
 
     async def _bind(self) -> int:
         config = self.config
-        self.grpc = grpc.aio.server(
-            interceptors=[BearerTokenInterceptor(config.tokens)] if config.tokens else [],
-            options=grpc_options(config))
+        interceptors = [BearerTokenInterceptor(config.tokens)] if config.tokens else []
+        if config.transport == "h2" and config.tls_cert is not None:
+            raise CaveclodError("--transport h2 serves plaintext only; serve TLS with the default --transport grpc")
+        if config.transport == "h2":
+            from .h2server import H2Server      # caveclod's own HTTP/2: the same services, less CPU a frame
+            self.grpc = H2Server(interceptors, max_receive=MAX_RECEIVE, keepalive_seconds=config.keepalive_seconds,
+                                 keepalive_timeout=config.keepalive_timeout, reuse_port=config.reuse_port)
+        else:
+            self.grpc = grpc.aio.server(interceptors=interceptors, options=grpc_options(config))
         service = LodService(self.sessions, self.catalogue, self.metrics, self.workers)
         add_to_server(service, self.grpc)
         self.health = health.aio.HealthServicer()
@@ -253,7 +261,7 @@ def grpc_options(config: ServerConfig) -> list:
         ("grpc.http2.max_ping_strikes", 0),
         # Client messages are tiny (a pose is ~100 bytes); frames are split
         # at 1 MiB of array data, so 4 MiB bounds a part with its framing.
-        ("grpc.max_receive_message_length", 64 * 1024),
+        ("grpc.max_receive_message_length", MAX_RECEIVE),
         ("grpc.max_send_message_length", 4 * MiB),
         # Fail to bind a port that another process holds, instead of sharing
         # it, unless we are one of the processes of --processes N.

@@ -52,6 +52,8 @@ class ServerConfig:
         web_port: serve the browser viewer and WebSocket sessions on this
             HTTP port (:mod:`.web`), or None for none; 0 picks a free port.
         web_host: address the viewer listens on; None: ``host``.
+        transport: "grpc" (grpc.aio) or "h2" (:mod:`.h2server`: caveclod's own
+            HTTP/2, plaintext only).
     """
 
     meshes: list = field(default_factory=list)
@@ -75,3 +77,4 @@ class ServerConfig:
     reuse_port: bool = False
     web_port: int | None = None
     web_host: str | None = None
+    transport: str = "grpc"

@@ -28,6 +28,8 @@ def config_from_args(args) -> ServerConfig:
         raise InputError(f"--web-port must be a port number (0 to 65535; 0 picks a free one), got {args.web_port}")
     if args.web_port == 0 and args.processes > 1:
         raise InputError("--processes N shares one --web-port between its processes: give a port number, not 0")
+    if getattr(args, "transport", "grpc") == "h2" and args.tls_cert is not None:
+        raise InputError("--transport h2 serves plaintext only; serve TLS with the default --transport grpc")
     if args.resume_ttl < 0 or args.drain_seconds < 0:
         raise InputError("--resume-ttl and --drain-seconds must be >= 0")
     tls = [_read(p, flag) for p, flag in ((args.tls_cert, "--tls-cert"), (args.tls_key, "--tls-key"))]
@@ -37,7 +39,7 @@ def config_from_args(args) -> ServerConfig:
         drain_seconds=args.drain_seconds, max_faces=args.max_faces, max_ops=args.max_ops,
         metrics_port=args.metrics_port, metrics_host=args.metrics_host,
         tokens=read_tokens(args.token_file) if args.token_file else (), tls_cert=tls[0], tls_key=tls[1],
-        reuse_port=args.reuse_port, web_port=args.web_port,
+        reuse_port=args.reuse_port, web_port=args.web_port, transport=getattr(args, "transport", "grpc"),
         web_host=args.web_host)
 
 
