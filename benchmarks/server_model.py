@@ -2,12 +2,15 @@
 
     python benchmarks/server_model.py [--sessions 24,40] [--duration 15] [--repeats 3]
 
-Two servers of the same sessions (caveclod.server.session and .registry:
+Servers of the same sessions (caveclod.server.session and .registry:
 the same refinement, the same encoding), differing only in their I/O:
 
-* **aio**: what ``caveclod serve`` runs. grpc.aio on one event loop, which
-  reads and writes every stream; frames are made on a pool of worker
-  threads (quick ones on the loop itself).
+* **aio**: what ``caveclod serve`` runs by default. grpc.aio on one event
+  loop, which reads and writes every stream; frames are made on a pool of
+  worker threads (quick ones on the loop itself).
+* **h2**: ``caveclod serve --transport h2``: the same event loop, workers
+  and handlers, with HTTP/2 framed by caveclod (caveclod.server.h2server)
+  instead of gRPC's C core.
 * **sync**: a grpc.server whose pool thread per stream is the session's
   worker: it waits for work, refines, encodes and writes; a reader thread
   per stream takes poses and acks. Kept here, not in the package, as the
@@ -16,7 +19,8 @@ the same refinement, the same encoding), differing only in their I/O:
   traffic: a grpc.aio server with one coroutine per stream that answers
   each pose at once with a pre-serialized frame changing nothing (no
   refinement, no encoding, no bookkeeping). The aio server's CPU per frame
-  less the floor's is what caveclod's own Python costs.
+  less the floor's is what caveclod's own Python costs. **floor h2**: the
+  same over caveclod's HTTP/2.
 
 For each load level, the two run one after the other, ``--repeats`` times
 interleaved (sync, aio, sync, aio, ...), so the drift of this shared machine
@@ -202,7 +206,11 @@ def serve_floor(argv: list) -> int:
         return catalogue.listing()
 
     async def run() -> None:
-        server = grpc.aio.server(options=[("grpc.max_receive_message_length", 64 * 1024)])
+        if config.transport == "h2":
+            from caveclod.server.h2server import H2Server
+            server = H2Server(max_receive=64 * 1024)
+        else:
+            server = grpc.aio.server(options=[("grpc.max_receive_message_length", 64 * 1024)])
         server.add_generic_rpc_handlers((grpc.method_handlers_generic_handler(SERVICE, {
             "Session": grpc.stream_stream_rpc_method_handler(
                 session, request_deserializer=pb.ClientMessage.FromString, response_serializer=None),
@@ -222,6 +230,12 @@ def serve_floor(argv: list) -> int:
     return 0
 
 
+def models(sync: list, floor: list) -> tuple:
+    """(name, server command or None for caveclod serve, serve --transport) of each model measured."""
+    return (("aio", None, "grpc"), ("h2", None, "h2"), ("sync", sync, "grpc"), ("floor", floor, "grpc"),
+            ("floor h2", floor, "h2"))
+
+
 def main() -> int:
     if len(sys.argv) > 1 and sys.argv[1] == "--serve-sync":
         return serve_sync(sys.argv[2:])
@@ -239,8 +253,8 @@ def main() -> int:
     runs = []
     for repeat in range(args.repeats):
         for n in (int(x) for x in args.sessions.split(",")):
-            for model, command in (("aio", None), ("sync", sync), ("floor", floor)):
-                r = capacity(mesh, n, args.duration, command=command)
+            for model, command, transport in models(sync, floor):
+                r = capacity(mesh, n, args.duration, command=command, server_transport=transport)
                 r.pop("latencies_ms")
                 r.update(model=model, repeat=repeat)
                 runs.append(r)
@@ -250,7 +264,7 @@ def main() -> int:
                       f"(refine {r['server_refine_cpu_cores']})  loadtest cpu {r['client_cpu_cores']}  "
                       f"errors {r['errors']}", file=sys.stderr, flush=True)
     summary = {}
-    for model in ("aio", "sync", "floor"):
+    for model, _, _ in models(sync, floor):
         for n in sorted({r["sessions"] for r in runs}):
             mine = [r for r in runs if r["model"] == model and r["sessions"] == n]
             med = lambda f: round(statistics.median(f(r) for r in mine), 2)      # noqa: E731

@@ -234,11 +234,14 @@ class Sampler:
 
 
 def capacity(mesh: Path, sessions: int, duration: float, command: list | None = None, processes: int = 1,
-             encoding: str = "ops", connections: int = 4, server_processes: int = 1, transport: str = "auto") -> dict:
+             encoding: str = "ops", connections: int = 4, server_processes: int = 1, transport: str = "auto",
+             server_transport: str = "grpc") -> dict:
     """One load level: server (``caveclod serve``, or ``command``) and load generator, with both processes'
     CPU, and the server's memory: idle (mesh mapped, kernels loaded) and the peak under load. The
     server's CPU is its process tree's (a ``--processes`` supervisor and its servers)."""
     extra = ["--processes", str(server_processes)] if server_processes > 1 else []
+    if server_transport != "grpc":                    # an older checkout (--baseline) knows only grpc
+        extra += ["--transport", server_transport]
     server = Server(mesh, "--max-sessions", str(max(64, sessions)), *extra, command=command)
     try:
         idle = memory(server.proc.pid)
@@ -637,6 +640,9 @@ def main() -> int:
                     help="the load test's --transport (h2, grpc, auto: h2 where installed); several, comma-separated, "
                          "measure this server under each load generator at each level, interleaved "
                          "(capacity_loadtest_<transport>)")
+    ap.add_argument("--server-transport", default="grpc",
+                    help="caveclod serve --transport of the servers measured, comma-separated (grpc,h2: both, "
+                         "interleaved at each level; the first is the one reported as 'this')")
     ap.add_argument("--baseline", metavar="DIR",
                     help="a checkout of an older caveclod (e.g. git worktree add DIR REV): its server is measured "
                          "right after ours at each load level, as capacity_baseline")
@@ -647,24 +653,31 @@ def main() -> int:
     out = json.loads(path.read_text()) if skip and path.exists() else {}     # keep the sections not re-run
     out.update({"mesh": f"default --size {args.size}", "machine_cores": os.cpu_count()})
     if "capacity" not in skip:
-        levels, baseline, multi = [], [], []
+        levels, baseline = [], []
         transports = args.loadtest_transport.split(",")
-        servers = [("this", None, 1, levels, transports[0])]
+        kinds = args.server_transport.split(",")           # serve --transport: the first is "this"
+        servers = [("this", None, 1, levels, transports[0], kinds[0])]
         by_transport = {t: [] for t in transports[1:]}
         for t in transports[1:]:            # the same server under another load generator
-            servers.append((f"this, loadtest {t}", None, 1, by_transport[t], t))
+            servers.append((f"this, loadtest {t}", None, 1, by_transport[t], t, kinds[0]))
+        by_kind = {k: [] for k in kinds[1:]}
+        for k in kinds[1:]:                 # the same server over another transport
+            servers.append((f"serve --transport {k}", None, 1, by_kind[k], transports[0], k))
+        multi = {k: [] for k in kinds}
         if args.server_processes > 1:       # the same server as N processes (caveclod serve --processes N)
-            servers.append((f"processes {args.server_processes}", None, args.server_processes, multi, transports[0]))
+            for k in kinds:
+                servers.append((f"processes {args.server_processes}" + (f", --transport {k}" if len(kinds) > 1 else ""),
+                                None, args.server_processes, multi[k], transports[0], k))
         if args.baseline:          # an older checkout's server, run right after ours at each level
             servers.append(("baseline", [sys.executable, "-c", "import sys; sys.path.insert(0, sys.argv.pop(1)); "
                                          "from caveclod.cli import main; sys.exit(main())", args.baseline, "serve"],
-                            1, baseline, transports[0]))
+                            1, baseline, transports[0], "grpc"))
         for repeat in range(args.repeats):       # interleaved: the machine's drift hits every server alike
             for n in (int(x) for x in args.sessions.split(",")):
-                for name, command, nproc, into, transport in servers:
+                for name, command, nproc, into, transport, kind in servers:
                     r = capacity(mesh, n, args.duration, command=command, processes=args.loadtest_processes,
                                  encoding=args.frame_encoding, connections=args.connections,
-                                 server_processes=nproc, transport=transport)
+                                 server_processes=nproc, transport=transport, server_transport=kind)
                     r.update(server=name, repeat=repeat)
                     into.append(r)
                     print(f"{name} {n:3d} sessions: p50 {r['latency_ms']['p50']} ms  p99 {r['latency_ms']['p99']} ms  "
@@ -677,19 +690,24 @@ def main() -> int:
                           f" ms), loadtest "
                           f"{r['client_cpu_cores']} ({r['client_cpu_ms_per_frame']} ms a frame), others "
                           f"{r['other_cpu_cores']}", file=sys.stderr)
-        out["summary"] = {name: medians(into) for name, _, _, into, _ in servers}
+        out["summary"] = {name: medians(into) for name, _, _, into, _, _ in servers}
         plot([r for r in levels if r["repeat"] == 0], path.with_name(f"{path.stem}_latency.png"),
-             {name: medians(into, rows=True) for name, _, _, into, _ in servers[1:]}, medians(levels, rows=True))
+             {name: medians(into, rows=True) for name, _, _, into, _, _ in servers[1:]}, medians(levels, rows=True))
         for name, rows in out["summary"].items():
             for row in rows:
                 print(f"median {name} {row['sessions']:3d}: {row}", file=sys.stderr)
-        for r in levels + baseline + multi + sum(by_transport.values(), []):
+        for r in levels + baseline + sum(multi.values(), []) + sum(by_transport.values(), []) \
+                + sum(by_kind.values(), []):
             r.pop("latencies_ms", None)
         out["capacity"] = levels
-        if multi:
-            out["capacity_processes"] = {"processes": args.server_processes, "levels": multi}
+        for k, rows in multi.items():
+            if rows:
+                out["capacity_processes" + ("" if k == kinds[0] else f"_{k}")] = {
+                    "processes": args.server_processes, "transport": k, "levels": rows}
         for t, rows in by_transport.items():
             out[f"capacity_loadtest_{t}"] = rows
+        for k, rows in by_kind.items():
+            out[f"capacity_transport_{k}"] = rows
         if baseline:
             out["capacity_baseline"] = {"checkout": args.baseline, "levels": baseline}
     if "parallel" not in skip:
