@@ -19,6 +19,8 @@ TOOLS = {
     "xvfb-run": ((), "Debian's xvfb (apt-get install xvfb xauth)"),
     "nginx": (("/usr/sbin/nginx",), "Debian's nginx-light (apt-get install nginx-light)"),
     "chromium-headless-shell": ((), "Debian's chromium-headless-shell (apt-get install chromium-headless-shell)"),
+    # the @grpc/grpc-js client's test (tests/test_grpcjs.py); it installs the npm packages itself
+    "node": ((), "Node.js with npm (apt-get install nodejs npm)"),
 }
 
 

@@ -1,4 +1,4 @@
-"""A machine without the optional system tools (xvfb, nginx, Chromium) passes `make test`:
+"""A machine without the optional system tools (xvfb, nginx, Chromium, Node.js) passes `make test`:
 the tests that need one skip and say why (issue 17's finding 6: a test called
 xvfb-run with no skip, and CI, which installs it, hid that)."""
 
@@ -18,7 +18,8 @@ TESTS = Path(__file__).parent
 # How a test module runs each tool: as the first word of a command, or through
 # the helper that finds it.
 USES = {"xvfb-run": r"""[(\[]\s*["']xvfb-run["']""", "nginx": r"""[(\[]\s*["']nginx["']|nginx_binary\(|Balancer\(""",
-        "chromium-headless-shell": r"""system_tool\(["']chromium-headless-shell["']\)|chromium\.launch\(|\blaunch\(p\)"""}
+        "chromium-headless-shell": r"""system_tool\(["']chromium-headless-shell["']\)|chromium\.launch\(|\blaunch\(p\)""",
+        "node": r"""system_tool\(["']node["']\)"""}
 
 
 def _files_naming(tool: str) -> list[Path]:
