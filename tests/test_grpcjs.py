@@ -88,8 +88,8 @@ def grpcjs_modules(tmp_path_factory) -> Path:
     # a package.json of its own and --prefix: npm otherwise installs into the nearest directory
     # above that has one (and says "up to date")
     (scratch / "package.json").write_text('{"name": "caveclod-tests-grpcjs", "private": true}\n')
-    cmd = [npm, "install", "--prefix", str(scratch), "--no-audit", "--no-fund", "--no-update-notifier", "--ignore-scripts",
-           "--fetch-retries=1", "--fetch-timeout=30000", "--loglevel=error",
+    cmd = [npm, "install", "--prefix", str(scratch), "--no-audit", "--no-fund", "--no-update-notifier",
+           "--ignore-scripts", "--fetch-retries=1", "--fetch-timeout=30000", "--loglevel=error",
            f"@grpc/grpc-js@{GRPC_JS}", f"@grpc/proto-loader@{PROTO_LOADER}"]
     started = time.monotonic()
     try:
