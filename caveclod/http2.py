@@ -18,10 +18,12 @@ DATA, HEADERS, PRIORITY, RST_STREAM, SETTINGS, PUSH_PROMISE, PING, GOAWAY, WINDO
 END_STREAM, ACK, END_HEADERS, PADDED, PRIORITY_FLAG = 0x1, 0x1, 0x4, 0x8, 0x20
 SETTINGS_HEADER_TABLE_SIZE, SETTINGS_ENABLE_PUSH, SETTINGS_MAX_CONCURRENT_STREAMS = 1, 2, 3
 SETTINGS_INITIAL_WINDOW_SIZE, SETTINGS_MAX_FRAME_SIZE = 4, 5
-NO_ERROR, PROTOCOL_ERROR, FLOW_CONTROL_ERROR, REFUSED_STREAM, CANCEL = 0x0, 0x1, 0x3, 0x7, 0x8
+NO_ERROR, PROTOCOL_ERROR, INTERNAL_ERROR, FLOW_CONTROL_ERROR = 0x0, 0x1, 0x2, 0x3
+REFUSED_STREAM, CANCEL, ENHANCE_YOUR_CALM, INADEQUATE_SECURITY = 0x7, 0x8, 0xB, 0xC
 MAX_STREAM_ID = (1 << 31) - 1
 DEFAULT_WINDOW = 65535
 DEFAULT_FRAME = 16384
+MAX_HEADER_BLOCK = 256 << 10     # a header block past this (HPACK decodes at most 64 KiB of headers) is an attack
 
 
 class ProtocolViolation(Exception):
@@ -115,10 +117,11 @@ def data_payload(flags: int, payload: bytes) -> bytes:
 
 
 class HeaderBlocks:
-    """Joins a HEADERS frame and its CONTINUATIONs into one header block."""
+    """Joins a HEADERS frame and its CONTINUATIONs into one header block (at most MAX_HEADER_BLOCK bytes)."""
 
     def __init__(self):
         self.open: tuple | None = None          # (stream id, END_STREAM, fragments) of a block in progress
+        self._size = 0
 
     def add(self, kind: int, flags: int, stream_id: int, payload: bytes) -> tuple[int, bool, bytes] | None:
         """(stream id, END_STREAM, the whole block) once END_HEADERS comes; None before."""
@@ -137,7 +140,13 @@ class HeaderBlocks:
                 start, stop = 1, len(payload) - payload[0]
             if flags & PRIORITY_FLAG:
                 start += 5
+            if start > stop:
+                raise ProtocolViolation("a HEADERS frame shorter than its padding and priority")
             payload = payload[start:stop]
+            self._size = 0
+        self._size += len(payload)
+        if self._size > MAX_HEADER_BLOCK:
+            raise ProtocolViolation(f"a header block of more than {MAX_HEADER_BLOCK} bytes")
         fragments.append(payload)
         if not flags & END_HEADERS:
             self.open = (stream_id, ends, fragments)

@@ -114,3 +114,142 @@ def test_grpc_timeout_headers_set_deadlines():
     now = time.monotonic()
     assert abs(_deadline("250m") - now - 0.25) < 0.05 and abs(_deadline("3S") - now - 3) < 0.05
     assert abs(_deadline("1M") - now - 60) < 0.05 and _deadline(None) is None and _deadline("12x") is None
+
+
+class _Standalone:
+    """An H2Server with test handlers on an event loop of its own thread (no mesh, no kernels)."""
+
+    def __init__(self, handlers: dict):
+        import asyncio
+        import threading
+
+        from caveclod.server.h2server import H2Server
+        self.loop = asyncio.new_event_loop()
+        self.thread = threading.Thread(target=self.loop.run_forever, daemon=True)
+        self.thread.start()
+        self.server = H2Server()
+        self.server.add_generic_rpc_handlers((grpc.method_handlers_generic_handler("t.T", handlers),))
+        self.port = self.server.add_insecure_port("127.0.0.1:0")
+        self.call(self.server.start())
+
+    def call(self, coroutine):
+        import asyncio
+        return asyncio.run_coroutine_threadsafe(coroutine, self.loop).result(10)
+
+    def state(self, fn):
+        """fn() run on the server's loop (its state read safely)."""
+        async def run():
+            return fn()
+        return self.call(run())
+
+    def stop(self):
+        self.call(self.server.stop(0))
+        self.loop.call_soon_threadsafe(self.loop.stop)
+        self.thread.join(5)
+
+
+@pytest.fixture
+def standalone():
+    made = []
+
+    def make(handlers):
+        made.append(_Standalone(handlers))
+        return made[-1]
+    yield make
+    for s in made:
+        s.stop()
+
+
+def _connected(port: int):
+    """A raw h2 client connection that has the server's SETTINGS."""
+    conn = h2.connection.H2Connection(h2.config.H2Configuration(client_side=True, header_encoding="utf-8"))
+    conn.initiate_connection()
+    sock = socket.create_connection(("127.0.0.1", port), timeout=5)
+    sock.sendall(conn.data_to_send())
+    while not any(isinstance(e, h2.events.RemoteSettingsChanged) for e in conn.receive_data(sock.recv(65536))):
+        pass
+    sock.sendall(conn.data_to_send())
+    return conn, sock
+
+
+def _request_headers(port: int, path: str) -> list:
+    return [(":method", "POST"), (":scheme", "http"), (":path", path), (":authority", f"127.0.0.1:{port}"),
+            ("te", "trailers"), ("content-type", "application/grpc")]
+
+
+def test_a_call_reset_in_the_read_that_opened_it_is_freed(standalone):
+    import asyncio
+
+    async def hang(requests, context):
+        await asyncio.sleep(60)
+    s = standalone({"Hang": grpc.stream_stream_rpc_method_handler(hang)})
+    conn, sock = _connected(s.port)
+    with sock:
+        for sid in (1, 3, 5):                     # HEADERS and RST_STREAM in one write
+            conn.send_headers(sid, _request_headers(s.port, "/t.T/Hang"))
+            conn.reset_stream(sid)
+        sock.sendall(conn.data_to_send())
+        deadline = time.monotonic() + 5
+        while time.monotonic() < deadline and s.state(lambda: sum(len(c.calls) for c in s.server.connections)):
+            time.sleep(0.05)
+        assert s.state(lambda: sum(len(c.calls) for c in s.server.connections)) == 0
+
+
+def test_a_client_that_sends_faster_than_its_handler_reads_waits_for_its_window(standalone):
+    import asyncio
+
+    from caveclod.server.h2server import STREAM_WINDOW
+
+    async def never_reads(requests, context):
+        await asyncio.sleep(60)
+    s = standalone({"Slow": grpc.stream_stream_rpc_method_handler(never_reads)})
+    conn, sock = _connected(s.port)
+    with sock:
+        conn.send_headers(1, _request_headers(s.port, "/t.T/Slow"))
+        message = _framed(b"p" * 995)
+        sent, waiting = 0, False
+        for _ in range(4):                         # four windows' worth, were the server to keep giving
+            while conn.local_flow_control_window(1) >= len(message):
+                conn.send_data(1, message)
+                sent += len(message)
+            sock.sendall(conn.data_to_send())
+            time.sleep(0.3)
+            sock.setblocking(False)
+            try:
+                conn.receive_data(sock.recv(65536))       # WINDOW_UPDATEs, if any came
+            except BlockingIOError:
+                waiting = True                            # none: the client waits
+            sock.setblocking(True)
+        queued = s.state(lambda: [sum(n for _, n in c.requests.queue) for conn_ in s.server.connections
+                                  for c in conn_.calls.values()])
+        assert waiting and sent <= STREAM_WINDOW and queued == [sent], (sent, queued)
+
+
+def test_a_message_that_does_not_deserialize_ends_its_call_only(standalone):
+    def strict(data: bytes):
+        if data.startswith(b"BAD"):
+            raise ValueError("cannot parse")
+        return data
+
+    async def echo(requests, context):
+        async for r in requests:
+            await context.write(r)
+    s = standalone({"Echo": grpc.stream_stream_rpc_method_handler(echo, request_deserializer=strict)})
+    conn, sock = _connected(s.port)
+    with sock:
+        conn.send_headers(1, _request_headers(s.port, "/t.T/Echo"))
+        conn.send_data(1, _framed(b"good"))
+        sock.sendall(conn.data_to_send())
+        time.sleep(0.2)
+        conn.send_data(1, _framed(b"BAD"))
+        sock.sendall(conn.data_to_send())
+        trailers, deadline = None, time.monotonic() + 5
+        while trailers is None and time.monotonic() < deadline:
+            for event in conn.receive_data(sock.recv(65536)):
+                if isinstance(event, h2.events.TrailersReceived):
+                    trailers = dict(event.headers)
+            sock.sendall(conn.data_to_send())
+    assert trailers["grpc-status"] == str(grpc.StatusCode.INTERNAL.value[0])
+    assert "does not deserialize" in trailers["grpc-message"].replace("%20", " ")
+    # the connection serves on
+    assert _status(_raw_call(s.port, "/t.T/Echo", _framed(b"fine"))) == (0, "")

@@ -41,7 +41,8 @@ from typing import Callable
 import grpc
 import hpack
 
-from ..http2 import (ACK, CANCEL, CONTINUATION, DATA, DEFAULT_FRAME, DEFAULT_WINDOW, END_STREAM, GOAWAY, HEADERS,
+from ..http2 import (ACK, CANCEL, CONTINUATION, DATA, DEFAULT_FRAME, DEFAULT_WINDOW, END_STREAM, ENHANCE_YOUR_CALM,
+                     GOAWAY, HEADERS, INADEQUATE_SECURITY, REFUSED_STREAM,
                      MAX_STREAM_ID, NO_ERROR, PING, PREFACE, PUSH_PROMISE, RST_STREAM, SETTINGS,
                      SETTINGS_ENABLE_PUSH, SETTINGS_HEADER_TABLE_SIZE, SETTINGS_INITIAL_WINDOW_SIZE,
                      SETTINGS_MAX_CONCURRENT_STREAMS, SETTINGS_MAX_FRAME_SIZE, WINDOW_UPDATE, FrameReader,
@@ -62,6 +63,10 @@ MAX_MESSAGE = 64 << 20          # a message larger than this is a broken stream,
 KEEPALIVE_SECONDS = 20.0
 KEEPALIVE_TIMEOUT = 10.0
 STATUS_BY_CODE = {code.value[0]: code for code in grpc.StatusCode}
+# A stream reset's status, as gRPC's HTTP/2 mapping says (others: INTERNAL).
+RESET_STATUS = {REFUSED_STREAM: grpc.StatusCode.UNAVAILABLE, CANCEL: grpc.StatusCode.CANCELLED,
+                ENHANCE_YOUR_CALM: grpc.StatusCode.RESOURCE_EXHAUSTED,
+                INADEQUATE_SECURITY: grpc.StatusCode.PERMISSION_DENIED}
 
 
 class CallEnded(Exception):
@@ -410,8 +415,9 @@ class H2Connection(asyncio.Protocol):
                 raise ProtocolViolation(f"a RST_STREAM of {len(payload)} bytes")
             if (call := self.calls.get(stream_id)) is not None:
                 call._reset = True
-                call._finish(grpc.StatusCode.INTERNAL,
-                             f"Received RST_STREAM with error code {int.from_bytes(payload, 'big')}")
+                error = int.from_bytes(payload, "big")
+                call._finish(RESET_STATUS.get(error, grpc.StatusCode.INTERNAL),
+                             f"Received RST_STREAM with error code {error}")
         elif kind == GOAWAY:
             if len(payload) < 8:
                 raise ProtocolViolation(f"a GOAWAY of {len(payload)} bytes")

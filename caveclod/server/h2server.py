@@ -120,17 +120,24 @@ class Context:
 
 
 class _Requests:
-    """The request messages of a call, as an async iterator (deserialized as they arrive)."""
+    """The request messages of a call, as an async iterator (deserialized as they arrive).
 
-    __slots__ = ("queue", "ended", "waiter")
+    A message's bytes are given back to the client's flow-control windows when
+    the handler takes it, not when it arrives: a client that sends faster than
+    its handler reads waits for its window, as with grpc.aio, instead of
+    queueing without bound.
+    """
 
-    def __init__(self):
-        self.queue: collections.deque = collections.deque()
+    __slots__ = ("queue", "ended", "waiter", "consumed")
+
+    def __init__(self, consumed):
+        self.queue: collections.deque = collections.deque()      # (message, bytes on the wire)
         self.ended = False                 # the client half-closed (END_STREAM)
         self.waiter: asyncio.Future | None = None
+        self.consumed = consumed           # consumed(bytes): the window given back
 
-    def put(self, message) -> None:
-        self.queue.append(message)
+    def put(self, message, nbytes: int) -> None:
+        self.queue.append((message, nbytes))
         self._wake()
 
     def end(self) -> None:
@@ -150,7 +157,9 @@ class _Requests:
                 raise StopAsyncIteration
             self.waiter = asyncio.get_running_loop().create_future()
             await self.waiter
-        return self.queue.popleft()
+        message, nbytes = self.queue.popleft()
+        self.consumed(nbytes)
+        return message
 
 
 class _Call:
@@ -158,12 +167,12 @@ class _Call:
 
     __slots__ = ("conn", "stream_id", "method", "metadata", "deadline", "requests", "messages", "handler",
                  "context", "code", "details", "callbacks", "headers_sent", "finished", "broken", "reset",
-                 "send_window", "unacked", "window_waiter", "task", "deadline_hit")
+                 "send_window", "unacked", "recv_window", "uncredited", "window_waiter", "task", "deadline_hit")
 
     def __init__(self, conn: "_Connection", stream_id: int, method: str, metadata: tuple, deadline: float | None):
         self.conn, self.stream_id, self.method, self.metadata = conn, stream_id, method, metadata
         self.deadline = deadline
-        self.requests = _Requests()
+        self.requests = _Requests(lambda nbytes: conn.credit(self, nbytes))
         self.messages = http2.Messages(conn.server.max_receive)
         self.handler = None                 # the RpcMethodHandler, once resolved
         self.context = Context(self)
@@ -175,7 +184,9 @@ class _Call:
         self.broken = False                 # the client reset the stream, or the connection is gone
         self.reset = False                  # a RST_STREAM went either way
         self.send_window = conn.peer_window
-        self.unacked = 0                    # bytes received since our last WINDOW_UPDATE of this stream
+        self.unacked = 0                    # bytes consumed since our last WINDOW_UPDATE of this stream
+        self.recv_window = STREAM_WINDOW    # what the client may still send on this stream
+        self.uncredited = 0                 # bytes received and not yet given back
         self.window_waiter: asyncio.Future | None = None
         self.task: asyncio.Task | None = None
         self.deadline_hit = False
@@ -238,6 +249,9 @@ class _Call:
                 if not self.requests.ended:      # the client may still be sending: it need not
                     conn.queue_reset(self, http2.NO_ERROR)
             conn.calls.pop(self.stream_id, None)
+            if self.uncredited:             # what the handler never took: the connection's window back
+                conn.credit(None, self.uncredited)
+                self.uncredited = 0
         self.wake_writer()
         callbacks, self.callbacks = self.callbacks, []
         for callback in callbacks:
@@ -264,7 +278,8 @@ class _Connection(asyncio.Protocol):
         self.send_window = DEFAULT_WINDOW        # the client's connection window for our DATA
         self.peer_window = DEFAULT_WINDOW        # its SETTINGS_INITIAL_WINDOW_SIZE: new streams' windows
         self.peer_frame = DEFAULT_FRAME          # its SETTINGS_MAX_FRAME_SIZE: our frames' limit
-        self.unacked = 0
+        self.unacked = 0                         # bytes consumed since our last connection WINDOW_UPDATE
+        self.recv_window = CONNECTION_WINDOW     # what the client may still send on the connection
         self.out = bytearray()
         self.flush_soon: asyncio.Handle | None = None
         self.paused: asyncio.Future | None = None
@@ -316,17 +331,26 @@ class _Connection(asyncio.Protocol):
         except (http2.ProtocolViolation, hpack.HPACKError):
             self._give_up(http2.PROTOCOL_ERROR)
             return
+        except Exception:                        # noqa: BLE001 - a bug of ours: this connection only, not the loop
+            self._give_up(http2.INTERNAL_ERROR)
+            return
         self.flush()
 
     def pause_writing(self) -> None:
+        # The socket's buffer is full: DATA writers wait, and so does reading,
+        # whose PING and SETTINGS answers would otherwise pile up unbounded.
         if self.paused is None:
             self.paused = asyncio.get_running_loop().create_future()
+            if self.open:
+                self.transport.pause_reading()
 
     def resume_writing(self) -> None:
         if self.paused is not None:
             if not self.paused.done():
                 self.paused.set_result(None)
             self.paused = None
+            if self.open and not self.transport.is_closing():
+                self.transport.resume_reading()
 
     def connection_lost(self, exc) -> None:
         self.open = False
@@ -367,6 +391,11 @@ class _Connection(asyncio.Protocol):
             out, self.out = self.out, bytearray()
             self.transport.write(out)
 
+    def close_soon(self) -> None:
+        """Close after what is buffered is written, or in a second whatever a peer that does not read."""
+        self.transport.close()
+        asyncio.get_running_loop().call_later(1.0, self.transport.abort)
+
     def goaway(self) -> None:
         """No new streams (a drain): those open go on."""
         if self.open and not self.going_away:
@@ -380,7 +409,7 @@ class _Connection(asyncio.Protocol):
             self.out += http2.goaway(self.last_stream, code)
             self.flush()
             self.open = False
-            self.transport.close()
+            self.close_soon()
         for call in list(self.calls.values()):
             call.break_off()
 
@@ -401,25 +430,48 @@ class _Connection(asyncio.Protocol):
         self.keepalive = loop.call_later(max(wait / 2, 0.05), self._check_alive)
 
     # -- reading ---------------------------------------------------------------------------
-    def _on_data(self, flags: int, stream_id: int, payload: bytes) -> None:
-        counted = len(payload)
-        self.unacked += counted
+    def credit(self, call: _Call | None, nbytes: int) -> None:
+        """Give ``nbytes`` back to the client's windows (the connection's, and ``call``'s), in
+        WINDOW_UPDATEs of at least half a window."""
+        self.unacked += nbytes
         if self.unacked >= CONNECTION_WINDOW // 2:
             self.out += http2.window_update(0, self.unacked)
+            self.recv_window += self.unacked
             self.unacked = 0
-        payload = http2.data_payload(flags, payload)
+            self._schedule_flush()
+        if call is not None:
+            call.uncredited -= nbytes
+            call.unacked += nbytes
+            if call.unacked >= STREAM_WINDOW // 2 and not call.requests.ended and call.stream_id in self.calls:
+                self.out += http2.window_update(call.stream_id, call.unacked)
+                call.recv_window += call.unacked
+                call.unacked = 0
+                self._schedule_flush()
+
+    def _on_data(self, flags: int, stream_id: int, payload: bytes) -> None:
+        counted = len(payload)                    # flow control counts the padding too
+        if counted > self.recv_window:
+            raise http2.ProtocolViolation("DATA past the connection's flow-control window")
+        self.recv_window -= counted
+        data = http2.data_payload(flags, payload)
         call = self.calls.get(stream_id)
         if call is None:
             if stream_id == 0 or stream_id > self.last_stream:
                 raise http2.ProtocolViolation("DATA on a stream never opened")
-            return                                    # a stream that ended: dropped, its window given back
-        call.unacked += counted
-        if call.unacked >= STREAM_WINDOW // 2 and not flags & END_STREAM:
-            self.out += http2.window_update(stream_id, call.unacked)
-            call.unacked = 0
-        if payload and not call.requests.ended:
+            self.credit(None, counted)            # a stream that ended: dropped, its window given back
+            return
+        if counted > call.recv_window:
+            self.queue_reset(call, http2.FLOW_CONTROL_ERROR)
+            self.credit(None, counted)
+            call.break_off()
+            return
+        call.recv_window -= counted
+        call.uncredited += counted
+        if counted > len(data):
+            self.credit(call, counted - len(data))          # the padding: nobody will consume it
+        if data and not call.requests.ended:
             try:
-                messages = call.messages.feed(payload)
+                messages = call.messages.feed(data)
             except http2.MessageError as exc:
                 self._refuse(call, grpc.StatusCode.UNIMPLEMENTED if exc.kind == "compressed" else
                              grpc.StatusCode.RESOURCE_EXHAUSTED, f"{exc} (send uncompressed messages of at most "
@@ -427,15 +479,25 @@ class _Connection(asyncio.Protocol):
                 return
             deserializer = call.handler.request_deserializer if call.handler is not None else None
             for one in messages:
-                call.requests.put(deserializer(one) if deserializer is not None else one)
+                try:
+                    request = deserializer(one) if deserializer is not None else one
+                except Exception as exc:          # noqa: BLE001 - this call's bad message, not the connection's
+                    self._refuse(call, grpc.StatusCode.INTERNAL, f"a request message that does not "
+                                 f"deserialize: {type(exc).__name__}: {exc}"[:300])
+                    return
+                call.requests.put(request, len(one) + 5)
         if flags & END_STREAM:
+            if call.messages.partial:
+                self._refuse(call, grpc.StatusCode.INTERNAL,
+                             f"the request stream ended inside a message ({call.messages.partial} bytes)")
+                return
             call.requests.end()
 
     def _refuse(self, call: _Call, code: grpc.StatusCode, details: str) -> None:
         """End a call that cannot go on: its status sent, its handler cancelled."""
+        call.finish(code, details)
         if call.task is not None:
             call.task.cancel()
-        call.finish(code, details)
 
     def _on_frame(self, kind: int, flags: int, stream_id: int, payload: bytes) -> None:
         if self.blocks.open is not None and kind != CONTINUATION:
@@ -457,10 +519,16 @@ class _Connection(asyncio.Protocol):
                 raise http2.ProtocolViolation("a WINDOW_UPDATE not of 4 bytes")
             amount = int.from_bytes(payload, "big") & MAX_STREAM_ID
             if stream_id == 0:
+                if amount == 0 or self.send_window + amount > MAX_STREAM_ID:
+                    raise http2.ProtocolViolation(f"a connection WINDOW_UPDATE of {amount}")
                 self.send_window += amount
                 for call in self.calls.values():
                     call.wake_writer()
             elif (call := self.calls.get(stream_id)) is not None:
+                if amount == 0 or call.send_window + amount > MAX_STREAM_ID:
+                    self.queue_reset(call, http2.PROTOCOL_ERROR if amount == 0 else http2.FLOW_CONTROL_ERROR)
+                    call.break_off()
+                    return
                 call.send_window += amount
                 call.wake_writer()
         elif kind == PING:
@@ -499,8 +567,10 @@ class _Connection(asyncio.Protocol):
             if end_stream:                         # trailers from a client: the end of its messages
                 self.calls[stream_id].requests.end()
             return
-        if stream_id % 2 == 0 or stream_id <= self.last_stream:
-            raise http2.ProtocolViolation(f"HEADERS opening stream {stream_id} out of order")
+        if stream_id % 2 == 0:
+            raise http2.ProtocolViolation(f"HEADERS opening stream {stream_id}, an even (server) id")
+        if stream_id <= self.last_stream:
+            return                                 # a stream that ended (we may have reset it): ignored
         self.last_stream = stream_id
         if self.going_away or len(self.calls) >= MAX_STREAMS:
             self.out += http2.frame(RST_STREAM, 0, stream_id, http2.REFUSED_STREAM.to_bytes(4, "big"))
@@ -517,11 +587,16 @@ class _Connection(asyncio.Protocol):
         if end_stream:
             call.requests.end()
         call.task = asyncio.get_running_loop().create_task(self.server.run_call(call, fields))
+        # A task cancelled before it starts never runs run_call's finish (a
+        # client's RST_STREAM in the same read as its HEADERS): end it here.
+        call.task.add_done_callback(lambda _: call.finish(grpc.StatusCode.CANCELLED, "the call was cancelled"))
 
 
 def _deadline(timeout: str | None) -> float | None:
     """The monotonic deadline a grpc-timeout header ("100m", "5S", ...) sets; None without one."""
-    if not timeout or timeout[-1] not in _TIMEOUT_UNITS or not timeout[:-1].isdigit():
+    digits = (timeout or "")[:-1]
+    if not timeout or timeout[-1] not in _TIMEOUT_UNITS or not (digits.isascii() and digits.isdigit()) \
+            or len(digits) > 8:
         return None
     return time.monotonic() + int(timeout[:-1]) * _TIMEOUT_UNITS[timeout[-1]]
 
@@ -599,7 +674,7 @@ class H2Server(grpc.aio.Server):
             await asyncio.wait(tasks, timeout=2.0)
         for conn in list(self.connections):
             conn.flush()
-            conn.transport.close()
+            conn.close_soon()
         if self._stopped is not None:
             self._stopped.set()
 
@@ -649,7 +724,12 @@ class H2Server(grpc.aio.Server):
             call.handler = handler
             # Messages that arrived before the handler was known are deserialized now.
             if handler.request_deserializer is not None and call.requests.queue:
-                call.requests.queue = collections.deque(handler.request_deserializer(m) for m in call.requests.queue)
+                try:
+                    call.requests.queue = collections.deque((handler.request_deserializer(m), n)
+                                                            for m, n in call.requests.queue)
+                except Exception as exc:     # noqa: BLE001 - as a message that arrives later (_on_data)
+                    raise AbortError(grpc.StatusCode.INTERNAL, f"a request message that does not deserialize: "
+                                     f"{type(exc).__name__}: {exc}"[:300]) from None
             if handler.request_streaming:
                 behaviour = handler.stream_stream if handler.response_streaming else handler.stream_unary
                 result = behaviour(call.requests, call.context)
@@ -658,8 +738,11 @@ class H2Server(grpc.aio.Server):
                 behaviour = handler.unary_stream if handler.response_streaming else handler.unary_unary
                 result = behaviour(request, call.context)
             if inspect.isasyncgen(result):
-                async for response in result:
-                    await call.write(response)
+                try:
+                    async for response in result:
+                        await call.write(response)
+                finally:
+                    await result.aclose()
             else:
                 response = await result
                 if not handler.response_streaming and response is not None and call.code in (None,
