@@ -90,13 +90,14 @@ def _check(viewers, victim, survivor, since: float, cache_dir: Path) -> None:
     assert len(list(cache_dir.iterdir())) == 1, "one vertex buffer, downloaded once, cached once"
 
 
-def _run(terrain_path, tmp: Path, how: str) -> dict:
+def _run(terrain_path, tmp: Path, how: str, transport: str = "grpc") -> dict:
     """Two replicas, nginx, viewers on both; the busier replica is killed or drained mid-flight."""
     out: dict = {}
     replicas, balancer, viewers = [], None, []
     try:
         for name in ("a", "b"):
-            replicas.append(Replica(terrain_path, tmp, name, "--drain-seconds", str(DRAIN), "--max-sessions", "16"))
+            replicas.append(Replica(terrain_path, tmp, name, "--drain-seconds", str(DRAIN), "--max-sessions", "16",
+                                    "--transport", transport))
         balancer = Balancer(NGINX, replicas)
         cache = tmp / "cache"
         open_viewers(viewers, f"127.0.0.1:{balancer.port}", replicas, cache, per_replica=2)
@@ -133,8 +134,10 @@ def _moved(run: dict) -> list:
     return [v for v in run["viewers"] if run["victim"].holds(v.frames[0][2])]
 
 
-def test_a_killed_replica_s_viewers_carry_on_through_the_balancer(terrain_path, tmp_path):
-    run = _run(terrain_path, tmp_path, "kill")
+# Both server transports behind nginx: its gRPC proxy is a strict HTTP/2 peer.
+@pytest.mark.parametrize("transport", ["grpc", "h2"])
+def test_a_killed_replica_s_viewers_carry_on_through_the_balancer(terrain_path, tmp_path, transport):
+    run = _run(terrain_path, tmp_path, "kill", transport)
     # Each moved viewer's resume (its key) went to the surviving replica. nginx
     # found the dead one refusing connections and passed the stream on to the
     # next replica on the ring (its access log lists both).
@@ -148,8 +151,9 @@ def test_a_killed_replica_s_viewers_carry_on_through_the_balancer(terrain_path, 
     assert any(f"upstream={dead}, {alive} key=" in line for line in log), log
 
 
-def test_a_draining_replica_s_viewers_move_when_their_sessions_end(terrain_path, tmp_path):
-    run = _run(terrain_path, tmp_path, "term")
+@pytest.mark.parametrize("transport", ["grpc", "h2"])
+def test_a_draining_replica_s_viewers_move_when_their_sessions_end(terrain_path, tmp_path, transport):
+    run = _run(terrain_path, tmp_path, "term", transport)
     for v in _moved(run):
         # The session went on through the drain on its replica (health said
         # NOT_SERVING, new sessions were refused), then moved.
