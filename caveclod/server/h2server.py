@@ -7,8 +7,8 @@ model"): most of the server's CPU outside refinement, and the limit of one
 process at about 2,000 frames a second. Here the same method handlers run
 over an :class:`asyncio.Protocol` per connection that cuts the bytes read
 into frames and messages itself (:mod:`caveclod.http2`; header blocks
-through ``hpack``) and writes what every stream produced in one loop
-iteration with one system call.
+through ``hpack``) and writes each frame as it is made (the answers a read
+calls for, WINDOW_UPDATEs and PINGs, leave together after it).
 
 What it serves: any aio method handler registered the way generated code
 registers them (``add_generic_rpc_handlers``, ``add_registered_method_handlers``),
@@ -262,7 +262,7 @@ class _Call:
 
 
 class _Connection(asyncio.Protocol):
-    """One client connection: frames in, calls started, frames out once per loop iteration."""
+    """One client connection: frames in, calls started, each call's frames written as they are made."""
 
     def __init__(self, server: "H2Server"):
         self.server = server
