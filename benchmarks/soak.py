@@ -3,6 +3,7 @@
     python benchmarks/soak.py [--minutes 30] [--sessions 32] [--sample 5]
     python benchmarks/soak.py --minutes 2 --sessions 8           # a short run, to try it
     python benchmarks/soak.py --websocket --out results/soak_web.json  # the same over the browser's WebSocket
+    python benchmarks/soak.py --transport h2 --out results/soak_h2.json  # serve --transport h2
 
 One ``caveclod serve`` (127.0.0.1, port 0) serves the 1M-triangle default
 terrain (``--size 708``, built once into benchmarks/results/ and reused, as
@@ -245,7 +246,8 @@ def soak(args, mesh: Path, workdir: Path) -> dict:
     duration = 60.0 * args.minutes
     warmup = args.warmup if args.warmup is not None else max(0.1 * duration, min(LAP_S, 0.5 * duration))
     server = Replica(mesh, workdir, "soak-server", "--max-sessions", str(max(32, args.sessions)), "--metrics-port",
-                     "0", "--metrics-host", "127.0.0.1", *(("--web-port", "0") if args.websocket else ()))
+                     "0", "--metrics-host", "127.0.0.1", "--transport", args.transport,
+                     *(("--web-port", "0") if args.websocket else ()))
     driver = sampler = None
     lines: list = []
     try:
@@ -290,7 +292,7 @@ def soak(args, mesh: Path, workdir: Path) -> dict:
         flying = [s for s in sampler.samples if fly0 + warmup <= s["t"] <= fly0 + duration]
         all_flying = [s for s in sampler.samples if fly0 <= s["t"] <= fly0 + duration]
         out = {"minutes": args.minutes, "sessions": args.sessions, "rate_hz": args.rate, "sample_s": args.sample,
-               "transport": "websocket" if args.websocket else "grpc",
+               "transport": "websocket" if args.websocket else "grpc", "server_transport": args.transport,
                "connections": args.connections, "warmup_s": round(warmup, 1), "mesh": f"{head.get('mesh', mesh.stem)} ({head.get('faces', 0):,} triangles)",
                "viewport": [1280, 720], "fov_y": 60.0, "tolerance_px": 1.0, "trajectory": "flyover",
                "driver_exit": status, "fly_start_s": round(fly0, 2)}
@@ -407,6 +409,8 @@ def main() -> int:
     ap.add_argument("--size", type=int, default=708, help="default terrain size (708: 1,002,528 triangles)")
     ap.add_argument("--websocket", action="store_true",
                     help="fly the sessions over the browser's WebSocket (serve --web-port), one connection each")
+    ap.add_argument("--transport", choices=("grpc", "h2"), default="grpc",
+                    help="the server's (caveclod serve --transport; default grpc)")
     ap.add_argument("--out", default=str(RESULTS / "soak.json"), help="the JSON report (default results/soak.json)")
     args = ap.parse_args()
     if args.minutes <= 0 or args.sessions < 1 or args.sample <= 0:
