@@ -255,6 +255,8 @@ def test_serve_prints_the_listening_line_first_and_refuses_bad_options(terrain_p
     for args, words in ((["--tls-cert", str(terrain_path)], "--tls-key"),
                         (["--token-file", str(tmp_path / "none")], "--token-file"),
                         (["--max-sessions", "0"], "--max-sessions"),
+                        (["--transport", "h2", "--tls-cert", str(terrain_path), "--tls-key", str(terrain_path)],
+                         "plaintext only"),
                         ([], "no such file")):
         mesh = [str(tmp_path / "missing.cvc")] if not args else [str(terrain_path)]
         proc = subprocess.run([sys.executable, "-m", "caveclod.cli", "serve", *mesh, "--port", "0", *args],

@@ -31,7 +31,7 @@ from grpc_reflection.v1alpha import reflection
 from ..errors import CaveclodError
 from . import logs
 from .auth import BearerTokenInterceptor
-from .config import ServerConfig
+from .config import H2_PLAINTEXT_ONLY, ServerConfig
 from .meshes import Catalogue
 from .metrics import Metrics
 from .registry import Sessions
@@ -84,7 +84,7 @@ class LodServer:
         config = self.config
         interceptors = [BearerTokenInterceptor(config.tokens)] if config.tokens else []
         if config.transport == "h2" and config.tls_cert is not None:
-            raise CaveclodError("--transport h2 serves plaintext only; serve TLS with the default --transport grpc")
+            raise CaveclodError(H2_PLAINTEXT_ONLY)
         if config.transport == "h2":
             from .h2server import H2Server      # caveclod's own HTTP/2: the same services, less CPU a frame
             self.grpc = H2Server(interceptors, max_receive=MAX_RECEIVE, keepalive_seconds=config.keepalive_seconds,

@@ -19,6 +19,10 @@ MAX_ACK_WINDOW = 32          # a client may ask for up to this many frames in fl
 DEFAULT_MAX_SESSIONS = 32
 
 
+# TLS is grpc.aio's: caveclod's own HTTP/2 (transport "h2") serves plaintext.
+H2_PLAINTEXT_ONLY = "--transport h2 serves plaintext only; serve TLS with the default --transport grpc"
+
+
 @dataclass
 class ServerConfig:
     """Options of a LOD server (the ``caveclod serve`` flags, same names).

@@ -14,7 +14,7 @@ from pathlib import Path
 from ..errors import InputError
 from . import logs
 from .auth import read_tokens
-from .config import ServerConfig
+from .config import H2_PLAINTEXT_ONLY, ServerConfig
 
 
 def config_from_args(args) -> ServerConfig:
@@ -29,7 +29,7 @@ def config_from_args(args) -> ServerConfig:
     if args.web_port == 0 and args.processes > 1:
         raise InputError("--processes N shares one --web-port between its processes: give a port number, not 0")
     if getattr(args, "transport", "grpc") == "h2" and args.tls_cert is not None:
-        raise InputError("--transport h2 serves plaintext only; serve TLS with the default --transport grpc")
+        raise InputError(H2_PLAINTEXT_ONLY)
     if args.resume_ttl < 0 or args.drain_seconds < 0:
         raise InputError("--resume-ttl and --drain-seconds must be >= 0")
     tls = [_read(p, flag) for p, flag in ((args.tls_cert, "--tls-cert"), (args.tls_key, "--tls-key"))]
