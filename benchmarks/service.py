@@ -281,6 +281,7 @@ def capacity(mesh: Path, sessions: int, duration: float, command: list | None = 
 
 
 def parallel_refinement(mesh: Path, seconds: float, pose_hz: float | None = 500.0, tolerance_px: float = 0.5,
+                        server_transport: str = "grpc",
                         size: tuple = (1280, 720)) -> dict:
     """2 sessions whose camera jumps between far poses: the cores their refinement used.
 
@@ -303,7 +304,7 @@ def parallel_refinement(mesh: Path, seconds: float, pose_hz: float | None = 500.
 
     from caveclod.paths import flyover
     from caveclod.v1 import caveclod_pb2 as pb
-    server = Server(mesh)
+    server = Server(mesh, "--transport", server_transport)
     stop = threading.Event()
     frames = [0, 0]
     lo, hi = mesh_bounds(mesh)
@@ -377,7 +378,8 @@ def parallel_refinement(mesh: Path, seconds: float, pose_hz: float | None = 500.
     refine = m1["caveclod_refine_cpu_seconds_total"] - m0["caveclod_refine_cpu_seconds_total"]
     updates = m1["caveclod_refine_seconds_count"] - m0["caveclod_refine_seconds_count"]
     busy = m1["caveclod_refine_seconds_sum"] - m0["caveclod_refine_seconds_sum"]
-    return {"seconds": round(wall, 1), "sessions": 2, "pose_hz": pose_hz or "one per frame",
+    return {"seconds": round(wall, 1), "sessions": 2, "server_transport": server_transport,
+            "pose_hz": pose_hz or "one per frame",
             "tolerance_px": tolerance_px, "viewport": f"{size[0]}x{size[1]}", "frames": n1 - n0, "updates": int(updates),
             "update_ms_mean": round(1e3 * busy / max(updates, 1), 1),
             "refine_cpu_cores": round(refine / wall, 2), "server_cpu_cores": round((cpu1 - cpu0) / wall, 2),
@@ -713,10 +715,11 @@ def main() -> int:
     if "parallel" not in skip:
         # The timer client of earlier runs, then a client that keeps one pose
         # waiting, over updates growing with a finer tolerance and a larger view.
-        runs = [parallel_refinement(mesh, args.parallel_seconds)]
+        kind = args.server_transport.split(",")[0]
+        runs = [parallel_refinement(mesh, args.parallel_seconds, server_transport=kind)]
         for tolerance, size in ((0.5, (1280, 720)), (0.25, (1920, 1080)), (0.1, (1920, 1080))):
             runs.append(parallel_refinement(mesh, args.parallel_seconds, pose_hz=None, tolerance_px=tolerance,
-                                            size=size))
+                                            size=size, server_transport=kind))
         out["parallel_refinement"] = runs
         for r in runs:
             print(f"parallel refinement: {r}", file=sys.stderr)
