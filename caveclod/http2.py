@@ -107,6 +107,37 @@ def parse_settings(payload: bytes) -> list[tuple[int, int]]:
             for i in range(0, len(payload), 6)]
 
 
+class PeerSettings:
+    """What the peer's SETTINGS say that our end must keep: the initial window of new streams (ours to
+    send on), the largest frame we may send it, and how many streams it lets us open."""
+
+    __slots__ = ("window", "frame", "streams")
+
+    def __init__(self):
+        self.window, self.frame, self.streams = DEFAULT_WINDOW, DEFAULT_FRAME, MAX_STREAM_ID
+
+    def apply(self, payload: bytes, encoder) -> int:
+        """Take a SETTINGS frame's entries (the HPACK table size into ``encoder``, an ``hpack.Encoder``);
+        the change of the initial stream window, which applies to the streams already open too.
+        Raises ProtocolViolation for a value out of range."""
+        delta = 0
+        for key, value in parse_settings(payload):
+            if key == SETTINGS_HEADER_TABLE_SIZE:
+                encoder.header_table_size = value
+            elif key == SETTINGS_MAX_CONCURRENT_STREAMS:
+                self.streams = value
+            elif key == SETTINGS_INITIAL_WINDOW_SIZE:
+                if value > MAX_STREAM_ID:
+                    raise ProtocolViolation(f"an initial window of {value} bytes")
+                delta += value - self.window
+                self.window = value
+            elif key == SETTINGS_MAX_FRAME_SIZE:
+                if not DEFAULT_FRAME <= value <= (1 << 24) - 1:
+                    raise ProtocolViolation(f"a maximum frame size of {value}")
+                self.frame = value
+        return delta
+
+
 def data_payload(flags: int, payload: bytes) -> bytes:
     """A DATA frame's data, its padding stripped."""
     if flags & PADDED:

@@ -41,13 +41,12 @@ from typing import Callable
 import grpc
 import hpack
 
-from ..http2 import (ACK, CANCEL, CONTINUATION, DATA, DEFAULT_FRAME, DEFAULT_WINDOW, END_STREAM, ENHANCE_YOUR_CALM,
-                     GOAWAY, HEADERS, INADEQUATE_SECURITY, REFUSED_STREAM,
-                     MAX_STREAM_ID, NO_ERROR, PING, PREFACE, PUSH_PROMISE, RST_STREAM, SETTINGS,
-                     SETTINGS_ENABLE_PUSH, SETTINGS_HEADER_TABLE_SIZE, SETTINGS_INITIAL_WINDOW_SIZE,
-                     SETTINGS_MAX_CONCURRENT_STREAMS, SETTINGS_MAX_FRAME_SIZE, WINDOW_UPDATE, FrameReader,
-                     HeaderBlocks, MessageError, Messages, ProtocolViolation, data_payload, frame, goaway,
-                     header_frames, message, parse_settings, settings_frame, window_update)
+from ..http2 import (ACK, CANCEL, CONTINUATION, DATA, DEFAULT_WINDOW, END_STREAM, ENHANCE_YOUR_CALM, GOAWAY, HEADERS,
+                     INADEQUATE_SECURITY, MAX_STREAM_ID, NO_ERROR, PING, PREFACE, PUSH_PROMISE, REFUSED_STREAM,
+                     RST_STREAM, SETTINGS, SETTINGS_ENABLE_PUSH, SETTINGS_INITIAL_WINDOW_SIZE, SETTINGS_MAX_FRAME_SIZE,
+                     WINDOW_UPDATE, FrameReader, HeaderBlocks, MessageError, Messages, PeerSettings,
+                     ProtocolViolation, data_payload, frame, goaway, header_frames, message, settings_frame,
+                     window_update)
 
 # Windows large enough that a vertex buffer (a few MiB) or a burst of frames
 # never waits for a WINDOW_UPDATE round trip.
@@ -96,7 +95,7 @@ class H2Call:
         self._status: tuple | None = None       # (code, details) from headers or trailers
         self.ended = False
         self._pending = bytearray()              # framed messages waiting for flow-control window
-        self.send_window = conn._peer_window     # bytes the server lets us send on this stream
+        self.send_window = conn._peer.window     # bytes the server lets us send on this stream
         self._unacked = 0                        # bytes received since our last WINDOW_UPDATE
         self._half_close = False                 # END_STREAM due once _pending is out
         self.local_closed = self.remote_closed = False
@@ -197,9 +196,7 @@ class H2Connection(asyncio.Protocol):
         self._encoder, self._decoder = hpack.Encoder(), hpack.Decoder()
         self._next_stream = 1
         self._send_window = DEFAULT_WINDOW       # the connection's window for our DATA (the server's)
-        self._peer_window = DEFAULT_WINDOW       # SETTINGS_INITIAL_WINDOW_SIZE of the server: new streams'
-        self._peer_frame = DEFAULT_FRAME         # SETTINGS_MAX_FRAME_SIZE of the server: our DATA frames' limit
-        self._peer_streams = MAX_STREAM_ID       # SETTINGS_MAX_CONCURRENT_STREAMS of the server
+        self._peer = PeerSettings()              # the server's SETTINGS
         self._unacked = 0                        # bytes received on the connection since our last WINDOW_UPDATE
         self.lost: str | None = None             # why the connection is gone, once it is
         self._heard = 0.0                        # the loop's time of the last read
@@ -292,7 +289,7 @@ class H2Connection(asyncio.Protocol):
             self.going_away = "this connection has used every stream id; a new one is opened"
             call._finish(grpc.StatusCode.UNAVAILABLE, self.going_away)
             return call
-        if len(self.calls) >= self._peer_streams:
+        if len(self.calls) >= self._peer.streams:
             call._finish(grpc.StatusCode.UNAVAILABLE, "the server allows no more streams on this connection; "
                          "use more connections (--connections)")
             return call
@@ -302,7 +299,7 @@ class H2Connection(asyncio.Protocol):
                    ("te", "trailers"), ("content-type", "application/grpc"),
                    ("user-agent", "caveclod-loadtest h2")]
         headers += [(k, v) for k, v in metadata]
-        self._out += header_frames(self._encoder.encode(headers), stream_id, False, self._peer_frame)
+        self._out += header_frames(self._encoder.encode(headers), stream_id, False, self._peer.frame)
         self.calls[stream_id] = call
         return call
 
@@ -337,7 +334,7 @@ class H2Connection(asyncio.Protocol):
         room = min(self._send_window, call.send_window, len(pending))
         if room > 0:
             sent = 0
-            out, sid, limit = self._out, call.stream_id, self._peer_frame
+            out, sid, limit = self._out, call.stream_id, self._peer.frame
             while sent < room:
                 size = min(room - sent, limit)
                 last = call._half_close and sent + size == len(pending)
@@ -440,23 +437,12 @@ class H2Connection(asyncio.Protocol):
         self._spoke_h2 = True
         if flags & ACK:
             return
-        for key, value in parse_settings(payload):
-            if key == SETTINGS_HEADER_TABLE_SIZE:
-                self._encoder.header_table_size = value
-            elif key == SETTINGS_MAX_CONCURRENT_STREAMS:
-                self._peer_streams = value
-            elif key == SETTINGS_INITIAL_WINDOW_SIZE:
-                if value > MAX_STREAM_ID:
-                    raise ProtocolViolation(f"an initial window of {value} bytes")
-                delta, self._peer_window = value - self._peer_window, value
-                for call in self.calls.values():             # the change applies to open streams too
-                    call.send_window += delta
-                    if delta > 0 and call._pending:
-                        self._dirty.add(call)
-            elif key == SETTINGS_MAX_FRAME_SIZE:
-                if not DEFAULT_FRAME <= value <= (1 << 24) - 1:
-                    raise ProtocolViolation(f"a maximum frame size of {value}")
-                self._peer_frame = value
+        delta = self._peer.apply(payload, self._encoder)
+        if delta:
+            for call in self.calls.values():                 # the change applies to open streams too
+                call.send_window += delta
+                if delta > 0 and call._pending:
+                    self._dirty.add(call)
         self._out += frame(SETTINGS, ACK, 0)
 
     def _on_headers(self, kind: int, flags: int, stream_id: int, payload: bytes) -> None:

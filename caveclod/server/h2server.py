@@ -32,6 +32,7 @@ from __future__ import annotations
 import asyncio
 import collections
 import inspect
+import logging
 import socket
 import time
 import urllib.parse
@@ -43,6 +44,8 @@ import hpack
 from .. import http2
 from ..http2 import (ACK, CONTINUATION, DATA, DEFAULT_FRAME, DEFAULT_WINDOW, END_STREAM, GOAWAY, HEADERS,
                      MAX_STREAM_ID, PING, PUSH_PROMISE, RST_STREAM, SETTINGS, WINDOW_UPDATE)
+from . import logs
+from .config import H2_PLAINTEXT_ONLY
 
 STREAM_WINDOW = 1 << 20          # what a client may send on a stream before our WINDOW_UPDATE (poses are ~100 B)
 CONNECTION_WINDOW = 16 << 20
@@ -183,7 +186,7 @@ class _Call:
         self.finished = False               # trailers sent (or the call given up)
         self.broken = False                 # the client reset the stream, or the connection is gone
         self.reset = False                  # a RST_STREAM went either way
-        self.send_window = conn.peer_window
+        self.send_window = conn.settings.window
         self.unacked = 0                    # bytes consumed since our last WINDOW_UPDATE of this stream
         self.recv_window = STREAM_WINDOW    # what the client may still send on this stream
         self.uncredited = 0                 # bytes received and not yet given back
@@ -276,8 +279,7 @@ class _Connection(asyncio.Protocol):
         self.blocks = http2.HeaderBlocks()
         self.encoder, self.decoder = hpack.Encoder(), hpack.Decoder()
         self.send_window = DEFAULT_WINDOW        # the client's connection window for our DATA
-        self.peer_window = DEFAULT_WINDOW        # its SETTINGS_INITIAL_WINDOW_SIZE: new streams' windows
-        self.peer_frame = DEFAULT_FRAME          # its SETTINGS_MAX_FRAME_SIZE: our frames' limit
+        self.settings = http2.PeerSettings()      # the client's SETTINGS: new streams' windows, our frames' limit
         self.unacked = 0                         # bytes consumed since our last connection WINDOW_UPDATE
         self.recv_window = CONNECTION_WINDOW     # what the client may still send on the connection
         self.out = bytearray()
@@ -331,7 +333,8 @@ class _Connection(asyncio.Protocol):
         except (http2.ProtocolViolation, hpack.HPACKError):
             self._give_up(http2.PROTOCOL_ERROR)
             return
-        except Exception:                        # noqa: BLE001 - a bug of ours: this connection only, not the loop
+        except Exception as exc:                 # noqa: BLE001 - a bug of ours: this connection only, not the loop
+            logs.event("connection.error", logging.ERROR, peer=self.peer, error=repr(exc)[:300])
             self._give_up(http2.INTERNAL_ERROR)
             return
         self.flush()
@@ -363,11 +366,11 @@ class _Connection(asyncio.Protocol):
 
     # -- writing ---------------------------------------------------------------------------
     def queue_headers(self, stream_id: int, headers: list, end_stream: bool) -> None:
-        self.out += http2.header_frames(self.encoder.encode(headers), stream_id, end_stream, self.peer_frame)
+        self.out += http2.header_frames(self.encoder.encode(headers), stream_id, end_stream, self.settings.frame)
         self._schedule_flush()
 
     def queue_data(self, stream_id: int, data: bytes) -> None:
-        limit = self.peer_frame
+        limit = self.settings.frame
         for start in range(0, len(data), limit):
             self.out += http2.frame(DATA, 0, stream_id, data[start:start + limit])
         self._schedule_flush()
@@ -512,7 +515,11 @@ class _Connection(asyncio.Protocol):
             if stream_id:
                 raise http2.ProtocolViolation("SETTINGS on a stream")
             if not flags & ACK:
-                self._apply_settings(http2.parse_settings(payload))
+                delta = self.settings.apply(payload, self.encoder)
+                if delta:
+                    for call in self.calls.values():         # the change applies to open streams too
+                        call.send_window += delta
+                        call.wake_writer()
                 self.out += http2.frame(SETTINGS, ACK, 0)
         elif kind == WINDOW_UPDATE:
             if len(payload) != 4:
@@ -544,22 +551,6 @@ class _Connection(asyncio.Protocol):
             self.going_away = True                     # the client opens no more streams here
         elif kind == PUSH_PROMISE:
             raise http2.ProtocolViolation("a PUSH_PROMISE from a client")
-
-    def _apply_settings(self, entries) -> None:
-        for key, value in entries:
-            if key == http2.SETTINGS_HEADER_TABLE_SIZE:
-                self.encoder.header_table_size = value
-            elif key == http2.SETTINGS_INITIAL_WINDOW_SIZE:
-                if value > MAX_STREAM_ID:
-                    raise http2.ProtocolViolation("an initial window past 2^31 - 1")
-                delta, self.peer_window = value - self.peer_window, value
-                for call in self.calls.values():
-                    call.send_window += delta
-                    call.wake_writer()
-            elif key == http2.SETTINGS_MAX_FRAME_SIZE:
-                if not DEFAULT_FRAME <= value <= (1 << 24) - 1:
-                    raise http2.ProtocolViolation("a maximum frame size out of range")
-                self.peer_frame = value
 
     def _on_headers(self, stream_id: int, end_stream: bool, block: bytes) -> None:
         headers = self.decoder.decode(block)      # decoded whatever follows: HPACK's table is the connection's
@@ -649,7 +640,7 @@ class H2Server(grpc.aio.Server):
         return sock.getsockname()[1]
 
     def add_secure_port(self, address: str, server_credentials) -> int:
-        raise NotImplementedError("caveclod's h2 transport serves plaintext; TLS needs --transport grpc")
+        raise NotImplementedError(H2_PLAINTEXT_ONLY)         # LodServer refuses the pair before it gets here
 
     async def start(self) -> None:
         loop = asyncio.get_running_loop()
@@ -712,8 +703,7 @@ class H2Server(grpc.aio.Server):
                 call.deadline_hit = True
                 if call.task is not None:
                     call.task.cancel()
-            timer = asyncio.get_running_loop().call_at(
-                asyncio.get_running_loop().time() + max(0.0, call.deadline - time.monotonic()), expire)
+            timer = asyncio.get_running_loop().call_later(max(0.0, call.deadline - time.monotonic()), expire)
         try:
             if not fields.get("content-type", "").startswith("application/grpc"):
                 raise AbortError(grpc.StatusCode.UNIMPLEMENTED, "not a gRPC request (content-type "
