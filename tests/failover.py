@@ -209,18 +209,24 @@ class Viewer:
 
 
 def open_viewers(viewers: list, target: str, replicas: list[Replica], cache_dir: Path, per_replica: int = 2,
-                 limit: int = 16) -> list[Viewer]:
+                 limit: int = 64) -> list[Viewer]:
     """Open sessions through the balancer into ``viewers`` until every replica holds ``per_replica``
-    (at most ``limit``). A new session's key is random, so which replica it lands on is too."""
+    (at most ``limit`` tries). A new session's key is random, so which replica it lands on is too;
+    nginx's ring over two loopback names can split keys 90/10, so a session that lands on a replica
+    already holding ``per_replica`` is closed again (freeing its --max-sessions slot) and another tried."""
     from caveclod.client import Client
-    counts = []
-    for i in range(limit):
+    counts = [0] * len(replicas)
+    for _ in range(limit):
         client = Client(target, cache_dir=cache_dir)
         session = client.session("terrain", width=640, height=360)
-        viewers.append(Viewer(i, client, session))
         token = session.protocol.token
         assert wait_until(lambda: any(r.holds(token) for r in replicas), timeout=5), "no replica logged the session"
-        counts = [sum(r.holds(v.session.protocol.token) for v in viewers) for r in replicas]
+        home = next(i for i, r in enumerate(replicas) if r.holds(token))
+        if counts[home] >= per_replica:
+            close_viewers([Viewer(-1, client, session)])
+            continue
+        counts[home] += 1
+        viewers.append(Viewer(len(viewers), client, session))
         if min(counts) >= per_replica:
             return viewers
     raise AssertionError(f"{limit} sessions did not reach {per_replica} on every replica: {counts}")
