@@ -136,14 +136,15 @@ class Server:
 
 
 def loadtest(port: int, sessions: int, duration: float, plot: Path | None = None, rate: float = 30.0,
-             processes: int = 1, encoding: str = "ops", connections: int = 4, transport: str = "auto") -> dict:
+             processes: int = 1, encoding: str = "ops", connections: int = 4, transport: str = "auto",
+             decoder: str = "auto") -> dict:
     """Run ``caveclod loadtest`` (in ``processes`` processes, over ``connections`` connections, with
-    ``transport``: h2, grpc or auto); its JSON report."""
+    ``transport``: h2, grpc or auto, and the op-stream ``decoder``); its JSON report."""
     cmd = [sys.executable, "-m", "caveclod.cli", "loadtest", "--target", f"127.0.0.1:{port}", "--sessions",
            str(sessions), "--cameras", "1", "--duration", str(duration), "--rate", str(rate), "--trajectory",
            "flyover", "--tolerance", "1", "--width", "1280", "--height", "720", "--fov", "60", "--json", "--samples",
            "--cache-dir", str(RESULTS / "vertex-cache"), "--processes", str(processes), "--frame-encoding", encoding,
-           "--connections", str(connections), "--transport", transport]
+           "--connections", str(connections), "--transport", transport, "--decoder", decoder]
     if plot is not None:
         cmd += ["--plot", str(plot)]
     proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.DEVNULL, text=True)
@@ -235,7 +236,7 @@ class Sampler:
 
 def capacity(mesh: Path, sessions: int, duration: float, command: list | None = None, processes: int = 1,
              encoding: str = "ops", connections: int = 4, server_processes: int = 1, transport: str = "auto",
-             server_transport: str = "grpc") -> dict:
+             server_transport: str = "grpc", decoder: str = "auto") -> dict:
     """One load level: server (``caveclod serve``, or ``command``) and load generator, with both processes'
     CPU, and the server's memory: idle (mesh mapped, kernels loaded) and the peak under load. The
     server's CPU is its process tree's (a ``--processes`` supervisor and its servers)."""
@@ -250,7 +251,7 @@ def capacity(mesh: Path, sessions: int, duration: float, command: list | None = 
         sampler = Sampler(server)
         window = SteadyWindow(server, start=t0 + 3.0 + 0.02 * sessions + 1.0, seconds=duration - 3.0)
         report = loadtest(server.port, sessions, duration, processes=processes, encoding=encoding,
-                          connections=connections, transport=transport)
+                          connections=connections, transport=transport, decoder=decoder)
         peak = sampler.stop()
         report.update(window.result())
         m1, cpu1, busy1, t1 = metrics(server.metrics_port), cpu_seconds(server.proc.pid), machine_busy(), \
@@ -571,13 +572,13 @@ def medians(runs: list, rows: bool = False) -> list:
 
 
 def plot(levels: list, path: Path, others: dict | None = None, summary: list | None = None) -> None:
-    """Latency CDFs of ``levels`` (this server, one repeat); p50/p99 and server CPU per frame against
+    """Latency CDFs of ``levels`` (this server, one repeat); p50/p99, server and load-generator CPU per frame against
     sessions for it (``summary``: medians over repeats, else ``levels``) and for ``others``
     ({name: rows}: a baseline checkout, several processes)."""
     import matplotlib
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
-    fig, (ax, bx, cx) = plt.subplots(1, 3, figsize=(15, 4))
+    fig, (ax, bx, cx, dx) = plt.subplots(1, 4, figsize=(20, 4))
     for r in levels:
         lat = np.sort(np.asarray(r["latencies_ms"]))
         if len(lat):
@@ -599,6 +600,7 @@ def plot(levels: list, path: Path, others: dict | None = None, summary: list | N
         other = [r.get("steady_server_other_ms_per_frame", r["server_other_ms_per_frame"]) for r in rs]
         cx.plot(n, [a + b for a, b in zip(refine, other)], "o-", color=colour, label=f"{name}: all")
         cx.plot(n, other, "o:", color=colour, label=f"{name}: outside refinement")
+        dx.plot(n, [r["client_cpu_ms_per_frame"] for r in rs], "o-", color=colour, label=name)
     bx.axhline(50, ls="--", color="grey", lw=0.8)
     bx.set_yscale("log")
     bx.set_xlabel("sessions at 30 Hz (one camera each)")
@@ -610,6 +612,11 @@ def plot(levels: list, path: Path, others: dict | None = None, summary: list | N
     cx.set_ylim(bottom=0)
     cx.legend(fontsize=7)
     cx.grid(alpha=0.3)
+    dx.set_xlabel("sessions at 30 Hz (one camera each)")
+    dx.set_ylabel("load generator CPU per frame (ms)")
+    dx.set_ylim(bottom=0)
+    dx.legend(fontsize=7)
+    dx.grid(alpha=0.3)
     fig.suptitle("caveclod serve, 1M-triangle terrain, 1280x720, 1 px, flyover; server and load generator "
                  "on one 2-core machine", fontsize=9)
     fig.tight_layout()
@@ -642,6 +649,10 @@ def main() -> int:
                     help="the load test's --transport (h2, grpc, auto: h2 where installed); several, comma-separated, "
                          "measure this server under each load generator at each level, interleaved "
                          "(capacity_loadtest_<transport>)")
+    ap.add_argument("--loadtest-decoder", default="auto",
+                    help="the load test's --decoder (compiled, numpy, auto: compiled where numba is installed); "
+                         "several, comma-separated, measure this server under each at each level, interleaved "
+                         "(capacity_decoder_<decoder>)")
     ap.add_argument("--server-transport", default="grpc",
                     help="caveclod serve --transport of the servers measured, comma-separated (grpc,h2: both, "
                          "interleaved at each level; the first is the one reported as 'this')")
@@ -658,28 +669,33 @@ def main() -> int:
         levels, baseline = [], []
         transports = args.loadtest_transport.split(",")
         kinds = args.server_transport.split(",")           # serve --transport: the first is "this"
-        servers = [("this", None, 1, levels, transports[0], kinds[0])]
+        decoders = args.loadtest_decoder.split(",")
+        servers = [("this", None, 1, levels, transports[0], kinds[0], decoders[0])]
         by_transport = {t: [] for t in transports[1:]}
         for t in transports[1:]:            # the same server under another load generator
-            servers.append((f"this, loadtest {t}", None, 1, by_transport[t], t, kinds[0]))
+            servers.append((f"this, loadtest {t}", None, 1, by_transport[t], t, kinds[0], decoders[0]))
+        by_decoder = {d: [] for d in decoders[1:]}
+        for d in decoders[1:]:              # the same server, the load generator decoding otherwise
+            servers.append((f"this, loadtest --decoder {d}", None, 1, by_decoder[d], transports[0], kinds[0], d))
         by_kind = {k: [] for k in kinds[1:]}
         for k in kinds[1:]:                 # the same server over another transport
-            servers.append((f"serve --transport {k}", None, 1, by_kind[k], transports[0], k))
+            servers.append((f"serve --transport {k}", None, 1, by_kind[k], transports[0], k, decoders[0]))
         multi = {k: [] for k in kinds}
         if args.server_processes > 1:       # the same server as N processes (caveclod serve --processes N)
             for k in kinds:
                 servers.append((f"processes {args.server_processes}" + (f", --transport {k}" if len(kinds) > 1 else ""),
-                                None, args.server_processes, multi[k], transports[0], k))
+                                None, args.server_processes, multi[k], transports[0], k, decoders[0]))
         if args.baseline:          # an older checkout's server, run right after ours at each level
             servers.append(("baseline", [sys.executable, "-c", "import sys; sys.path.insert(0, sys.argv.pop(1)); "
                                          "from caveclod.cli import main; sys.exit(main())", args.baseline, "serve"],
-                            1, baseline, transports[0], "grpc"))
+                            1, baseline, transports[0], "grpc", decoders[0]))
         for repeat in range(args.repeats):       # interleaved: the machine's drift hits every server alike
             for n in (int(x) for x in args.sessions.split(",")):
-                for name, command, nproc, into, transport, kind in servers:
+                for name, command, nproc, into, transport, kind, decoder in servers:
                     r = capacity(mesh, n, args.duration, command=command, processes=args.loadtest_processes,
                                  encoding=args.frame_encoding, connections=args.connections,
-                                 server_processes=nproc, transport=transport, server_transport=kind)
+                                 server_processes=nproc, transport=transport, server_transport=kind,
+                                 decoder=decoder)
                     r.update(server=name, repeat=repeat)
                     into.append(r)
                     print(f"{name} {n:3d} sessions: p50 {r['latency_ms']['p50']} ms  p99 {r['latency_ms']['p99']} ms  "
@@ -692,14 +708,14 @@ def main() -> int:
                           f" ms), loadtest "
                           f"{r['client_cpu_cores']} ({r['client_cpu_ms_per_frame']} ms a frame), others "
                           f"{r['other_cpu_cores']}", file=sys.stderr)
-        out["summary"] = {name: medians(into) for name, _, _, into, _, _ in servers}
+        out["summary"] = {name: medians(into) for name, _, _, into, *_ in servers}
         plot([r for r in levels if r["repeat"] == 0], path.with_name(f"{path.stem}_latency.png"),
-             {name: medians(into, rows=True) for name, _, _, into, _, _ in servers[1:]}, medians(levels, rows=True))
+             {name: medians(into, rows=True) for name, _, _, into, *_ in servers[1:]}, medians(levels, rows=True))
         for name, rows in out["summary"].items():
             for row in rows:
                 print(f"median {name} {row['sessions']:3d}: {row}", file=sys.stderr)
         for r in levels + baseline + sum(multi.values(), []) + sum(by_transport.values(), []) \
-                + sum(by_kind.values(), []):
+                + sum(by_kind.values(), []) + sum(by_decoder.values(), []):
             r.pop("latencies_ms", None)
         out["capacity"] = levels
         for k, rows in multi.items():
@@ -710,6 +726,8 @@ def main() -> int:
             out[f"capacity_loadtest_{t}"] = rows
         for k, rows in by_kind.items():
             out[f"capacity_transport_{k}"] = rows
+        for d, rows in by_decoder.items():
+            out[f"capacity_decoder_{d}"] = rows
         if baseline:
             out["capacity_baseline"] = {"checkout": args.baseline, "levels": baseline}
     if "parallel" not in skip:

@@ -210,6 +210,10 @@ def _parser() -> argparse.ArgumentParser:
     t.add_argument("--frame-encoding", choices=("ops", "raw"), default="ops",
                    help="how index-buffer writes travel: ops (op streams, the default) or raw (uint32 arrays, "
                         "what caveclod.v1 clients before op streams read)")
+    t.add_argument("--decoder", choices=("auto", "compiled", "numpy"), default="auto",
+                   help="how op streams are decoded: compiled (a numba kernel, about a seventh of numpy's CPU; "
+                        "needs caveclod[build]), numpy (what thin clients run); auto (the default): compiled where "
+                        "numba is installed")
     t.add_argument("--json", action="store_true", help="print one JSON object with the figures on stdout")
     t.add_argument("--samples", action="store_true", help="with --json: add every latency sample (ms) as latencies_ms")
     t.add_argument("--plot", metavar="FILE", help="write a pose->frame latency plot (PNG; needs matplotlib)")

@@ -1,7 +1,9 @@
 """The compact index-buffer delta ("op stream", FRAME_ENCODING_OPS): the format and its decoder.
 
 Numpy only, so the thin client runs it (the server's encoder is the compiled
-:func:`caveclod.kernels.opstream.encode_and_apply`). The proto's
+:func:`caveclod.kernels.opstream.encode_and_apply`; a compiled twin of the
+decoder, for the load generator, decodes inside
+:func:`compiled_decoding`). The proto's
 ``SurfaceDelta.ops`` comment is the specification for other languages; in
 short, a stream of LEB128 varints:
 
@@ -33,6 +35,8 @@ gathers. Anything inconsistent raises :class:`caveclod.wire.WireError`
 
 from __future__ import annotations
 
+import contextlib
+
 import numpy as np
 
 NEW, COPY, CORNER0, EDGE0 = 0, 1, 2, 5
@@ -44,6 +48,43 @@ MAX_VARINT_BYTES = 9                  # 63 bits: more is malformed
 # writes) are decoded by a plain loop: numpy's ~60 calls a stream cost more
 # than the loop for them (70 us against about 20 for 16 writes).
 SMALL_BYTES = 384
+
+
+# The compiled decoder (caveclod.kernels.opstream.decode) inside compiled_decoding();
+# None: the numpy decoders below.
+_compiled = None
+
+
+@contextlib.contextmanager
+def compiled_decoding(on: bool = True):
+    """Within the block, this process decodes op streams with the compiled
+    kernel (``on``) or with numpy (not ``on``); yields True where the kernel
+    is in use. The decoder before comes back at the end.
+
+    The kernel needs numba (``caveclod[build]``); without it numpy decodes
+    and this yields False. It compiles (or loads from numba's cache) here,
+    not in the first frame. ``caveclod loadtest`` decodes with it: with
+    numpy decoding is a quarter of its CPU (16 us a small stream; 2 with
+    the kernel). Thin clients keep numpy: no compiler, no start-up cost.
+    Both read the same streams the same way; the kernel only says whether
+    a stream is well formed, and one it refuses goes through the numpy
+    decoder for the error's words.
+    """
+    global _compiled
+    before = _compiled
+    _compiled = None
+    if on:
+        try:
+            from .kernels.opstream import decode as kernel
+        except ImportError:                  # numba is not installed
+            kernel = None
+        if kernel is not None:
+            kernel(np.frombuffer(b"\x00", np.uint8), np.zeros((0, 3), np.uint32), 0, 1)   # compiled here
+            _compiled = kernel
+    try:
+        yield _compiled is not None
+    finally:
+        _compiled = before
 
 
 class OpStreamError(ValueError):
@@ -90,6 +131,11 @@ def decode(ops: bytes, old: np.ndarray, count: int, n_vertices: int) -> tuple[np
     from outside ``old``, a CORNER of a slot ``old`` does not have, a vertex
     index out of range.
     """
+    if _compiled is not None:
+        status, slots, tris = _compiled(np.frombuffer(ops, np.uint8), old, count, n_vertices)
+        if status == 0:
+            return slots, tris
+        # Malformed: the numpy decoders below raise, naming what is wrong.
     if len(ops) <= SMALL_BYTES:
         return _decode_small(ops, old, count, n_vertices)
     return _decode_vectorized(ops, old, count, n_vertices)

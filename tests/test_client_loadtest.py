@@ -6,21 +6,25 @@ import json
 
 import pytest
 
-from caveclod import cli
+from caveclod import cli, opstream
 
 
-@pytest.mark.parametrize("encoding, transport", [("ops", "h2"), ("raw", "h2"), ("ops", "grpc")])
-def test_loadtest_reports_json_and_exits_0(server, tmp_path, capsys, encoding, transport):
+@pytest.mark.parametrize("encoding, transport, decoder", [("ops", "h2", "auto"), ("raw", "h2", "auto"),
+                                                        ("ops", "grpc", "numpy")])
+def test_loadtest_reports_json_and_exits_0(server, tmp_path, capsys, encoding, transport, decoder):
     plot = tmp_path / "latency.png"
     no_prune = ["--no-prune"] if encoding == "raw" else []
     status = cli.main(["loadtest", "--target", f"127.0.0.1:{server.port}", "--sessions", "3", "--cameras", "2",
                        "--duration", "2", "--rate", "20", "--trajectory", "circle", "--json",
                        "--plot", str(plot), "--cache-dir", str(tmp_path / "cache"), "--frame-encoding", encoding,
-                       "--transport", transport] + no_prune)
+                       "--transport", transport, "--decoder", decoder] + no_prune)
     out, err = capsys.readouterr()
     report = json.loads(out)
     assert status == 0, report
     assert report["prune"] == (not no_prune) and report["transport"] == transport
+    # auto: the compiled decoder, numba being installed with the tests; the process's thin
+    # clients decode with numpy again once the load test is over.
+    assert report["decoder"] == ("compiled" if decoder == "auto" else "numpy") and opstream._compiled is None
     assert report["sessions"] == 3 and report["divergences"] == 0 and report["errors"] == {}
     assert report["resumes"] == 0 and report["failovers"] == 0
     assert report["frames"] >= 3 * 20 and report["frames_per_second"] > 0

@@ -1,5 +1,6 @@
 """The op-stream frame encoding (FRAME_ENCODING_OPS): the compiled encoder, the
-numpy decoder and a slow, obviously-correct reference decoder agree; real
+numpy decoder, the compiled decoder (the load generator's) and a slow,
+obviously-correct reference decoder agree; real
 refinement deltas round-trip; a damaged stream is an error, never a wrong buffer.
 """
 
@@ -11,6 +12,7 @@ from hypothesis import given, settings, strategies as st
 
 import caveclod
 from caveclod import opstream
+from caveclod.kernels import opstream as op_kernel
 from caveclod.paths import pose
 from caveclod.server.held import HeldBuffers
 
@@ -72,7 +74,23 @@ def reference_decode(ops: bytes, old: np.ndarray, count: int, n_vertices: int):
     return np.array(slots, np.uint32), np.array(tris, np.uint32).reshape(-1, 3)
 
 
-DECODERS = (opstream._decode_vectorized, opstream._decode_small)      # long and short streams' paths
+def compiled_decode(ops: bytes, old: np.ndarray, count: int, n_vertices: int):
+    """The compiled decoder alone: a stream it refuses raises OpStreamError (without the words)."""
+    status, slots, tris = op_kernel.decode(np.frombuffer(bytes(ops), np.uint8), old, count, n_vertices)
+    if status != op_kernel.DECODE_OK:
+        raise opstream.OpStreamError("refused by the compiled decoder")
+    return slots, tris
+
+
+def with_kernel(ops: bytes, old: np.ndarray, count: int, n_vertices: int):
+    """opstream.decode as the load generator runs it: the compiled decoder turned on."""
+    with opstream.compiled_decoding() as compiled:
+        assert compiled
+        return opstream.decode(ops, old, count, n_vertices)
+
+
+# Long and short streams' numpy paths, the kernel, and the kernel behind decode().
+DECODERS = (opstream._decode_vectorized, opstream._decode_small, compiled_decode, with_kernel)
 
 
 def _apply(old: np.ndarray, count: int, slots, tris) -> np.ndarray:
@@ -152,7 +170,8 @@ def test_each_kind_is_chosen_where_it_is_cheapest():
 
 def test_real_refinement_deltas_round_trip_and_are_small(terrain_path):
     """A flyover of four cameras on the test terrain and a scan with seams: every delta's
-    op stream decodes to the server's buffer, at well under RAW's 16 bytes a write."""
+    op stream decodes to the server's buffer (numpy and compiled alike), at well under
+    RAW's 16 bytes a write."""
     sources = [caveclod.load(terrain_path), caveclod.build(meshes.holey_scan(seed=3, n=40))]
     for mesh in sources:
         lo, hi = mesh.bounds()
@@ -169,6 +188,9 @@ def test_real_refinement_deltas_round_trip_and_are_small(terrain_path):
                 for m, d in delta.surfaces.items():
                     ops = held.encode(m, d.count, d.slots, d.tris)
                     slots, tris = opstream.decode(ops, client[m], d.count, mesh.n_vertices)
+                    compiled = compiled_decode(ops, client[m], d.count, mesh.n_vertices)
+                    np.testing.assert_array_equal(compiled[0], slots)
+                    np.testing.assert_array_equal(compiled[1], tris)
                     client[m] = _apply(client[m], d.count, slots, tris)
                     np.testing.assert_array_equal(client[m], cam.index_buffer(m))
                     ops_bytes += len(ops)
@@ -202,16 +224,17 @@ def test_a_damaged_stream_is_an_error_or_a_checked_buffer_never_a_crash(seed):
             except opstream.OpStreamError as exc:
                 assert str(exc) and "\n" not in str(exc)
                 results.append(None)
-        assert (results[0] is None) == (results[1] is None), "the two paths disagree on a damaged stream"
+        assert len({r is None for r in results}) == 1, "the decoders disagree on a damaged stream"
         if results[0] is None:
             errors += 1
             continue
         for slots, tris in results:
-            assert slots.dtype == np.uint32 and tris.shape == (len(slots), 3)
+            assert slots.dtype == np.uint32 and tris.dtype == np.uint32 and tris.shape == (len(slots), 3)
             assert (np.diff(slots.astype(np.int64)) > 0).all() and (len(slots) == 0 or slots[-1] < len(new))
             assert (tris < 500).all()
-        np.testing.assert_array_equal(results[0][0], results[1][0])
-        np.testing.assert_array_equal(results[0][1], results[1][1])
+        for slots, tris in results[1:]:
+            np.testing.assert_array_equal(results[0][0], slots)
+            np.testing.assert_array_equal(results[0][1], tris)
     assert errors > 200
 
 
@@ -229,8 +252,10 @@ def test_a_damaged_stream_is_an_error_or_a_checked_buffer_never_a_crash(seed):
     (b"\x01\x05\x00", 10, "EDGE write that does not follow a NEW"),
     (b"\x01" + b"\xff" * 10 + b"\x00", 10, "varint of"),
 ])
-@pytest.mark.parametrize("decode", DECODERS)
+@pytest.mark.parametrize("decode", [d for d in DECODERS if d is not compiled_decode])
 def test_malformed_streams_say_what_is_wrong(data, count, words, decode):
     old = np.arange(30, dtype=np.uint32).reshape(10, 3)
     with pytest.raises(opstream.OpStreamError, match=words):
         decode(data, old, count, 64)
+    with pytest.raises(opstream.OpStreamError):
+        compiled_decode(data, old, count, 64)

@@ -44,6 +44,7 @@ from dataclasses import dataclass, field
 import grpc
 import numpy as np
 
+from .. import opstream
 from ..errors import InputError
 from ..vertexpack import check_position_bits
 from ..paths import pose as path_pose
@@ -241,6 +242,11 @@ async def fly(args, shard: tuple = (0, 1)) -> tuple:
     """Fly this process's share of the sessions: those whose index is
     ``shard[0]`` modulo ``shard[1]``. Returns (tally, mesh name, mesh faces,
     CPU seconds, wall seconds); ``t0`` is shared through ``args.start_at``."""
+    with opstream.compiled_decoding(decoder(args) == "compiled"):    # compiled before the CPU clock starts
+        return await _fly_share(args, shard)
+
+
+async def _fly_share(args, shard: tuple) -> tuple:
     if transport(args) == "h2":
         from .h2load import fly_h2           # h2 only where it is used: the thin client imports none of it
         return await fly_h2(args, shard)
@@ -268,6 +274,17 @@ async def fly(args, shard: tuple = (0, 1)) -> tuple:
     finally:
         await client.close()
     return tally, mesh.name, mesh.faces, cpu, wall
+
+
+def decoder(args) -> str:
+    """The op-stream decoder ``args.decoder`` names: ``compiled`` (a numba kernel,
+    :func:`caveclod.opstream.compiled_decoding`) or ``numpy``; ``auto`` is compiled
+    where numba is installed. InputError for compiled asked for where numba is missing."""
+    chosen = getattr(args, "decoder", "numpy")
+    installed = importlib.util.find_spec("numba") is not None
+    if chosen == "compiled" and not installed:
+        raise InputError("--decoder compiled needs numba: pip install 'caveclod[build]' (or use --decoder numpy)")
+    return "compiled" if chosen != "numpy" and installed else "numpy"
 
 
 def transport(args) -> str:
@@ -311,7 +328,7 @@ def _argv(args) -> list:
     out = []
     for name in ("target", "mesh", "sessions", "connections", "cameras", "duration", "warmup", "rate", "trajectory",
                  "tolerance", "width", "height", "fov", "token", "tls_ca", "cache_dir", "cache_vertices",
-                 "cache_strategy", "cache_pq_fraction", "frame_encoding", "vertex_encoding", "position_bits",
+                 "cache_strategy", "cache_pq_fraction", "frame_encoding", "decoder", "vertex_encoding", "position_bits",
                  "transport"):
         value = getattr(args, name, None)
         if value is not None:
@@ -340,7 +357,7 @@ def report(args, tally: Tally, mesh: str, faces: int, cpu: float, wall: float) -
         "prune": not getattr(args, "no_prune", False),
         "frame_encoding": getattr(args, "frame_encoding", "ops"),
         "vertex_encoding": getattr(args, "vertex_encoding", "packed"), "processes": getattr(args, "processes", 1),
-        "transport": transport(args),
+        "transport": transport(args), "decoder": decoder(args),
         "connections": getattr(args, "connections", None) or args.sessions,
         "frames": tally.frames, "frames_per_second": round(tally.frames / args.duration, 1),
         "keyframes": tally.keyframes, "poses_sent": tally.poses_sent, "poses_timed": len(lat),
@@ -389,6 +406,7 @@ def main(args) -> int:
         return 2
     try:
         transport(args)
+        decoder(args)
     except InputError as exc:
         print(f"caveclod: error: {exc}", file=sys.stderr)
         return 2

@@ -159,3 +159,122 @@ def encode_and_apply(held, old_count, new_count, slots, tris, out):
         held[s, 1] = tris[i, 1]
         held[s, 2] = tris[i, 2]
     return n
+
+
+# Status codes of decode: OK, or the first check that failed. The caller then
+# runs caveclod.opstream's reference decoder on the same stream for the
+# message (errors are rare; the reference names what was wrong in words).
+DECODE_OK, DECODE_MALFORMED = 0, 1
+N_KINDS = EDGE0 + 9                   # kinds 14 and 15 are invalid
+MAX_VARINT_BYTES = 9                  # 63 bits: more is malformed
+
+
+@nb.njit(cache=True, nogil=True, inline="always")
+def _unzigzag(z):
+    return (z >> 1) ^ -(z & 1)
+
+
+@nb.njit(cache=True, nogil=True)
+def decode(ops, old, count, n_vertices):
+    """The slot writes of one op stream, read against ``old``: the compiled twin of
+    :func:`caveclod.opstream.decode` (same format, same checks).
+
+    Args:
+        ops: (m,) uint8, the SurfaceDelta's ``ops``.
+        old: (old_count, 3) uint32, the buffer the client holds before it.
+        count: the buffer's length after the delta.
+        n_vertices: vertex indices must be below it.
+
+    Returns (status, slots (n,) uint32, tris (n, 3) uint32); status is
+    DECODE_OK, or DECODE_MALFORMED with empty arrays, for anything the
+    reference decoder refuses.
+    """
+    bad = (DECODE_MALFORMED, np.zeros(0, np.uint32), np.zeros((0, 3), np.uint32))
+    # Every varint first (int64: a varint holds at most 63 bits).
+    values = np.empty(len(ops), np.int64)
+    m = 0
+    value = 0
+    shift = 0
+    for i in range(len(ops)):
+        b = np.int64(ops[i])
+        if b < 0x80:
+            values[m] = value | (b << shift)
+            m += 1
+            value = 0
+            shift = 0
+        else:
+            value |= (b & 0x7F) << shift
+            shift += 7
+            if shift >= 7 * MAX_VARINT_BYTES:
+                return bad
+    if shift or m == 0:
+        return bad
+    n = values[0]
+    if n > m - 1:
+        return bad
+    old_count = old.shape[0]
+    slots = np.empty(n, np.uint32)
+    kinds = np.empty(n, np.int64)
+    slot = -1
+    need = 0
+    grown = 0
+    for i in range(n):
+        h = values[1 + i]
+        kind = h & 15
+        gap = h >> KIND_BITS
+        if kind >= N_KINDS or gap >= count:
+            return bad
+        slot += gap + 1
+        if slot >= count:
+            return bad
+        slots[i] = slot
+        kinds[i] = kind
+        need += 3 if kind == NEW else 1
+        grown += slot >= old_count
+    if count > old_count and grown != count - old_count:
+        return bad
+    if need != m - 1 - n:
+        return bad
+    tris = np.empty((n, 3), np.uint32)
+    p = 1 + n
+    last = 0
+    for i in range(n):
+        kind = kinds[i]
+        if kind == NEW:
+            for k in range(3):
+                last += _unzigzag(values[p])
+                p += 1
+                if last < 0 or last >= n_vertices:        # checked per vertex: the sum never overflows
+                    return bad
+                tris[i, k] = last
+        elif kind == COPY:
+            r = values[p]
+            p += 1
+            if r >= old_count:
+                return bad
+            for k in range(3):
+                tris[i, k] = old[old_count - 1 - r, k]
+        elif kind < EDGE0:
+            s = np.int64(slots[i])
+            if s >= old_count:
+                return bad
+            for k in range(3):
+                tris[i, k] = old[s, k]
+            k = kind - CORNER0
+            v = np.int64(old[s, k]) + _unzigzag(values[p])
+            p += 1
+            if v < 0 or v >= n_vertices:
+                return bad
+            tris[i, k] = v
+        else:
+            if i == 0 or kinds[i - 1] != NEW:
+                return bad
+            e, q = divmod(kind - EDGE0, 3)
+            last += _unzigzag(values[p])
+            p += 1
+            if last < 0 or last >= n_vertices:
+                return bad
+            tris[i, q] = tris[i - 1, (e + 1) % 3]
+            tris[i, (q + 1) % 3] = tris[i - 1, e]
+            tris[i, (q + 2) % 3] = last
+    return DECODE_OK, slots, tris
