@@ -15,6 +15,7 @@ import h2.config  # noqa: E402
 import h2.connection  # noqa: E402
 import h2.events  # noqa: E402
 
+from caveclod import http2  # noqa: E402
 from caveclod.server.h2server import _deadline  # noqa: E402
 from caveclod.v1 import caveclod_pb2 as pb  # noqa: E402
 
@@ -25,7 +26,7 @@ def h2_server(make_server):
 
 
 def _raw_call(port: int, path: str, body: bytes, *, content_type: str = "application/grpc",
-              end: bool = True, seconds: float = 10.0) -> dict:
+              end: bool = True, seconds: float = 10.0, method: str = "POST") -> dict:
     """One request over a fresh connection: the response's headers, data and trailers (or reset)."""
     conn = h2.connection.H2Connection(h2.config.H2Configuration(client_side=True, header_encoding="utf-8"))
     conn.initiate_connection()
@@ -36,7 +37,7 @@ def _raw_call(port: int, path: str, body: bytes, *, content_type: str = "applica
         while not settings:                       # the server's windows first: a body may exceed the default
             events = conn.receive_data(sock.recv(65536))
             settings = any(isinstance(e, h2.events.RemoteSettingsChanged) for e in events)
-        conn.send_headers(1, [(":method", "POST"), (":scheme", "http"), (":path", path),
+        conn.send_headers(1, [(":method", method), (":scheme", "http"), (":path", path),
                               (":authority", f"127.0.0.1:{port}"), ("te", "trailers"),
                               ("content-type", content_type)])
         step = conn.max_outbound_frame_size
@@ -97,8 +98,20 @@ def test_a_unary_call_answers_with_the_message_and_status_ok(h2_server):
 ])
 def test_a_request_that_cannot_be_served_ends_with_a_status_that_says_why(h2_server, path, body, content_type,
                                                                            code, words):
-    code_value, message = _status(_raw_call(h2_server.port, path, body, content_type=content_type))
+    result = _raw_call(h2_server.port, path, body, content_type=content_type)
+    code_value, message = _status(result)
     assert code_value == code.value[0] and words in message.replace("%20", " "), (code_value, message)
+    # gRPC's HTTP/2 mapping: 415 where the request is not gRPC's, so no HTTP client reads a 200 as success
+    assert result["headers"][":status"] == ("200" if content_type == "application/grpc" else "415")
+
+
+@pytest.mark.parametrize("end", [True, False])
+def test_a_request_that_is_not_a_post_gets_405_and_the_connection_serves_on(h2_server, end):
+    result = _raw_call(h2_server.port, "/caveclod.v1.Lod/ListMeshes", _framed(b""), method="PUT", end=end)
+    assert result["headers"][":status"] == "405"
+    code_value, message = _status(result)
+    assert code_value == grpc.StatusCode.UNIMPLEMENTED.value[0] and "POST" in message, message
+    assert _status(_raw_call(h2_server.port, "/caveclod.v1.Lod/ListMeshes", _framed(b""))) == (0, "")
 
 
 def test_a_peer_that_is_not_http2_is_dropped_and_the_server_serves_on(h2_server):
@@ -252,4 +265,69 @@ def test_a_message_that_does_not_deserialize_ends_its_call_only(standalone):
     assert trailers["grpc-status"] == str(grpc.StatusCode.INTERNAL.value[0])
     assert "does not deserialize" in trailers["grpc-message"].replace("%20", " ")
     # the connection serves on
+    assert _status(_raw_call(s.port, "/t.T/Echo", _framed(b"fine"))) == (0, "")
+
+
+def test_calls_still_open_when_the_server_stops_end_unavailable_with_a_status(standalone):
+    """Past stop()'s grace a call ends with trailers (UNAVAILABLE: a client goes on elsewhere), not a
+    cut socket, which a proxy in between would turn into an error of its own that clients do not retry."""
+    import asyncio
+
+    async def hang(requests, context):
+        await context.write(b"first")
+        await asyncio.sleep(60)
+    s = standalone({"Hang": grpc.stream_stream_rpc_method_handler(hang)})
+    conn, sock = _connected(s.port)
+    with sock:
+        conn.send_headers(1, _request_headers(s.port, "/t.T/Hang"))
+        sock.sendall(conn.data_to_send())
+        events, deadline = [], time.monotonic() + 5
+        while not any(isinstance(e, h2.events.DataReceived) for e in events) and time.monotonic() < deadline:
+            events += conn.receive_data(sock.recv(65536))
+        s.call(s.server.stop(0.2))
+        # Read with caveclod's frame reader: the h2 library takes any frame after a GOAWAY for an
+        # error, where RFC 9113 lets the streams the GOAWAY covers go on.
+        reader, kinds, trailers, deadline = http2.FrameReader(1 << 24), [], None, time.monotonic() + 5
+        while trailers is None and time.monotonic() < deadline:
+            data = sock.recv(65536)
+            if not data:
+                break
+            for kind, flags, stream_id, payload in reader.frames(data):
+                kinds.append(kind)
+                if kind == http2.GOAWAY:
+                    assert int.from_bytes(payload[4:8], "big") == http2.NO_ERROR
+                if kind == http2.HEADERS and flags & http2.END_STREAM and stream_id == 1:
+                    trailers = {k: v for k, v in conn.decoder.decode(payload)}
+    assert http2.GOAWAY in kinds and kinds.index(http2.GOAWAY) < kinds.index(http2.HEADERS), \
+        "GOAWAY came first: no new streams"
+    assert trailers is not None and trailers["grpc-status"] == str(grpc.StatusCode.UNAVAILABLE.value[0]), trailers
+    assert "server stopped" in trailers["grpc-message"].replace("%20", " ")
+
+
+def test_a_second_header_block_without_end_stream_resets_its_stream_only(standalone):
+    """Trailers must end the stream (RFC 9113 8.1): a HEADERS in mid-call without END_STREAM is a
+    malformed request, reset with PROTOCOL_ERROR; the connection serves on."""
+    import asyncio
+
+    async def echo(requests, context):
+        async for r in requests:
+            await context.write(r)
+        await asyncio.sleep(0)
+    s = standalone({"Echo": grpc.stream_stream_rpc_method_handler(echo)})
+    conn, sock = _connected(s.port)
+    with sock:
+        conn.send_headers(1, _request_headers(s.port, "/t.T/Echo"))
+        conn.send_data(1, _framed(b"one"))
+        sock.sendall(conn.data_to_send())
+        # h2 refuses to send such a block itself: frame it by hand, HPACK from h2's encoder.
+        block = conn.encoder.encode([("x-late", "1")])
+        sock.sendall(http2.frame(http2.HEADERS, http2.END_HEADERS, 1, block))
+        reset, deadline = None, time.monotonic() + 5
+        while reset is None and time.monotonic() < deadline:
+            for event in conn.receive_data(sock.recv(65536)):
+                if isinstance(event, h2.events.StreamReset):
+                    reset = event.error_code
+            sock.sendall(conn.data_to_send())
+    assert reset == http2.PROTOCOL_ERROR
+    assert s.state(lambda: sum(len(c.calls) for c in s.server.connections)) == 0
     assert _status(_raw_call(s.port, "/t.T/Echo", _framed(b"fine"))) == (0, "")

@@ -476,7 +476,7 @@ class _Connection(asyncio.Protocol):
             try:
                 messages = call.messages.feed(data)
             except http2.MessageError as exc:
-                self._refuse(call, grpc.StatusCode.UNIMPLEMENTED if exc.kind == "compressed" else
+                self.refuse(call, grpc.StatusCode.UNIMPLEMENTED if exc.kind == "compressed" else
                              grpc.StatusCode.RESOURCE_EXHAUSTED, f"{exc} (send uncompressed messages of at most "
                              f"{call.messages.max_message} bytes)" if exc.kind == "compressed" else str(exc))
                 return
@@ -485,18 +485,18 @@ class _Connection(asyncio.Protocol):
                 try:
                     request = deserializer(one) if deserializer is not None else one
                 except Exception as exc:          # noqa: BLE001 - this call's bad message, not the connection's
-                    self._refuse(call, grpc.StatusCode.INTERNAL, f"a request message that does not "
+                    self.refuse(call, grpc.StatusCode.INTERNAL, f"a request message that does not "
                                  f"deserialize: {type(exc).__name__}: {exc}"[:300])
                     return
                 call.requests.put(request, len(one) + 5)
         if flags & END_STREAM:
             if call.messages.partial:
-                self._refuse(call, grpc.StatusCode.INTERNAL,
+                self.refuse(call, grpc.StatusCode.INTERNAL,
                              f"the request stream ended inside a message ({call.messages.partial} bytes)")
                 return
             call.requests.end()
 
-    def _refuse(self, call: _Call, code: grpc.StatusCode, details: str) -> None:
+    def refuse(self, call: _Call, code: grpc.StatusCode, details: str) -> None:
         """End a call that cannot go on: its status sent, its handler cancelled."""
         call.finish(code, details)
         if call.task is not None:
@@ -554,9 +554,12 @@ class _Connection(asyncio.Protocol):
 
     def _on_headers(self, stream_id: int, end_stream: bool, block: bytes) -> None:
         headers = self.decoder.decode(block)      # decoded whatever follows: HPACK's table is the connection's
-        if stream_id in self.calls:
+        if (call := self.calls.get(stream_id)) is not None:
             if end_stream:                         # trailers from a client: the end of its messages
-                self.calls[stream_id].requests.end()
+                call.requests.end()
+            else:                                  # RFC 9113 8.1: trailers end the stream; else malformed
+                self.queue_reset(call, http2.PROTOCOL_ERROR)
+                call.break_off()
             return
         if stream_id % 2 == 0:
             raise http2.ProtocolViolation(f"HEADERS opening stream {stream_id}, an even (server) id")
@@ -572,15 +575,35 @@ class _Connection(asyncio.Protocol):
                 fields[name] = value
             else:
                 metadata.append((name, value))
+        # gRPC's HTTP/2 mapping: POST only; a content-type other than
+        # application/grpc gets HTTP 415, so that an HTTP client that is not
+        # gRPC's does not take a 200 for success.
+        if fields.get(":method") != "POST":
+            self._answer_http(stream_id, end_stream, "405", f"gRPC calls are POST requests, not "
+                              f"{fields.get(':method')!r}")
+            return
+        if not fields.get("content-type", "").startswith("application/grpc"):
+            self._answer_http(stream_id, end_stream, "415", f"not a gRPC request (content-type "
+                              f"{fields.get('content-type')!r}); send application/grpc")
+            return
         deadline = _deadline(fields.get("grpc-timeout"))
         call = _Call(self, stream_id, fields.get(":path", ""), tuple(metadata), deadline)
         self.calls[stream_id] = call
         if end_stream:
             call.requests.end()
-        call.task = asyncio.get_running_loop().create_task(self.server.run_call(call, fields))
+        call.task = asyncio.get_running_loop().create_task(self.server.run_call(call))
         # A task cancelled before it starts never runs run_call's finish (a
         # client's RST_STREAM in the same read as its HEADERS): end it here.
         call.task.add_done_callback(lambda _: call.finish(grpc.StatusCode.CANCELLED, "the call was cancelled"))
+
+
+    def _answer_http(self, stream_id: int, end_stream: bool, status: str, details: str) -> None:
+        """End a stream that is not a gRPC call: HTTP ``status``, and UNIMPLEMENTED for gRPC clients."""
+        self.queue_headers(stream_id, [(":status", status), ("content-type", "application/grpc"),
+                                       ("grpc-status", str(grpc.StatusCode.UNIMPLEMENTED.value[0])),
+                                       ("grpc-message", urllib.parse.quote(details, safe=_SAFE))], True)
+        if not end_stream:                 # whatever it still sends is dropped (a stream that ended)
+            self.out += http2.frame(RST_STREAM, 0, stream_id, http2.NO_ERROR.to_bytes(4, "big"))
 
 
 def _deadline(timeout: str | None) -> float | None:
@@ -649,7 +672,7 @@ class H2Server(grpc.aio.Server):
             self._servers.append(await loop.create_server(lambda: _Connection(self), sock=sock))
 
     async def stop(self, grace: float | None) -> None:
-        """GOAWAY to every connection; calls get ``grace`` seconds to end, then are cancelled."""
+        """GOAWAY to every connection; calls get ``grace`` seconds to end, then end UNAVAILABLE."""
         for server in self._servers:
             server.close()
         for conn in list(self.connections):
@@ -660,7 +683,11 @@ class H2Server(grpc.aio.Server):
         tasks = [call.task for conn in self.connections for call in conn.calls.values() if call.task is not None]
         for conn in list(self.connections):
             for call in list(conn.calls.values()):
-                call.break_off()
+                # A status, not a cut socket: a proxy passes a status on, where a
+                # stream cut under it becomes its own error (nginx: INTERNAL, which
+                # a client does not retry); UNAVAILABLE tells a client to go on elsewhere.
+                conn.refuse(call, grpc.StatusCode.UNAVAILABLE, "the server stopped; connect again (another "
+                                                               "replica, or this one once it is back)")
         if tasks:
             await asyncio.wait(tasks, timeout=2.0)
         for conn in list(self.connections):
@@ -694,7 +721,7 @@ class H2Server(grpc.aio.Server):
             continuation = _intercepted(interceptor, continuation)
         return await continuation(_CallDetails(method, metadata))
 
-    async def run_call(self, call: _Call, fields: dict) -> None:
+    async def run_call(self, call: _Call) -> None:
         """Run ``call``'s handler to its end and send the status."""
         code, details = grpc.StatusCode.OK, ""
         timer = None
@@ -705,9 +732,6 @@ class H2Server(grpc.aio.Server):
                     call.task.cancel()
             timer = asyncio.get_running_loop().call_later(max(0.0, call.deadline - time.monotonic()), expire)
         try:
-            if not fields.get("content-type", "").startswith("application/grpc"):
-                raise AbortError(grpc.StatusCode.UNIMPLEMENTED, "not a gRPC request (content-type "
-                                 f"{fields.get('content-type')!r}); send application/grpc")
             handler = await self._handler(call.method, call.metadata)
             if handler is None:
                 raise AbortError(grpc.StatusCode.UNIMPLEMENTED, f"Method not found: {call.method}")
