@@ -438,10 +438,11 @@ class CameraState:
         mats, slots, tris = mats[:k], slots[:k], tris[:k]
         delta = Delta()
         bounds = np.searchsorted(mats, np.arange(self.n_materials + 1))
-        for s in map(int, np.union1d(mats, np.flatnonzero(self.cnt != self._sent))):   # not all 65,536 a file may name
+        # The materials written or resized (not all 65,536 a file may name): mats is
+        # sorted, so a material's writes are bounds[s]..bounds[s + 1].
+        for s in np.flatnonzero((bounds[1:] > bounds[:-1]) | (self.cnt != self._sent)).tolist():
             lo, hi = int(bounds[s]), int(bounds[s + 1])
-            if hi > lo or self.cnt[s] != self._sent[s]:
-                delta.surfaces[s] = SurfaceDelta(slots[lo:hi], tris[lo:hi], int(self.cnt[s]))
+            delta.surfaces[s] = SurfaceDelta(slots[lo:hi], tris[lo:hi], int(self.cnt[s]))
         self._sent[:] = self.cnt
         return delta
 
