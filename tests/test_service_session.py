@@ -282,3 +282,46 @@ def test_blocking_and_asyncio_clients_see_the_same_frames(server, tmp_path):
     # The same triangles; their slots may differ: which poses a busy server
     # answers (latest pose wins) and when it converges set the order of writes.
     assert _same(_rows_sorted(blocking), _rows_sorted(asynchronous))
+
+
+def test_costly_frames_made_back_to_back_on_workers_arrive_in_order_and_check(server, terrain_path, tmp_path,
+                                                                              monkeypatch):
+    """Every frame costly (made on a worker), poses always waiting: a frame's successor starts on
+    a worker as soon as it is made (``_Stream._make_on_worker``). The frames come in order, every
+    CRC holds, and the client ends with the server's buffers."""
+    from caveclod.server import service as service_module
+    from caveclod.server import session as session_module
+    from caveclod.paths import flyover
+
+    monkeypatch.setattr(session_module, "CHEAP_SECONDS", 0.0)         # no frame is cheap
+    chained = []
+    make = service_module._Stream._make_on_worker
+
+    def counted(self):
+        parts, follow = make(self)
+        chained.append(follow is not None)
+        return parts, follow
+    monkeypatch.setattr(service_module._Stream, "_make_on_worker", counted)
+    protocol = SessionProtocol("terrain", 1, _options(tolerance=0.5), cache=VertexBufferCache(tmp_path),
+                               ack_window=4)
+    driver = Driver(server.port, protocol)
+    try:
+        update = driver.next_frame()
+        info = protocol.info
+        lo = (info.mesh.bounds_min.x, info.mesh.bounds_min.y, info.mesh.bounds_min.z)
+        hi = (info.mesh.bounds_max.x, info.mesh.bounds_max.y, info.mesh.bounds_max.z)
+        seqs = [update.frame_seq]
+        for i in range(40):                 # far poses, two ahead of what the frames answer
+            driver.pose(0, *flyover(lo, hi, 0, 20.0 * (i % 3))[:2])
+            if i % 2:
+                update = driver.next_frame()
+                assert update is not None, f"no frame after pose {i}"
+                seqs.append(update.frame_seq)
+        while (update := driver.next_frame(timeout=1.0)) is not None:     # the rest, and convergence
+            seqs.append(update.frame_seq)
+        assert seqs == list(range(1, len(seqs) + 1)), seqs
+        assert protocol.divergences == 0 and protocol.bad_frames == 0
+        assert _same(protocol.buffers.triangles(0), _mirror(server, protocol.token).cams[0].triangles())
+        assert any(chained), "no frame started its successor on a worker"
+    finally:
+        driver.close()
