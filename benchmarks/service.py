@@ -281,23 +281,38 @@ def capacity(mesh: Path, sessions: int, duration: float, command: list | None = 
     return report
 
 
+# The client's second pose when none waits at the server, this long after the
+# first: sent together, the server would take the later one and skip the other.
+REFILL_SECONDS = 0.001
+
+
 def parallel_refinement(mesh: Path, seconds: float, pose_hz: float | None = 500.0, tolerance_px: float = 0.5,
-                        server_transport: str = "grpc",
-                        size: tuple = (1280, 720)) -> dict:
+                        server_transport: str = "grpc", size: tuple = (1280, 720), client: str = "h2") -> dict:
     """2 sessions whose camera jumps between far poses: the cores their refinement used.
 
-    Each session's client keeps a new pose always pending, alternating
-    between two far points of its camera's circle, so that the server
-    always has a pose to refine for and each update is a large one. With
-    ``pose_hz`` it sends one every 1 / pose_hz seconds (faster than an
-    update takes) without waiting for frames; the latest pose wins. With
-    ``pose_hz=None`` it sends two poses, then one with each frame it gets
-    (acking the frame on it): one pose is always waiting, and the server
-    parses no pose it will not use. The clients parse each frame only to
+    Each session's client keeps a new pose always pending, going round
+    three far points of its camera's circle, so that the server always has
+    a pose to refine for and each update is a large one. With ``pose_hz``
+    it sends one every 1 / pose_hz seconds (faster than an update takes)
+    without waiting for frames; the latest pose wins. With
+    ``pose_hz=None`` it keeps two poses ahead of the one each frame answers
+    (acking the frame on the first): one pose is always waiting, and the
+    server parses few poses it will not use. (Until 2026-11-28 it sent one
+    pose a frame after two: once the server had taken the later of two
+    waiting poses, one pose was in flight at a time and the workers idled
+    44 % of the time; refinement used 1.38 cores at 4-5 ms updates for it,
+    1.50 once two stayed ahead.) The clients parse each frame only to
     ack it (an applying client would compete for this machine's two cores
     with the refinement it measures); the server still encodes every frame
     in full. The rate of ``caveclod_refine_cpu_seconds_total`` (per-thread
     CPU time of the updates) is the cores refinement used.
+
+    ``client``: ``h2``, both sessions on one asyncio loop over
+    :mod:`caveclod.client.h2wire` (the load generator's HTTP/2; either
+    server transport takes it), or ``grpc``, a thread and a blocking gRPC
+    stream each (what these runs used until 2026-11-28: 0.15-0.19 cores
+    at 4-5 ms updates against the h2 client's 0.08-0.09, taken from the
+    two cores the refinement shares).
     """
     import queue
 
@@ -313,11 +328,78 @@ def parallel_refinement(mesh: Path, seconds: float, pose_hz: float | None = 500.
     def vec(v) -> pb.Vec3:
         return pb.Vec3(x=v[0], y=v[1], z=v[2])
 
+    def open_message() -> pb.ClientMessage:
+        return pb.ClientMessage(open=pb.Open(
+            mesh=mesh.stem, cameras=1, vertex_buffer_hash="", client="benchmark",
+            options=pb.RefineOptions(viewport_width=size[0], viewport_height=size[1], tolerance_px=tolerance_px)))
+
+    def pose_message(k: int, seq: int, ack: int = 0) -> pb.ClientMessage:
+        # Three far points of the camera's circle in turn: any two poses fewer
+        # than three apart are far apart, so whichever waiting pose the server
+        # takes, its update is a large one.
+        eye, target, up = flyover(lo, hi, k, 20.0 * (seq % 3) + 0.001 * seq)
+        return pb.ClientMessage(pose=pb.CameraPose(camera=0, pose_seq=seq, eye=vec(eye), target=vec(target),
+                                                   up=vec(up), ack_frame_seq=ack))
+
+    def fly_h2() -> None:
+        """Both sessions on one event loop, over caveclod's HTTP/2 client."""
+        import asyncio
+
+        from caveclod.client.h2wire import H2Connection
+
+        async def session(k: int) -> None:
+            conn = await H2Connection.connect("127.0.0.1", server.port)
+            loop = asyncio.get_running_loop()
+            ended = loop.create_future()
+            seq = 0
+
+            def send_pose(ack: int = 0) -> None:
+                nonlocal seq
+                seq += 1
+                call.send(pose_message(k, seq, ack).SerializeToString())
+
+            def on_message(data: bytes) -> None:
+                msg = pb.ServerMessage.FromString(data)
+                if msg.WhichOneof("kind") == "frame" and not msg.frame.continued:
+                    frames[k] += 1
+                    if pose_hz is None:          # the pose after the one the server refines now
+                        send_pose(msg.frame.frame_seq)
+                        if seq < msg.frame.pose_seq + 2:     # it refines none: one for now, one for after
+                            loop.call_later(REFILL_SECONDS, refill)
+                    else:
+                        call.send(pb.ClientMessage(ack=pb.Ack(frame_seq=msg.frame.frame_seq)).SerializeToString())
+                    conn.flush()
+
+            def refill() -> None:
+                send_pose()
+                conn.flush()
+
+            def on_end(code, details) -> None:
+                if not ended.done():
+                    ended.set_result((code, details))
+            call = conn.start_call("/caveclod.v1.Lod/Session", [], on_message, on_end)
+            call.send(open_message().SerializeToString())
+            send_pose()
+            conn.flush()
+            if pose_hz is None:
+                loop.call_later(REFILL_SECONDS, refill)
+            try:
+                while not stop.is_set() and not ended.done():
+                    await asyncio.sleep(0.1 if pose_hz is None else 1.0 / pose_hz)
+                    if pose_hz is not None:
+                        send_pose()
+                        conn.flush()
+            finally:
+                call.cancel()
+                conn.close()
+
+        async def both() -> None:
+            await asyncio.gather(session(0), session(1))
+        asyncio.run(both())
+
     def session(k: int) -> None:
         requests: queue.Queue = queue.Queue()
-        requests.put(pb.ClientMessage(open=pb.Open(
-            mesh=mesh.stem, cameras=1, vertex_buffer_hash="", client="benchmark",
-            options=pb.RefineOptions(viewport_width=size[0], viewport_height=size[1], tolerance_px=tolerance_px))))
+        requests.put(open_message())
         with grpc.insecure_channel(f"127.0.0.1:{server.port}", [("grpc.max_receive_message_length", 8 << 20)]) as ch:
             call = ch.stream_stream("/caveclod.v1.Lod/Session", request_serializer=pb.ClientMessage.SerializeToString,
                                     response_deserializer=pb.ServerMessage.FromString)(iter(requests.get, None))
@@ -327,10 +409,7 @@ def parallel_refinement(mesh: Path, seconds: float, pose_hz: float | None = 500.
             def pose(ack: int = 0) -> pb.ClientMessage:
                 nonlocal seq
                 seq += 1
-                t = 30.0 * (seq % 2)                      # the far side of the camera's circle, then back
-                eye, target, up = flyover(lo, hi, k, t + 0.001 * seq)
-                return pb.ClientMessage(pose=pb.CameraPose(camera=0, pose_seq=seq, eye=vec(eye), target=vec(target),
-                                                           up=vec(up), ack_frame_seq=ack))
+                return pose_message(k, seq, ack)
 
             def send_poses() -> None:
                 while not stop.wait(1.0 / pose_hz):
@@ -339,15 +418,17 @@ def parallel_refinement(mesh: Path, seconds: float, pose_hz: float | None = 500.
 
             if pose_hz is None:
                 requests.put(pose())
-                requests.put(pose())
+                threading.Timer(REFILL_SECONDS, lambda: requests.put(pose())).start()
             else:
                 threading.Thread(target=send_poses, daemon=True).start()
             try:
                 for msg in call:
                     if msg.WhichOneof("kind") == "frame" and not msg.frame.continued:
                         frames[k] += 1
-                        if pose_hz is None:
+                        if pose_hz is None:      # as fly_h2's on_message
                             requests.put(pose(ack=msg.frame.frame_seq))
+                            if seq < msg.frame.pose_seq + 2:
+                                threading.Timer(REFILL_SECONDS, lambda: requests.put(pose())).start()
                         else:
                             requests.put(pb.ClientMessage(ack=pb.Ack(frame_seq=msg.frame.frame_seq)))
                     if stop.is_set():
@@ -358,7 +439,8 @@ def parallel_refinement(mesh: Path, seconds: float, pose_hz: float | None = 500.
                 requests.put(None)
                 call.cancel()
 
-    threads = [threading.Thread(target=session, args=(k,), daemon=True) for k in range(2)]
+    threads = [threading.Thread(target=fly_h2, daemon=True)] if client == "h2" else \
+        [threading.Thread(target=session, args=(k,), daemon=True) for k in range(2)]
     try:
         for th in threads:
             th.start()
@@ -379,7 +461,7 @@ def parallel_refinement(mesh: Path, seconds: float, pose_hz: float | None = 500.
     refine = m1["caveclod_refine_cpu_seconds_total"] - m0["caveclod_refine_cpu_seconds_total"]
     updates = m1["caveclod_refine_seconds_count"] - m0["caveclod_refine_seconds_count"]
     busy = m1["caveclod_refine_seconds_sum"] - m0["caveclod_refine_seconds_sum"]
-    return {"seconds": round(wall, 1), "sessions": 2, "server_transport": server_transport,
+    return {"seconds": round(wall, 1), "sessions": 2, "server_transport": server_transport, "client": client,
             "pose_hz": pose_hz or "one per frame",
             "tolerance_px": tolerance_px, "viewport": f"{size[0]}x{size[1]}", "frames": n1 - n0, "updates": int(updates),
             "update_ms_mean": round(1e3 * busy / max(updates, 1), 1),
@@ -630,6 +712,9 @@ def main() -> int:
     ap.add_argument("--sessions", default="8,16,32,48", help="load levels, comma-separated")
     ap.add_argument("--duration", type=float, default=20.0, help="seconds of poses per load level")
     ap.add_argument("--parallel-seconds", type=float, default=10.0)
+    ap.add_argument("--parallel-client", default="h2",
+                    help="the parallel-refinement runs' client: h2 (one event loop over caveclod's HTTP/2 client, "
+                         "the default), grpc (a blocking gRPC stream a session), or both, comma-separated")
     ap.add_argument("--startup-size", type=int, default=1024, help="mesh of the start-up test (1024: 2M triangles)")
     ap.add_argument("--skip", default="", help="comma-separated sections to skip: capacity,parallel,startup,shared")
     ap.add_argument("--shared-sessions", type=int, default=8,
@@ -732,12 +817,15 @@ def main() -> int:
             out["capacity_baseline"] = {"checkout": args.baseline, "levels": baseline}
     if "parallel" not in skip:
         # The timer client of earlier runs, then a client that keeps one pose
-        # waiting, over updates growing with a finer tolerance and a larger view.
+        # waiting, over updates growing with a finer tolerance and a larger view;
+        # each client kind of --parallel-client in turn.
         kind = args.server_transport.split(",")[0]
-        runs = [parallel_refinement(mesh, args.parallel_seconds, server_transport=kind)]
-        for tolerance, size in ((0.5, (1280, 720)), (0.25, (1920, 1080)), (0.1, (1920, 1080))):
-            runs.append(parallel_refinement(mesh, args.parallel_seconds, pose_hz=None, tolerance_px=tolerance,
-                                            size=size, server_transport=kind))
+        runs = []
+        for client in args.parallel_client.split(","):
+            runs.append(parallel_refinement(mesh, args.parallel_seconds, server_transport=kind, client=client))
+            for tolerance, size in ((0.5, (1280, 720)), (0.25, (1920, 1080)), (0.1, (1920, 1080))):
+                runs.append(parallel_refinement(mesh, args.parallel_seconds, pose_hz=None, tolerance_px=tolerance,
+                                                size=size, server_transport=kind, client=client))
         out["parallel_refinement"] = runs
         for r in runs:
             print(f"parallel refinement: {r}", file=sys.stderr)
