@@ -542,10 +542,11 @@ def with_and_without_stored_packing(mesh: Path) -> tuple[Path, Path]:
     return mesh, bare
 
 
-def start_once(mesh: Path, cache_dir: Path) -> dict:
-    """One server start: seconds to health SERVING and to the first frame of a session whose client
-    holds the vertex buffer (in ``cache_dir``), from the process's start; then seconds from a fresh
-    client's Open (no buffer: it downloads and decodes it) to its first frame."""
+def start_once(mesh: Path, cache_dir: Path, checked_dir: str = "none") -> dict:
+    """One server start (``--checked-dir checked_dir``): seconds to health SERVING and to the first
+    frame of a session whose client holds the vertex buffer (in ``cache_dir``), from the process's
+    start; then seconds from a fresh client's Open (no buffer: it downloads and decodes it) to its
+    first frame."""
     import tempfile
 
     import grpc
@@ -554,7 +555,8 @@ def start_once(mesh: Path, cache_dir: Path) -> dict:
     from caveclod.client import Client
     t0 = time.perf_counter()
     proc = subprocess.Popen([sys.executable, "-m", "caveclod.cli", "serve", str(mesh), "--host", "127.0.0.1",
-                             "--port", "0"], stdout=subprocess.PIPE, stderr=subprocess.DEVNULL, text=True)
+                             "--port", "0", "--checked-dir", checked_dir],
+                            stdout=subprocess.PIPE, stderr=subprocess.DEVNULL, text=True)
     try:
         port = int(proc.stdout.readline().rsplit(":", 1)[1])
         with grpc.insecure_channel(f"127.0.0.1:{port}") as channel:
@@ -583,17 +585,20 @@ def start_once(mesh: Path, cache_dir: Path) -> dict:
 
 def startup(mesh: Path, repeats: int = 5) -> dict:
     """:func:`start_once` ``repeats`` times for the file as built (its packed downloads stored) and
-    for a copy without them (as files built before they were stored), interleaved; medians and all
-    runs. An untimed start of each first fills the holding client's cache."""
+    for a copy without them (as files built before they were stored), each checked at start
+    (``--checked-dir none``) and remembered as checked by an earlier start (``_remembered``: a
+    restart), interleaved; medians and all runs. An untimed start of each first fills the holding
+    client's cache and the remembered checks."""
     import tempfile
     files = dict(zip(("stored", "packed_at_start"), with_and_without_stored_packing(mesh)))
-    runs = {name: [] for name in files}
-    with tempfile.TemporaryDirectory() as cache_dir:
+    runs = {f"{name}{how}": [] for name in files for how in ("", "_remembered")}
+    with tempfile.TemporaryDirectory() as cache_dir, tempfile.TemporaryDirectory() as checked:
         for r in range(repeats + 1):
             for name, path in files.items():
-                run = start_once(path, Path(cache_dir))
-                if r:
-                    runs[name].append(run)
+                for how, checked_dir in (("", "none"), ("_remembered", checked)):
+                    run = start_once(path, Path(cache_dir), checked_dir)
+                    if r:
+                        runs[f"{name}{how}"].append(run)
     out = {"mesh": mesh.name, "repeats": repeats}
     for name, done in runs.items():
         out[name] = {key: round(statistics.median(run[key] for run in done), 3) for key in done[0]}

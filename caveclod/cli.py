@@ -19,7 +19,7 @@ import json
 import sys
 
 from .errors import CaveclodError
-from .server.config import DEFAULT_MAX_SESSIONS
+from .server.config import DEFAULT_MAX_SESSIONS, default_checked_dir
 
 DEFAULT_MORPH_MS = 500.0     # geomorph duration of render, view and demo (benchmarks/geomorph.py)
 
@@ -154,6 +154,11 @@ def _parser() -> argparse.ArgumentParser:
                    help="grpc: grpc.aio (the default; TLS, every gRPC feature); h2: caveclod's own HTTP/2 on the "
                         "same event loop, the same services (Lod, health, reflection) at less CPU a frame, "
                         "plaintext only (README, \"Server model\")")
+    s.add_argument("--checked-dir", default=default_checked_dir(), metavar="DIR",
+                   help="where meshes that passed the structural check at start are remembered, so that a start "
+                        "on an unchanged file (the same inode, size, mtime and ctime) skips reading it again "
+                        "(about 2 s at 33.5M triangles); default $CAVECLOD_CHECKED_DIR, else "
+                        "$XDG_CACHE_HOME/caveclod/checked; 'none': check at every start")
     s.add_argument("--reuse-port", action="store_true", help=argparse.SUPPRESS)      # a process of --processes
     s.add_argument("--announce-metrics", action="store_true", help=argparse.SUPPRESS)  # its metrics port on stdout
     s.set_defaults(run=_serve)

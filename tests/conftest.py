@@ -8,10 +8,22 @@ import pytest
 
 
 def pytest_configure(config):
+    # `caveclod serve` processes the tests start remember the meshes they checked
+    # (--checked-dir): in a directory of this run, not the user's cache.
+    import os
+    import tempfile
+    if not os.environ.get("CAVECLOD_CHECKED_DIR"):
+        config._caveclod_checked = os.environ["CAVECLOD_CHECKED_DIR"] = tempfile.mkdtemp(prefix="caveclod-checked-")
     # Tests that build full-size meshes; deselect them with -m "not slow".
     config.addinivalue_line("markers", "slow: builds full-size (1024) meshes; deselect with -m 'not slow'")
     config.addinivalue_line("markers", "requires_tool(name): needs an optional system tool (tests/systemtools.py); "
                                        "skipped, with the reason, where it is missing")
+
+
+def pytest_unconfigure(config):
+    import shutil
+    if getattr(config, "_caveclod_checked", None):
+        shutil.rmtree(config._caveclod_checked, ignore_errors=True)
 
 
 def pytest_runtest_setup(item):

@@ -491,3 +491,65 @@ def test_a_signalling_nan_is_found_without_a_warning(terrain_path, array, row):
         warnings.simplefilter("error")
         problem = find_problem(StaticMesh(arrays=arrays, materials=materials))
     assert problem is not None, array
+
+
+# ------------------------------------------------------------------ remembered checks (serve --checked-dir)
+
+def _node_parent_loop_in_place(path: Path) -> None:
+    """Rewrite ``path`` in place, same size: node 0 its own parent (the check refuses it)."""
+    start, _, dtype, _ = Layout.of(path.read_bytes()).arrays["node_parent"]
+    with open(path, "r+b") as fh:
+        fh.seek(start)
+        fh.write(np.array([0], dtype).tobytes())
+
+
+def test_a_remembered_check_is_skipped_only_while_the_file_is_unchanged(terrain_path, tmp_path):
+    import os
+    import shutil
+    stamps = tmp_path / "checked"
+    path = tmp_path / "terrain.cvc"
+    shutil.copyfile(terrain_path, path)
+    assert meshcheck.check_mesh(load(path, check=False), stamps) is True       # read, then remembered
+    assert meshcheck.check_mesh(load(path, check=False), stamps) is False      # unchanged: not read
+    assert meshcheck.check_mesh(load(path, check=False)) is True               # no directory: always read
+    # Touched back to its own times: the change time moved, so it is read again.
+    st = path.stat()
+    os.utime(path, ns=(st.st_atime_ns, st.st_mtime_ns))
+    assert meshcheck.check_mesh(load(path, check=False), stamps) is True
+    assert meshcheck.check_mesh(load(path, check=False), stamps) is False
+    # Damaged in place (same size, same name): read again, and refused.
+    _node_parent_loop_in_place(path)
+    with pytest.raises(FileFormatError, match="parent"):
+        meshcheck.check_mesh(load(path, check=False), stamps)
+    # Replaced by a good copy (another inode): read again.
+    shutil.copyfile(terrain_path, tmp_path / "new.cvc")
+    os.replace(tmp_path / "new.cvc", path)
+    assert meshcheck.check_mesh(load(path, check=False), stamps) is True
+    # A stamp of another version of the check, or garbage, is no stamp.
+    (stamp,) = stamps.iterdir()
+    saved = json.loads(stamp.read_text())
+    stamp.write_text(json.dumps({**saved, "check": "0" * 16}))
+    assert meshcheck.check_mesh(load(path, check=False), stamps) is True
+    stamp.write_text("{not json")
+    assert meshcheck.check_mesh(load(path, check=False), stamps) is True
+    assert meshcheck.check_mesh(load(path, check=False), stamps) is False
+
+
+def test_a_directory_that_cannot_be_written_only_costs_the_check(terrain_path, tmp_path):
+    blocker = tmp_path / "file"
+    blocker.write_text("not a directory")
+    assert meshcheck.check_mesh(load(terrain_path, check=False), blocker / "checked") is True
+    assert meshcheck.check_mesh(load(terrain_path, check=False), blocker / "checked") is True
+
+
+def test_serve_remembers_its_meshes_checks(terrain_path, tmp_path, monkeypatch):
+    """Two starts of a server on one file: the first reads it, the second does not."""
+    from caveclod.server import logs
+    from caveclod.server.app import LodServer
+    from caveclod.server.config import ServerConfig
+    seen = []
+    monkeypatch.setattr(logs, "event", lambda name, **fields: seen.append(fields) if name == "mesh.checked" else None)
+    for _ in range(2):
+        LodServer(ServerConfig(meshes=[str(terrain_path)], host="127.0.0.1", port=0,
+                               checked_dir=str(tmp_path / "checked"))).stop(0)
+    assert [f["how"] for f in seen] == ["read", "unchanged since checked"], seen

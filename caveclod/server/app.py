@@ -59,7 +59,7 @@ class LodServer:
 
     def __init__(self, config: ServerConfig):
         self.config = config
-        self.catalogue = Catalogue(config.meshes)
+        self.catalogue = Catalogue(config.meshes, config.checked_dir)
         self.metrics = Metrics()
         self.sessions = Sessions(config, self.catalogue, self.metrics, logs.event)
         self.workers = ThreadPoolExecutor(max_workers=max(2, os.cpu_count() or 1), thread_name_prefix="caveclod-frame")

@@ -6,6 +6,7 @@ figures behind ``max_sessions`` come from ``benchmarks/service.py``.
 
 from __future__ import annotations
 
+import os
 from dataclasses import dataclass, field
 
 MAX_ACK_WINDOW = 32          # a client may ask for up to this many frames in flight
@@ -21,6 +22,15 @@ DEFAULT_MAX_SESSIONS = 32
 
 # TLS is grpc.aio's: caveclod's own HTTP/2 (transport "h2") serves plaintext.
 H2_PLAINTEXT_ONLY = "--transport h2 serves plaintext only; serve TLS with the default --transport grpc"
+
+
+def default_checked_dir() -> str:
+    """Where ``caveclod serve`` remembers checked meshes: $CAVECLOD_CHECKED_DIR, else
+    ``$XDG_CACHE_HOME/caveclod/checked`` (``~/.cache/caveclod/checked`` where XDG_CACHE_HOME is unset)."""
+    if os.environ.get("CAVECLOD_CHECKED_DIR"):
+        return os.environ["CAVECLOD_CHECKED_DIR"]
+    base = os.environ.get("XDG_CACHE_HOME") or os.path.join(os.path.expanduser("~"), ".cache")
+    return os.path.join(base, "caveclod", "checked")
 
 
 @dataclass
@@ -58,6 +68,9 @@ class ServerConfig:
         web_host: address the viewer listens on; None: ``host``.
         transport: "grpc" (grpc.aio) or "h2" (:mod:`.h2server`: caveclod's own
             HTTP/2, plaintext only).
+        checked_dir: where meshes that passed the structural check are
+            remembered (:class:`caveclod.meshcheck.CheckedStamp`), so that a
+            start on an unchanged file skips it; None: check at every start.
     """
 
     meshes: list = field(default_factory=list)
@@ -82,3 +95,4 @@ class ServerConfig:
     web_port: int | None = None
     web_host: str | None = None
     transport: str = "grpc"
+    checked_dir: str | None = None

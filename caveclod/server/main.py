@@ -40,7 +40,7 @@ def config_from_args(args) -> ServerConfig:
         metrics_port=args.metrics_port, metrics_host=args.metrics_host,
         tokens=read_tokens(args.token_file) if args.token_file else (), tls_cert=tls[0], tls_key=tls[1],
         reuse_port=args.reuse_port, web_port=args.web_port, transport=getattr(args, "transport", "grpc"),
-        web_host=args.web_host)
+        web_host=args.web_host, checked_dir=None if args.checked_dir == "none" else args.checked_dir)
 
 
 def _read(path, flag: str) -> bytes | None:

@@ -19,6 +19,7 @@ DATA_LOSS, and the server goes on serving its other meshes and sessions.
 from __future__ import annotations
 
 import threading
+import time
 from functools import cached_property
 from pathlib import Path
 
@@ -163,18 +164,27 @@ class Catalogue:
     files with the same stem.
     """
 
-    def __init__(self, paths: list):
-        from .. import load
+    def __init__(self, paths: list, checked_dir: str | None = None):
         from ..errors import InputError
+        from ..meshcheck import check_mesh
+        from ..staticmesh import load
         self.meshes: dict[str, ServedMesh] = {}
+        checks = []
         for path in paths:
             name = Path(path).stem
             if name in self.meshes:
                 raise InputError(f"two meshes named {name!r} ({self.meshes[name].mesh.path} and {path}); "
                                  "rename one file: meshes are served by file stem")
-            self.meshes[name] = ServedMesh(name, load(path))
+            t0 = time.perf_counter()
+            mesh = load(path, check=False)
+            read = check_mesh(mesh, checked_dir)
+            checks.append(dict(mesh=name, faces=mesh.n_faces, seconds=round(time.perf_counter() - t0, 3),
+                               how="read" if read else "unchanged since checked"))
+            self.meshes[name] = ServedMesh(name, mesh)
         if not self.meshes:
             raise InputError("no mesh to serve; give at least one .cvc file (build one with 'caveclod build')")
+        for fields in checks:             # once every mesh passed: a refusal stays the one line it is
+            logs.event("mesh.checked", **fields)
 
     def get(self, name: str) -> ServedMesh | None:
         return self.meshes.get(name)

@@ -88,7 +88,8 @@ class _Group:
         cmd = [sys.executable, "-m", "caveclod.cli", "serve", *a.meshes, "--host", a.host, "--port", str(self.port),
                "--reuse-port", "--log-format", a.log_format]
         for name in ("max_sessions", "max_cameras", "ack_window", "resume_ttl", "drain_seconds", "max_faces",
-                     "max_ops", "token_file", "tls_cert", "tls_key", "web_port", "web_host", "transport"):
+                     "max_ops", "token_file", "tls_cert", "tls_key", "web_port", "web_host", "transport",
+                     "checked_dir"):
             value = getattr(a, name)
             if value is not None:
                 cmd += ["--" + name.replace("_", "-"), str(value)]
