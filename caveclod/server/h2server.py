@@ -477,8 +477,8 @@ class _Connection(asyncio.Protocol):
                 messages = call.messages.feed(data)
             except http2.MessageError as exc:
                 self.refuse(call, grpc.StatusCode.UNIMPLEMENTED if exc.kind == "compressed" else
-                             grpc.StatusCode.RESOURCE_EXHAUSTED, f"{exc} (send uncompressed messages of at most "
-                             f"{call.messages.max_message} bytes)" if exc.kind == "compressed" else str(exc))
+                            grpc.StatusCode.RESOURCE_EXHAUSTED, f"{exc} (send uncompressed messages of at most "
+                            f"{call.messages.max_message} bytes)" if exc.kind == "compressed" else str(exc))
                 return
             deserializer = call.handler.request_deserializer if call.handler is not None else None
             for one in messages:
@@ -486,13 +486,13 @@ class _Connection(asyncio.Protocol):
                     request = deserializer(one) if deserializer is not None else one
                 except Exception as exc:          # noqa: BLE001 - this call's bad message, not the connection's
                     self.refuse(call, grpc.StatusCode.INTERNAL, f"a request message that does not "
-                                 f"deserialize: {type(exc).__name__}: {exc}"[:300])
+                                f"deserialize: {type(exc).__name__}: {exc}"[:300])
                     return
                 call.requests.put(request, len(one) + 5)
         if flags & END_STREAM:
             if call.messages.partial:
                 self.refuse(call, grpc.StatusCode.INTERNAL,
-                             f"the request stream ended inside a message ({call.messages.partial} bytes)")
+                            f"the request stream ended inside a message ({call.messages.partial} bytes)")
                 return
             call.requests.end()
 
@@ -595,7 +595,6 @@ class _Connection(asyncio.Protocol):
         # A task cancelled before it starts never runs run_call's finish (a
         # client's RST_STREAM in the same read as its HEADERS): end it here.
         call.task.add_done_callback(lambda _: call.finish(grpc.StatusCode.CANCELLED, "the call was cancelled"))
-
 
     def _answer_http(self, stream_id: int, end_stream: bool, status: str, details: str) -> None:
         """End a stream that is not a gRPC call: HTTP ``status``, and UNIMPLEMENTED for gRPC clients."""
