@@ -19,9 +19,11 @@ delta-coded against the previous vertex written), the second an EDGE of it
 import numba as nb
 import numpy as np
 
-NEW, COPY, CORNER0, EDGE0 = 0, 1, 2, 5   # op kinds; CORNER0 + k re-points corner k (k = 0, 1, 2);
-                                         # EDGE0 + 3 e + p: a triangle on edge e of the previous (NEW) one
-KIND_BITS = 4
+# The format's constants, from the module that specifies it: op kinds (CORNER0 + k
+# re-points corner k; EDGE0 + 3 e + p is a triangle on edge e of the previous, NEW one),
+# header bits, and the limits a decoder enforces.
+from ..opstream import COPY, CORNER0, EDGE0, KIND_BITS, MAX_VARINT_BYTES, N_KINDS, NEW
+
 MAX_OP_BYTES = 21                     # worst case of one write: a 6-byte header (a 32-bit gap and 4 kind
                                       # bits) and three 5-byte deltas (33-bit zigzag)
 
@@ -165,8 +167,6 @@ def encode_and_apply(held, old_count, new_count, slots, tris, out):
 # runs caveclod.opstream's reference decoder on the same stream for the
 # message (errors are rare; the reference names what was wrong in words).
 DECODE_OK, DECODE_MALFORMED = 0, 1
-N_KINDS = EDGE0 + 9                   # kinds 14 and 15 are invalid
-MAX_VARINT_BYTES = 9                  # 63 bits: more is malformed
 
 
 @nb.njit(cache=True, nogil=True, inline="always")
