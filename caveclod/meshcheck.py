@@ -78,9 +78,18 @@ def check_mesh(mesh, checked_dir: str | os.PathLike | None = None) -> bool:
     return True
 
 
-# What a stamp is valid for: this module's source, so that a check that
-# changes (a new rule) reads every file again.
-CHECK_VERSION = hashlib.sha256(Path(__file__).read_bytes()).hexdigest()[:16]
+def _check_version() -> str:
+    """What a stamp is valid for: this module's source, so that a check that
+    changes (a new rule) reads every file again; where the source cannot be
+    read (a frozen install), the package's version."""
+    try:
+        return hashlib.sha256(Path(__file__).read_bytes()).hexdigest()[:16]
+    except OSError:
+        from . import __version__
+        return f"version {__version__}"
+
+
+CHECK_VERSION = _check_version()
 
 
 class CheckedStamp:
@@ -132,7 +141,6 @@ class CheckedStamp:
             return True
         except OSError:
             return False
-
 
 
 # Meshes of more faces than this are checked on two threads (numpy releases
