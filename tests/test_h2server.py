@@ -4,6 +4,7 @@ statuses, spoken to by the h2 library as a raw client."""
 
 from __future__ import annotations
 
+import asyncio
 import socket
 import time
 
@@ -25,21 +26,30 @@ def h2_server(make_server):
     return make_server(transport="h2")
 
 
+def _connected(port: int, timeout: float = 5.0):
+    """A raw h2 client connection that has the server's SETTINGS (its windows: a body may exceed the default)."""
+    conn = h2.connection.H2Connection(h2.config.H2Configuration(client_side=True, header_encoding="utf-8"))
+    conn.initiate_connection()
+    sock = socket.create_connection(("127.0.0.1", port), timeout=timeout)
+    sock.sendall(conn.data_to_send())
+    while not any(isinstance(e, h2.events.RemoteSettingsChanged) for e in conn.receive_data(sock.recv(65536))):
+        pass
+    sock.sendall(conn.data_to_send())
+    return conn, sock
+
+
+def _request_headers(port: int, path: str, method: str = "POST", content_type: str = "application/grpc") -> list:
+    return [(":method", method), (":scheme", "http"), (":path", path), (":authority", f"127.0.0.1:{port}"),
+            ("te", "trailers"), ("content-type", content_type)]
+
+
 def _raw_call(port: int, path: str, body: bytes, *, content_type: str = "application/grpc",
               end: bool = True, seconds: float = 10.0, method: str = "POST") -> dict:
     """One request over a fresh connection: the response's headers, data and trailers (or reset)."""
-    conn = h2.connection.H2Connection(h2.config.H2Configuration(client_side=True, header_encoding="utf-8"))
-    conn.initiate_connection()
     out = {"headers": {}, "data": b"", "trailers": {}, "reset": None}
-    with socket.create_connection(("127.0.0.1", port), timeout=seconds) as sock:
-        sock.sendall(conn.data_to_send())
-        settings = False
-        while not settings:                       # the server's windows first: a body may exceed the default
-            events = conn.receive_data(sock.recv(65536))
-            settings = any(isinstance(e, h2.events.RemoteSettingsChanged) for e in events)
-        conn.send_headers(1, [(":method", method), (":scheme", "http"), (":path", path),
-                              (":authority", f"127.0.0.1:{port}"), ("te", "trailers"),
-                              ("content-type", content_type)])
+    conn, sock = _connected(port, seconds)
+    with sock:
+        conn.send_headers(1, _request_headers(port, path, method, content_type))
         step = conn.max_outbound_frame_size
         for i in range(0, max(len(body), 1), step):
             conn.send_data(1, body[i:i + step], end_stream=end and i + step >= len(body))
@@ -133,7 +143,6 @@ class _Standalone:
     """An H2Server with test handlers on an event loop of its own thread (no mesh, no kernels)."""
 
     def __init__(self, handlers: dict):
-        import asyncio
         import threading
 
         from caveclod.server.h2server import H2Server
@@ -146,7 +155,6 @@ class _Standalone:
         self.call(self.server.start())
 
     def call(self, coroutine):
-        import asyncio
         return asyncio.run_coroutine_threadsafe(coroutine, self.loop).result(10)
 
     def state(self, fn):
@@ -161,6 +169,21 @@ class _Standalone:
         self.thread.join(5)
 
 
+async def _hang(requests, context):
+    """A handler that neither reads nor answers."""
+    await asyncio.sleep(60)
+
+
+async def _echo(requests, context):
+    async for r in requests:
+        await context.write(r)
+
+
+def _open_calls(s) -> int:
+    """Calls open on the standalone server ``s`` (read on its loop)."""
+    return s.state(lambda: sum(len(c.calls) for c in s.server.connections))
+
+
 @pytest.fixture
 def standalone():
     made = []
@@ -173,29 +196,8 @@ def standalone():
         s.stop()
 
 
-def _connected(port: int):
-    """A raw h2 client connection that has the server's SETTINGS."""
-    conn = h2.connection.H2Connection(h2.config.H2Configuration(client_side=True, header_encoding="utf-8"))
-    conn.initiate_connection()
-    sock = socket.create_connection(("127.0.0.1", port), timeout=5)
-    sock.sendall(conn.data_to_send())
-    while not any(isinstance(e, h2.events.RemoteSettingsChanged) for e in conn.receive_data(sock.recv(65536))):
-        pass
-    sock.sendall(conn.data_to_send())
-    return conn, sock
-
-
-def _request_headers(port: int, path: str) -> list:
-    return [(":method", "POST"), (":scheme", "http"), (":path", path), (":authority", f"127.0.0.1:{port}"),
-            ("te", "trailers"), ("content-type", "application/grpc")]
-
-
 def test_a_call_reset_in_the_read_that_opened_it_is_freed(standalone):
-    import asyncio
-
-    async def hang(requests, context):
-        await asyncio.sleep(60)
-    s = standalone({"Hang": grpc.stream_stream_rpc_method_handler(hang)})
+    s = standalone({"Hang": grpc.stream_stream_rpc_method_handler(_hang)})
     conn, sock = _connected(s.port)
     with sock:
         for sid in (1, 3, 5):                     # HEADERS and RST_STREAM in one write
@@ -203,19 +205,15 @@ def test_a_call_reset_in_the_read_that_opened_it_is_freed(standalone):
             conn.reset_stream(sid)
         sock.sendall(conn.data_to_send())
         deadline = time.monotonic() + 5
-        while time.monotonic() < deadline and s.state(lambda: sum(len(c.calls) for c in s.server.connections)):
+        while time.monotonic() < deadline and _open_calls(s):
             time.sleep(0.05)
-        assert s.state(lambda: sum(len(c.calls) for c in s.server.connections)) == 0
+        assert _open_calls(s) == 0
 
 
 def test_a_client_that_sends_faster_than_its_handler_reads_waits_for_its_window(standalone):
-    import asyncio
-
     from caveclod.server.h2server import STREAM_WINDOW
 
-    async def never_reads(requests, context):
-        await asyncio.sleep(60)
-    s = standalone({"Slow": grpc.stream_stream_rpc_method_handler(never_reads)})
+    s = standalone({"Slow": grpc.stream_stream_rpc_method_handler(_hang)})
     conn, sock = _connected(s.port)
     with sock:
         conn.send_headers(1, _request_headers(s.port, "/t.T/Slow"))
@@ -244,10 +242,7 @@ def test_a_message_that_does_not_deserialize_ends_its_call_only(standalone):
             raise ValueError("cannot parse")
         return data
 
-    async def echo(requests, context):
-        async for r in requests:
-            await context.write(r)
-    s = standalone({"Echo": grpc.stream_stream_rpc_method_handler(echo, request_deserializer=strict)})
+    s = standalone({"Echo": grpc.stream_stream_rpc_method_handler(_echo, request_deserializer=strict)})
     conn, sock = _connected(s.port)
     with sock:
         conn.send_headers(1, _request_headers(s.port, "/t.T/Echo"))
@@ -271,7 +266,6 @@ def test_a_message_that_does_not_deserialize_ends_its_call_only(standalone):
 def test_calls_still_open_when_the_server_stops_end_unavailable_with_a_status(standalone):
     """Past stop()'s grace a call ends with trailers (UNAVAILABLE: a client goes on elsewhere), not a
     cut socket, which a proxy in between would turn into an error of its own that clients do not retry."""
-    import asyncio
 
     async def hang(requests, context):
         await context.write(b"first")
@@ -307,13 +301,7 @@ def test_calls_still_open_when_the_server_stops_end_unavailable_with_a_status(st
 def test_a_second_header_block_without_end_stream_resets_its_stream_only(standalone):
     """Trailers must end the stream (RFC 9113 8.1): a HEADERS in mid-call without END_STREAM is a
     malformed request, reset with PROTOCOL_ERROR; the connection serves on."""
-    import asyncio
-
-    async def echo(requests, context):
-        async for r in requests:
-            await context.write(r)
-        await asyncio.sleep(0)
-    s = standalone({"Echo": grpc.stream_stream_rpc_method_handler(echo)})
+    s = standalone({"Echo": grpc.stream_stream_rpc_method_handler(_echo)})
     conn, sock = _connected(s.port)
     with sock:
         conn.send_headers(1, _request_headers(s.port, "/t.T/Echo"))
@@ -329,5 +317,5 @@ def test_a_second_header_block_without_end_stream_resets_its_stream_only(standal
                     reset = event.error_code
             sock.sendall(conn.data_to_send())
     assert reset == http2.PROTOCOL_ERROR
-    assert s.state(lambda: sum(len(c.calls) for c in s.server.connections)) == 0
+    assert _open_calls(s) == 0
     assert _status(_raw_call(s.port, "/t.T/Echo", _framed(b"fine"))) == (0, "")
