@@ -57,6 +57,14 @@ _TIMEOUT_UNITS = {"H": 3600.0, "M": 60.0, "S": 1.0, "m": 1e-3, "u": 1e-6, "n": 1
 _NOT_METADATA = {"te", "content-type", "grpc-timeout", "grpc-encoding", "grpc-accept-encoding"}
 
 
+def _status_fields(code: grpc.StatusCode, details: str) -> list:
+    """The grpc-status and (when there are details) grpc-message header fields of a call's end."""
+    fields = [("grpc-status", str(code.value[0]))]
+    if details:
+        fields.append(("grpc-message", urllib.parse.quote(details, safe=_SAFE)))
+    return fields
+
+
 class AbortError(Exception):
     """Raised by :meth:`Context.abort`: the call ends with ``code`` and ``details``."""
 
@@ -244,9 +252,7 @@ class _Call:
             self.finished = True
             conn = self.conn
             if not self.broken and not self.reset and conn.open:
-                status = [("grpc-status", str(code.value[0]))]
-                if details:
-                    status.append(("grpc-message", urllib.parse.quote(details, safe=_SAFE)))
+                status = _status_fields(code, details)
                 conn.queue_headers(self.stream_id, status if self.headers_sent else
                                    conn.server.response_headers + status, True)
                 if not self.requests.ended:      # the client may still be sending: it need not
@@ -599,8 +605,7 @@ class _Connection(asyncio.Protocol):
     def _answer_http(self, stream_id: int, end_stream: bool, status: str, details: str) -> None:
         """End a stream that is not a gRPC call: HTTP ``status``, and UNIMPLEMENTED for gRPC clients."""
         self.queue_headers(stream_id, [(":status", status), ("content-type", "application/grpc"),
-                                       ("grpc-status", str(grpc.StatusCode.UNIMPLEMENTED.value[0])),
-                                       ("grpc-message", urllib.parse.quote(details, safe=_SAFE))], True)
+                                       *_status_fields(grpc.StatusCode.UNIMPLEMENTED, details)], True)
         if not end_stream:                 # whatever it still sends is dropped (a stream that ended)
             self.out += http2.frame(RST_STREAM, 0, stream_id, http2.NO_ERROR.to_bytes(4, "big"))
 
