@@ -212,9 +212,10 @@ def _parser() -> argparse.ArgumentParser:
                         "default): h2 where hpack is installed and no --tls-ca is given, else grpc")
     t.add_argument("--shard", help=argparse.SUPPRESS)        # I/N: the sessions of one of N processes
     t.add_argument("--start-at", type=float, help=argparse.SUPPRESS)   # their shared start (time.perf_counter)
-    t.add_argument("--frame-encoding", choices=("ops", "raw"), default="ops",
-                   help="how index-buffer writes travel: ops (op streams, the default) or raw (uint32 arrays, "
-                        "what caveclod.v1 clients before op streams read)")
+    t.add_argument("--frame-encoding", choices=("linked", "ops", "raw"), default="linked",
+                   help="how index-buffer writes travel: linked (op streams that also name vertices by their morph "
+                        "targets, which the sessions then download: the default), ops (op streams), or raw "
+                        "(uint32 arrays, what caveclod.v1 clients before op streams read)")
     t.add_argument("--decoder", choices=("auto", "compiled", "numpy"), default="auto",
                    help="how op streams are decoded: compiled (a numba kernel, about a seventh of numpy's CPU; "
                         "needs caveclod[build]), numpy (what thin clients run); auto (the default): compiled where "

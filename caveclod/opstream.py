@@ -50,9 +50,10 @@ MAX_VARINT_BYTES = 9                  # 63 bits: more is malformed
 SMALL_BYTES = 384
 
 
-# The compiled decoder (caveclod.kernels.opstream.decode) inside compiled_decoding();
-# None: the numpy decoders below.
+# The compiled decoders (caveclod.kernels.opstream.decode, .decode_linked) inside
+# compiled_decoding(); None: the numpy decoders below.
 _compiled = None
+_compiled_linked = None
 
 
 @contextlib.contextmanager
@@ -70,21 +71,23 @@ def compiled_decoding(on: bool = True):
     a stream is well formed, and one it refuses goes through the numpy
     decoder for the error's words.
     """
-    global _compiled
-    before = _compiled
-    _compiled = None
+    global _compiled, _compiled_linked
+    before = _compiled, _compiled_linked
+    _compiled = _compiled_linked = None
     if on:
         try:
-            from .kernels.opstream import decode as kernel
+            from .kernels import opstream as kernels
         except ImportError:                  # numba is not installed
-            kernel = None
-        if kernel is not None:
-            kernel(np.frombuffer(b"\x00", np.uint8), np.zeros((0, 3), np.uint32), 0, 1)   # compiled here
-            _compiled = kernel
+            kernels = None
+        if kernels is not None:
+            empty, none = np.frombuffer(b"\x00", np.uint8), np.zeros((0, 3), np.uint32)
+            kernels.decode(empty, none, 0, 1)                                          # compiled here
+            kernels.decode_linked(empty, none, 0, *_children(np.zeros(1, np.uint32)))
+            _compiled, _compiled_linked = kernels.decode, kernels.decode_linked
     try:
         yield _compiled is not None
     finally:
-        _compiled = before
+        _compiled, _compiled_linked = before
 
 
 class OpStreamError(ValueError):
@@ -227,23 +230,7 @@ def _vertices(deltas: np.ndarray, n_vertices: int) -> np.ndarray:
 
 def _decode_small(ops: bytes, old: np.ndarray, count: int, n_vertices: int) -> tuple[np.ndarray, np.ndarray]:
     """:func:`decode`, a varint and a write at a time (short streams); the same checks and errors."""
-    values = []
-    append = values.append
-    value = shift = 0
-    for b in bytes(ops):                 # every varint first: then the same checks as the numpy path
-        if b < 0x80:
-            append(value | (b << shift))
-            value = shift = 0
-            continue
-        value |= (b & 0x7F) << shift
-        shift += 7
-        if shift >= 7 * MAX_VARINT_BYTES:
-            raise OpStreamError(f"a varint of more than {MAX_VARINT_BYTES} bytes in the op stream "
-                                f"(at most {MAX_VARINT_BYTES})")
-    if shift:
-        raise OpStreamError(f"the op stream's last varint is cut off ({len(ops)} bytes)")
-    if not values:
-        raise OpStreamError("an empty op stream (it starts with the number of writes)")
+    values = _varint_list(ops)           # every varint first: then the same checks as the numpy path
     n = values[0]
     if n > len(values) - 1:
         raise OpStreamError(f"the op stream announces {n} writes but holds {len(values) - 1} varints")
@@ -308,4 +295,235 @@ def _decode_small(ops: bytes, old: np.ndarray, count: int, n_vertices: int) -> t
         if kind >= EDGE0 and not 0 <= last < n_vertices:
             raise OpStreamError(f"vertex index {last} outside the vertex buffer's {n_vertices} vertices")
         tris.append(tri)
+    return np.array(slots, np.uint32), np.array(tris, np.uint32).reshape(-1, 3)
+
+
+def _varint_list(ops: bytes) -> list:
+    """Every LEB128 varint of ``ops`` as Python ints, a byte at a time (short streams);
+    raises OpStreamError for an empty stream, a cut-off varint or one too long."""
+    values = []
+    append = values.append
+    value = shift = 0
+    for b in bytes(ops):
+        if b < 0x80:
+            append(value | (b << shift))
+            value = shift = 0
+            continue
+        value |= (b & 0x7F) << shift
+        shift += 7
+        if shift >= 7 * MAX_VARINT_BYTES:
+            raise OpStreamError(f"a varint of more than {MAX_VARINT_BYTES} bytes in the op stream "
+                                f"(at most {MAX_VARINT_BYTES})")
+    if shift:
+        raise OpStreamError(f"the op stream's last varint is cut off ({len(ops)} bytes)")
+    if not values:
+        raise OpStreamError("an empty op stream (it starts with the number of writes)")
+    return values
+
+
+# -- FRAME_ENCODING_OPS_LINKED: op streams that also read the morph targets ---------------
+#
+# A split re-points the faces around the split vertex onto a vertex whose
+# morph target is the one they leave, and makes two faces on edges of faces
+# the same delta writes; a collapse re-points them back onto the target. A
+# client that holds the vertex buffer's morph targets (Open.morph_targets)
+# can therefore follow names shorter than vertex deltas: "the r-th child of
+# the corner's vertex", "its target", "on edge e of write j". The header and
+# the kinds 0-4 are OPS's; EDGE's kinds give way to these:
+SPLIT0 = 5        # + c: corner c becomes the r-th child of the vertex there (payload r)
+MERGE0 = 8        # + c: corner c becomes the target of the vertex there (no payload)
+ADJ = 11          # a triangle on an edge of another write of the delta (payload: where, which vertex)
+N_LINKED_KINDS = 12                   # kinds 12-15 are invalid
+LINKED_PAYLOAD_VARINTS = (3, 1, 1, 1, 1, 1, 1, 1, 0, 0, 0, 2)
+# How ADJ names its third vertex z (the low part of its second varint, base Z_MODES).
+Z_DELTA, Z_CHILD_X, Z_CHILD_Y, Z_TARGET_X, Z_TARGET_Y, Z_WRITE = range(6)
+Z_MODES = 6
+LINKED_KIND_NAMES = "0 NEW, 1 COPY, 2-4 CORNER, 5-7 SPLIT, 8-10 MERGE, 11 ADJ"
+# Writes to the slots a buffer grows by need no slot; their kinds (NEW, COPY or ADJ:
+# nothing is there to re-point) go four to a varint, k0 + 3 k1 + 9 k2 + 27 k3.
+APPENDED_KINDS = (NEW, COPY, ADJ)
+APPENDED_PER_VARINT = 4
+APPENDED_PACK_LIMIT = 3 ** APPENDED_PER_VARINT
+
+
+def is_base_kind(kind: int) -> bool:
+    """Kinds read only the old buffer (and the morph targets), so an ADJ may name them
+    wherever they are in the stream; NEW and ADJ writes only before it."""
+    return COPY <= kind < ADJ
+
+
+def _children(targets: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(targets (d,) uint32, child_start (d + 1,) int32, children (m,) int32): the
+    vertices whose target is x, other than x, are children[child_start[x]:child_start[x + 1]],
+    ascending. Raises ValueError for targets outside the buffer."""
+    t = np.asarray(targets).reshape(-1)
+    d = len(t)
+    if d and (int(t.min()) < 0 or int(t.max()) >= d):
+        raise ValueError(f"morph targets outside the vertex buffer's {d} vertices")
+    t = t.astype(np.uint32, copy=False)
+    own = t == np.arange(d, dtype=np.uint32)
+    order = np.argsort(np.where(own, d, t), kind="stable")     # children grouped by target, ascending
+    child_start = np.zeros(d + 1, np.int32)                    # 32 bits: morph targets stay under 2**30 vertices
+    np.cumsum(np.bincount(t[~own], minlength=d), out=child_start[1:])
+    return t, child_start, order[: int(child_start[-1])].astype(np.int32)
+
+
+def child_ranks(targets: np.ndarray) -> np.ndarray:
+    """(d,) uint8: each vertex's place among its target's children (0 without a
+    target), 255 from the 255th on (an encoder names those another way)."""
+    t, child_start, children = _children(targets)
+    rank = np.zeros(len(t), np.uint8)
+    rank[children] = np.minimum(np.arange(len(children)) - child_start[t[children]], 255)
+    return rank
+
+
+class Links:
+    """The morph-target relation an OPS_LINKED stream names vertices by.
+
+    ``targets`` (d,) is :attr:`caveclod.client.protocol.VertexBuffer.morph_targets`
+    (a vertex's own index where it has none). The *children* of vertex ``x``
+    are the other vertices whose target is ``x``, in ascending index order.
+    Built once per vertex buffer (an argsort: about 0.04 s a million
+    vertices; 12 bytes a vertex).
+    """
+
+    def __init__(self, targets: np.ndarray):
+        self.targets, self.child_start, self.children = _children(targets)
+
+    @property
+    def n_vertices(self) -> int:
+        return len(self.targets)
+
+    def child(self, x: int, r: int) -> int:
+        """The r-th child of vertex x; OpStreamError where x has no such child."""
+        lo, hi = int(self.child_start[x]), int(self.child_start[x + 1])
+        if not 0 <= r < hi - lo:
+            raise OpStreamError(f"child {r} of vertex {x}, which has {hi - lo} (see the morph targets)")
+        return int(self.children[lo + r])
+
+
+def decode_linked(ops: bytes, old: np.ndarray, count: int, links: Links) -> tuple[np.ndarray, np.ndarray]:
+    """The slot writes of an OPS_LINKED stream: (slots (n,) uint32, tris (n, 3) uint32).
+
+    As :func:`decode`, with vertex indices below ``links.n_vertices``. The
+    base writes (COPY, CORNER, SPLIT, MERGE) read only ``old``; the NEW and
+    ADJ writes are then made in stream order (an ADJ reads the write it
+    names, so there is a loop per write: about 2 us each).
+    """
+    if _compiled_linked is not None:
+        status, slots, tris = _compiled_linked(np.frombuffer(ops, np.uint8), old, count, links.targets,
+                                               links.child_start, links.children)
+        if status == 0:
+            return slots, tris
+    n_vertices = links.n_vertices
+    values = _varint_list(ops)
+    n = values[0]
+    old_count = len(old)
+    appended = max(count - old_count, 0)      # slots old_count .. count - 1, every one written
+    in_place = n - appended
+    packs = -(-appended // APPENDED_PER_VARINT)
+    if in_place < 0:
+        raise OpStreamError(f"the buffer grows from {old_count} to {count} triangles but the op stream "
+                            f"announces only {n} writes")
+    if in_place + packs > len(values) - 1:
+        raise OpStreamError(f"the op stream announces {n} writes but holds {len(values) - 1} varints")
+    slots, kinds, first, slot, need = [], [], [], -1, 0
+    for h in values[1:1 + in_place]:
+        kind, gap = h & 15, h >> KIND_BITS
+        if kind >= N_LINKED_KINDS:
+            raise OpStreamError(f"op kind {kind} is unknown ({LINKED_KIND_NAMES})")
+        if gap >= count:
+            raise OpStreamError(f"a slot gap of {gap} in a buffer of {count} triangles")
+        slot += gap + 1
+        slots.append(slot)
+        kinds.append(kind)
+    if slots and slot >= min(old_count, count):
+        raise OpStreamError(f"slot {slot} of an in-place write, past the {min(old_count, count)} slots the "
+                            "buffer keeps")
+    for pack in values[1 + in_place:1 + in_place + packs]:
+        if pack >= APPENDED_PACK_LIMIT:
+            raise OpStreamError(f"appended writes' kinds {pack} (at most {APPENDED_PACK_LIMIT - 1})")
+        for _ in range(min(APPENDED_PER_VARINT, appended - (len(kinds) - in_place))):
+            pack, code = divmod(pack, 3)
+            kinds.append(APPENDED_KINDS[code])
+    slots += range(old_count, old_count + appended)
+    for kind in kinds:
+        first.append(1 + in_place + packs + need)
+        need += LINKED_PAYLOAD_VARINTS[kind]
+    if need != len(values) - 1 - in_place - packs:
+        raise OpStreamError(f"{n} writes need {need} payload varints, the stream holds "
+                            f"{len(values) - 1 - in_place - packs}")
+
+    def vertex(v):
+        if not 0 <= v < n_vertices:
+            raise OpStreamError(f"vertex index {v} outside the vertex buffer's {n_vertices} vertices")
+        return v
+
+    tris = [None] * n
+    in_place = [s for s, k in zip(slots, kinds) if CORNER0 <= k < ADJ]      # one gather for all of them
+    if in_place and max(in_place) >= old_count:
+        raise OpStreamError(f"a CORNER, SPLIT or MERGE write to slot {max(in_place)}, which the buffer of "
+                            f"{old_count} triangles does not hold yet")
+    rows = old[in_place].tolist()
+    at = 0
+    for i, kind in enumerate(kinds):                  # the base writes: from the old buffer
+        if kind == COPY:
+            r = values[first[i]]
+            if r >= old_count:
+                raise OpStreamError(f"a COPY from {r} slots before the end of a buffer of {old_count}")
+            tris[i] = old[old_count - 1 - r].tolist()
+        elif CORNER0 <= kind < ADJ:
+            tri = rows[at]
+            at += 1
+            if kind < SPLIT0:
+                z = values[first[i]]
+                c = kind - CORNER0
+                tri[c] = vertex(tri[c] + ((z >> 1) ^ -(z & 1)))
+            elif kind < MERGE0:
+                c = kind - SPLIT0
+                tri[c] = links.child(tri[c], values[first[i]])
+            else:
+                c = kind - MERGE0
+                tri[c] = int(links.targets[tri[c]])
+            tris[i] = tri
+
+    def written(j, i):
+        """Write j's triangle, named by write i."""
+        if not 0 <= j < n or j == i:
+            raise OpStreamError(f"write {i} names write {j} of {n}")
+        if tris[j] is None:
+            raise OpStreamError(f"write {i} names write {j}, a NEW or ADJ write after it")
+        return tris[j]
+
+    last = 0
+    for i, kind in enumerate(kinds):                  # then NEW and ADJ, in stream order
+        p = first[i]
+        if kind == NEW:
+            tri = []
+            for q in range(3):
+                z = values[p + q]
+                last = vertex(last + ((z >> 1) ^ -(z & 1)))
+                tri.append(last)
+            tris[i] = tri
+        elif kind == ADJ:
+            h, w = values[p], values[p + 1]
+            step, ep = divmod(h, 9)
+            e, q = divmod(ep, 3)
+            prev = written(i + ((step >> 1) ^ -(step & 1)), i)
+            x, y = prev[e], prev[(e + 1) % 3]
+            v, mode = divmod(w, Z_MODES)
+            if mode == Z_DELTA:
+                z = last = vertex(last + ((v >> 1) ^ -(v & 1)))
+            elif mode == Z_CHILD_X or mode == Z_CHILD_Y:
+                z = links.child(x if mode == Z_CHILD_X else y, v)
+            elif mode == Z_TARGET_X or mode == Z_TARGET_Y:
+                if v:
+                    raise OpStreamError(f"an ADJ write's target with a value ({v}) it does not take")
+                z = int(links.targets[x if mode == Z_TARGET_X else y])
+            else:
+                j2, c = divmod(v, 3)
+                z = written(i + ((j2 >> 1) ^ -(j2 & 1)), i)[c]
+            tri = [0, 0, 0]
+            tri[q], tri[(q + 1) % 3], tri[(q + 2) % 3] = y, x, z
+            tris[i] = tri
     return np.array(slots, np.uint32), np.array(tris, np.uint32).reshape(-1, 3)

@@ -156,12 +156,14 @@ def encode_surface(s: Surface) -> pb.SurfaceDelta:
     return pb.SurfaceDelta.FromString(surface_bytes(s))
 
 
-def decode_surface(msg: pb.SurfaceDelta, n_vertices: int, held=None) -> Surface:
+def decode_surface(msg: pb.SurfaceDelta, n_vertices: int, held=None, links=None) -> Surface:
     """A Surface from a SurfaceDelta, checked as the proto requires.
 
     ``held(material)`` gives the (old_count, 3) uint32 buffer the client
     holds before this delta; an op stream (``ops``) is decoded against it
-    (:func:`caveclod.opstream.decode`). Raises WireError for arrays of a
+    (:func:`caveclod.opstream.decode`; with ``links``, a
+    :class:`caveclod.opstream.Links` of the vertex buffer, as
+    FRAME_ENCODING_OPS_LINKED: :func:`caveclod.opstream.decode_linked`). Raises WireError for arrays of a
     wrong length, slots that are not ascending, unique and < count, vertex
     indices >= ``n_vertices``, or an op stream that does not decode.
     """
@@ -172,7 +174,10 @@ def decode_surface(msg: pb.SurfaceDelta, n_vertices: int, held=None) -> Surface:
             raise WireError(f"material {msg.material}: an op stream, but no buffer to decode it against")
         old = held(msg.material)
         try:
-            slots, tris = opstream.decode(msg.ops, old, msg.count, n_vertices)
+            if links is None:
+                slots, tris = opstream.decode(msg.ops, old, msg.count, n_vertices)
+            else:
+                slots, tris = opstream.decode_linked(msg.ops, old, msg.count, links)
         except opstream.OpStreamError as exc:
             raise WireError(f"material {msg.material}: {exc}") from None
         return Surface(msg.material, msg.count, slots, tris, msg.crc32 if msg.HasField("crc32") else None)

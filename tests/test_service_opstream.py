@@ -1,5 +1,6 @@
 """Op streams through the service: a damaged stream costs a keyframe, never a wrong
-buffer; a resume may switch between RAW and OPS; cache mode carries op streams too."""
+buffer; a resume may switch between RAW, OPS and OPS_LINKED; OPS_LINKED is granted
+only to clients that hold the morph targets; cache mode carries op streams too."""
 
 from __future__ import annotations
 
@@ -47,9 +48,13 @@ def _fly(driver, steps: int, start: int = 0) -> list:
     return frames
 
 
+ENCODINGS = {"raw": pb.FRAME_ENCODING_RAW, "ops": pb.FRAME_ENCODING_OPS, "linked": pb.FRAME_ENCODING_OPS_LINKED}
+
+
+@pytest.mark.parametrize("encoding", ["ops", "linked"])
 @pytest.mark.parametrize("damage", ["flip", "cut", "kind"])
-def test_a_damaged_op_stream_asks_for_a_keyframe_and_the_keyframe_repairs(server, damage):
-    protocol = SessionProtocol("terrain", 1, _options(), cache=None, ack_window=1)
+def test_a_damaged_op_stream_asks_for_a_keyframe_and_the_keyframe_repairs(server, damage, encoding):
+    protocol = SessionProtocol("terrain", 1, _options(), cache=None, ack_window=1, frame_encoding=encoding)
     original = protocol.receive
     damaged = []
 
@@ -74,7 +79,7 @@ def test_a_damaged_op_stream_asks_for_a_keyframe_and_the_keyframe_repairs(server
     driver = Driver(server.port, protocol)
     try:
         driver.next_frame()
-        assert protocol.info.frame_encoding == pb.FRAME_ENCODING_OPS
+        assert protocol.info.frame_encoding == ENCODINGS[encoding]
         frames = _fly(driver, 6)
         assert damaged, "no op stream was sent"
         hit = next(u for u in frames if u.frame_seq == damaged[0])
@@ -87,9 +92,11 @@ def test_a_damaged_op_stream_asks_for_a_keyframe_and_the_keyframe_repairs(server
         driver.close()
 
 
-@pytest.mark.parametrize("first, then", [("raw", "ops"), ("ops", "raw")])
+@pytest.mark.parametrize("first, then", [("raw", "ops"), ("ops", "raw"), ("raw", "linked"), ("linked", "raw"),
+                                         ("ops", "linked"), ("linked", "ops")])
 def test_a_resume_may_switch_the_frame_encoding(server, first, then):
-    protocol = SessionProtocol("terrain", 2, _options(), cache=None, ack_window=1, frame_encoding=first)
+    protocol = SessionProtocol("terrain", 2, _options(), cache=None, ack_window=1, frame_encoding=first,
+                               morph_targets=True)
     driver = Driver(server.port, protocol)
     try:
         driver.next_frame()
@@ -103,8 +110,8 @@ def test_a_resume_may_switch_the_frame_encoding(server, first, then):
     try:
         frames = _fly(driver, 5, start=3)
         assert protocol.token == token and protocol.resumes == 1
-        assert protocol.info.frame_encoding == (pb.FRAME_ENCODING_OPS if then == "ops" else pb.FRAME_ENCODING_RAW)
-        if then == "ops":       # the server starts what it holds for each camera from a keyframe
+        assert protocol.info.frame_encoding == ENCODINGS[then]
+        if first == "raw":      # the server starts what it holds for each camera from a keyframe
             assert {c for u in frames for c, cam in u.cameras.items() if cam.keyframe} == {0, 1}
         _same_as_server(protocol, server)
         assert protocol.divergences == 0 and protocol.bad_frames == 0
@@ -133,3 +140,49 @@ def test_cache_mode_sends_op_streams_of_slot_numbers(server):
         assert protocol.divergences == 0 and protocol.bad_frames == 0
     finally:
         driver.close()
+
+
+@pytest.mark.parametrize("ask", [{"vertex_encoding": "float32"},
+                                 {"cache_mode": {"vertices": 2500, "strategy": "lru", "pq_fraction": None}}])
+def test_linked_op_streams_go_only_to_clients_that_hold_the_morph_targets(server, ask):
+    """Without the packed download (no morph targets) or in cache mode (index buffers of
+    slot numbers), an Open asking for OPS_LINKED gets OPS, and the frames read right."""
+    protocol = SessionProtocol("terrain", 1, _options(), cache=None, ack_window=1, frame_encoding="linked", **ask)
+    driver = Driver(server.port, protocol)
+    try:
+        driver.next_frame()
+        assert protocol.info.frame_encoding == pb.FRAME_ENCODING_OPS
+        _fly(driver, 4)
+        _same_as_server(protocol, server)
+        assert protocol.divergences == 0 and protocol.bad_frames == 0
+    finally:
+        driver.close()
+
+
+def test_linked_op_streams_are_smaller_and_give_the_same_buffers(server):
+    """Two sessions fly the same poses, one OPS and one OPS_LINKED: both end with the
+    server's buffers, and the linked streams carry at most 85 % of the ops' bytes (62 % on the
+    flyover's small steady frames; these are large)."""
+    sizes = {}
+    for encoding in ("ops", "linked"):
+        protocol = SessionProtocol("terrain", 2, _options(), cache=None, ack_window=1, frame_encoding=encoding)
+        original = protocol.receive
+        sizes[encoding] = []
+
+        def record(msg, out=sizes[encoding], original=original):
+            if msg.WhichOneof("kind") == "frame":
+                out.extend(len(sd.ops) for cf in msg.frame.cameras for sd in cf.surfaces if sd.ops)
+            return original(msg)
+
+        protocol.receive = record
+        driver = Driver(server.port, protocol)
+        try:
+            driver.next_frame()
+            assert protocol.info.frame_encoding == ENCODINGS[encoding]
+            _fly(driver, 12)
+            _same_as_server(protocol, server)
+            assert protocol.divergences == 0 and protocol.bad_frames == 0
+        finally:
+            driver.close()
+    assert len(sizes["linked"]) > 10
+    assert sum(sizes["linked"]) <= 0.85 * sum(sizes["ops"]), sizes

@@ -72,7 +72,7 @@ async def fly_h2(args, shard: tuple) -> tuple:
         sessions = []
         for k, index in enumerate(mine):
             protocol = SessionProtocol(mesh.name, args.cameras, options, cache=cache, cache_mode=cached,
-                                       frame_encoding=getattr(args, "frame_encoding", "ops"),
+                                       frame_encoding=getattr(args, "frame_encoding", "linked"),
                                        vertex_encoding=getattr(args, "vertex_encoding", "packed"),
                                        position_bits=getattr(args, "position_bits", None))
             if cache is not None and cached is None:

@@ -175,7 +175,7 @@ async def _one(client: AsyncClient, index: int, args, mesh, tally: Tally, t0: fl
                                        fov_y=args.fov, tolerance_px=args.tolerance,
                                        cache_vertices=args.cache_vertices, cache_strategy=args.cache_strategy,
                                        cache_pq_fraction=args.cache_pq_fraction,
-                                       frame_encoding=getattr(args, "frame_encoding", "ops"),
+                                       frame_encoding=getattr(args, "frame_encoding", "linked"),
                                        vertex_encoding=getattr(args, "vertex_encoding", "packed"),
                                        position_bits=getattr(args, "position_bits", None),
                                        prune=False if getattr(args, "no_prune", False) else None)
@@ -355,7 +355,7 @@ def report(args, tally: Tally, mesh: str, faces: int, cpu: float, wall: float) -
         "cameras": args.cameras, "duration_s": args.duration, "warmup_s": args.warmup, "rate_hz": args.rate, "trajectory": args.trajectory,
         "viewport": [args.width, args.height], "fov_y": args.fov, "tolerance_px": args.tolerance,
         "prune": not getattr(args, "no_prune", False),
-        "frame_encoding": getattr(args, "frame_encoding", "ops"),
+        "frame_encoding": getattr(args, "frame_encoding", "linked"),
         "vertex_encoding": getattr(args, "vertex_encoding", "packed"), "processes": getattr(args, "processes", 1),
         "transport": transport(args), "decoder": decoder(args),
         "connections": getattr(args, "connections", None) or args.sessions,

@@ -19,10 +19,11 @@ import secrets
 import time
 import zlib
 from dataclasses import dataclass, field
+from functools import cached_property
 
 import numpy as np
 
-from .. import vertexpack, wire
+from .. import opstream, vertexpack, wire
 from ..v1 import caveclod_pb2 as pb
 from .buffers import IndexBuffers
 from .cache import VertexBufferCache
@@ -35,7 +36,7 @@ CLIENT_NAME = "caveclod-client/0.1"
 # that holds the session. The session token cannot serve: the replica that
 # opens a session makes it, after the balancer has chosen that replica.
 AFFINITY_HEADER = "x-caveclod-session"
-FRAME_ENCODINGS = {"ops": pb.FRAME_ENCODING_OPS, "raw": pb.FRAME_ENCODING_RAW}
+FRAME_ENCODINGS = {"ops": pb.FRAME_ENCODING_OPS, "linked": pb.FRAME_ENCODING_OPS_LINKED, "raw": pb.FRAME_ENCODING_RAW}
 VERTEX_ENCODINGS = {"packed": pb.VERTEX_ENCODING_PACKED, "float32": pb.VERTEX_ENCODING_FLOAT32}
 
 
@@ -68,6 +69,15 @@ class VertexBuffer:
     @property
     def n_vertices(self) -> int:
         return len(self.positions)
+
+    @cached_property
+    def links(self) -> opstream.Links:
+        """What FRAME_ENCODING_OPS_LINKED streams are read with (made once, shared by
+        the sessions that share this buffer); ProtocolError without morph targets."""
+        if self.morph_targets is None:
+            raise ProtocolError("the server sends FRAME_ENCODING_OPS_LINKED frames, but the vertex buffer came "
+                                "without morph targets; open with frame_encoding 'ops'")
+        return opstream.Links(self.morph_targets)
 
 
 @dataclass
@@ -139,7 +149,10 @@ class SessionProtocol:
             mode (strategy a name, or None for the server's default), or None
             for a resident vertex buffer.
         frame_encoding: ``"ops"`` (op streams, under a third of the bytes; the
-            default) or ``"raw"`` (uint32 arrays) to ask for in Open.
+            default), ``"linked"`` (op streams that also name vertices by their
+            morph targets, a third smaller again; asks for the morph targets,
+            about a byte a vertex more to download) or ``"raw"`` (uint32
+            arrays) to ask for in Open.
         vertex_encoding: ``"packed"`` (the vertex buffer downloads quantized
             and deflated, 1-7 bytes a vertex; the default) or ``"float32"``
             (32 bytes a vertex, exact). Cache mode ignores it.
@@ -160,7 +173,7 @@ class SessionProtocol:
         if position_bits is not None:
             vertexpack.check_position_bits(position_bits)
         self.frame_encoding, self.vertex_encoding, self.position_bits = frame_encoding, vertex_encoding, position_bits
-        self.morph_targets = bool(morph_targets) and vertex_encoding == "packed"
+        self.morph_targets = (bool(morph_targets) or frame_encoding == "linked") and vertex_encoding == "packed"
         self.mesh, self.n_cameras, self.options = mesh, cameras, dict(options)
         self.cache, self.ack_window, self.client = cache, ack_window, client
         self.cache_mode = dict(cache_mode) if cache_mode is not None else None
@@ -460,6 +473,7 @@ class SessionProtocol:
                 cam.vertex_writes.append(writes)
             n = self.info.cache_vertices or self.vertex.n_vertices
             buffers = self.buffers
+            links = self.vertex.links if self.info.frame_encoding == pb.FRAME_ENCODING_OPS_LINKED else None
 
             def held(m: int) -> np.ndarray:       # what an op stream is read against
                 if m >= buffers.materials:
@@ -467,7 +481,7 @@ class SessionProtocol:
                 return buffers.buffer(c, m)
 
             for sd in cf.surfaces:
-                surface = wire.decode_surface(sd, n, held)
+                surface = wire.decode_surface(sd, n, held, links)
                 self.buffers.apply(c, surface)
                 cam.surfaces.append(surface)
                 cam.triangles_written += len(surface.slots)

@@ -181,8 +181,12 @@ class Client:
         e.g. a restart behind a balancer.
 
         ``frame_encoding``: ``"ops"`` (the default) asks for op streams, about
-        a third of the bytes of ``"raw"`` uint32 writes; a server that does
-        not know them answers raw, which the client reads as well.
+        a third of the bytes of ``"raw"`` uint32 writes; ``"linked"`` for op
+        streams that also name vertices by their morph targets, about a third
+        fewer bytes again, for a download about a byte a vertex larger (the
+        targets come with the packed vertex buffer) and 12 bytes a vertex of
+        client memory. A server that does not know an encoding answers with
+        one it knows (linked -> ops -> raw), which the client reads as well.
 
         ``vertex_encoding``: ``"packed"`` (the default) downloads the vertex
         buffer quantized and deflated (1-7 bytes a vertex against 32;

@@ -145,9 +145,11 @@ class LodServer:
         t0 = time.perf_counter()
         try:
             from ..refine.view import View
+            from .held import compile_encoders
             for served in self.catalogue.meshes.values():
                 lo, hi = served.info.bounds_min, served.info.bounds_max
                 served.mesh.new_camera().update(View(eye=(hi.x, hi.y, hi.z + 1.0), target=(lo.x, lo.y, lo.z)))
+            compile_encoders()
         except Exception as exc:              # a broken mesh must not hang every Open
             logs.event("server.warm_up_failed", error=repr(exc))
         finally:
@@ -172,6 +174,10 @@ class LodServer:
         for served in self.catalogue.meshes.values():
             try:
                 served.payload_crc32    # float32 downloads': reads the payload once (0.26 s at 16.8M vertices)
+                # What OPS_LINKED sessions (caveclod loadtest's default) read: their
+                # download packed with morph targets, and the targets' child ranks.
+                served.packed(DEFAULT_POSITION_BITS, morph=True)
+                served.op_links
             except Exception as exc:
                 logs.event("server.warm_up_failed", mesh=served.name, error=repr(exc))
 

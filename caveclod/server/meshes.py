@@ -25,7 +25,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .. import wire
+from .. import opstream, wire
 from . import logs
 from ..v1 import caveclod_pb2 as pb
 
@@ -48,6 +48,8 @@ class ServedMesh:
         self._packed: dict = {}             # (position_bits, morph) -> (Packed, VertexPacking, VertexFormat)
         self._packing: dict = {}            # (position_bits, morph) -> the lock held while it is packed
         self.stored: set = set()            # (position_bits, morph) of the variants taken from the file
+        self._op_links = None
+        self._links_lock = threading.Lock()
 
     @cached_property
     def blocks(self) -> list[wire.VertexBlock]:
@@ -102,6 +104,17 @@ class ServedMesh:
         """(d,) uint32 geomorph targets (:mod:`caveclod.refine.morphtargets`; computed once, shared)."""
         from ..refine.morphtargets import morph_targets
         return morph_targets(self.mesh)
+
+    @property
+    def op_links(self) -> tuple[np.ndarray, np.ndarray]:
+        """(targets (d,) uint32, ranks (d,) uint8): what FRAME_ENCODING_OPS_LINKED
+        streams name vertices by (:func:`caveclod.opstream.child_ranks`); 5 bytes a
+        vertex, made once (by the server's warm-up, or the first Open that asks)."""
+        with self._links_lock:               # concurrent Opens wait for one computation
+            if self._op_links is None:
+                targets = self.morph_targets
+                self._op_links = targets, opstream.child_ranks(targets)
+            return self._op_links
 
     def packed(self, position_bits: int, morph: bool = False) -> tuple:
         """(Packed, VertexPacking, VertexFormat) of the vertex buffer packed at ``position_bits``,

@@ -66,7 +66,9 @@ class Sessions:
             raise Refused(grpc.StatusCode.DATA_LOSS, damaged_message(served))
         view_options, budgets = self._options(msg.options)
         cache = self._cache(msg, served)
-        ops = msg.frame_encoding == pb.FRAME_ENCODING_OPS      # an encoding we do not know: RAW (the proto says so)
+        encoding = _frame_encoding(msg, cache)
+        if encoding == pb.FRAME_ENCODING_OPS_LINKED:
+            served.op_links                  # made here, outside the lock, if the warm-up has not yet
         try:
             vertexpack.requested_bits(msg)
         except ValueError as exc:
@@ -91,7 +93,7 @@ class Sessions:
                                   f"resume of a session with cache {_describe_cache(old.cache)} by an Open asking for "
                                   f"{_describe_cache(cache)}; resume with the same cache_vertices, cache_strategy and "
                                   "cache_pq_fraction")
-                generation = old.attach(msg.last_frame_seq, view_options, ops=ops)
+                generation = old.attach(msg.last_frame_seq, view_options, frame_encoding=encoding)
                 self._gauges()
                 return old, generation, True
             if not 1 <= msg.cameras <= self.config.max_cameras:
@@ -104,7 +106,7 @@ class Sessions:
             window = msg.ack_window or self.config.ack_window
             session = Session(secrets.token_urlsafe(24), served, view_options, budgets, msg.cameras,
                               min(max(window, 1), MAX_ACK_WINDOW), self.config.settle_seconds, self.metrics,
-                              client=msg.client[:80], cache=cache, ops=ops)
+                              client=msg.client[:80], cache=cache, frame_encoding=encoding)
             self.sessions[session.token] = session
             generation = session.attach(0)
             self._gauges()
@@ -222,3 +224,15 @@ def _describe_cache(cache: dict | None) -> str:
         return "none (a resident vertex buffer)"
     pq = f", pq_fraction {cache['pq_fraction']}" if cache["pq_fraction"] is not None else ""
     return f"{cache['vertices']} slots {cache['strategy']}{pq}"
+
+
+def _frame_encoding(msg: pb.Open, cache: dict | None) -> int:
+    """The frame encoding an Open gets: OPS_LINKED only where the client holds the
+    morph targets (asked for, packed, outside cache mode, whose index buffers hold
+    slot numbers), else OPS; an encoding this server does not know, RAW (the proto
+    says so)."""
+    asked = msg.frame_encoding
+    if asked == pb.FRAME_ENCODING_OPS_LINKED:
+        holds_targets = msg.morph_targets and msg.vertex_encoding == pb.VERTEX_ENCODING_PACKED and cache is None
+        return pb.FRAME_ENCODING_OPS_LINKED if holds_targets else pb.FRAME_ENCODING_OPS
+    return pb.FRAME_ENCODING_OPS if asked == pb.FRAME_ENCODING_OPS else pb.FRAME_ENCODING_RAW

@@ -92,11 +92,13 @@ class Session:
         cache: cache mode ``{vertices, strategy, pq_fraction}`` (checked:
             :meth:`.registry.Sessions._cache`), or None for a resident
             vertex buffer. Each camera has a cache of its own.
-        ops: send op streams (FRAME_ENCODING_OPS) rather than raw writes.
+        frame_encoding: FRAME_ENCODING_RAW, _OPS or _OPS_LINKED (already
+            granted: :meth:`.registry.Sessions.open` decides).
     """
 
     def __init__(self, token: str, served, view_options: dict, budgets: tuple, cameras: int, ack_window: int,
-                 settle: float, hooks, client: str = "", cache: dict | None = None, ops: bool = False):
+                 settle: float, hooks, client: str = "", cache: dict | None = None,
+                 frame_encoding: int = pb.FRAME_ENCODING_RAW):
         self.token, self.served, self.client = token, served, client
         self.view_options, self.budgets = view_options, budgets
         self.ack_window, self.settle, self.hooks = ack_window, settle, hooks
@@ -127,20 +129,23 @@ class Session:
         self.keyframes: set[int] = set(range(cameras))          # frame 1 is a keyframe of every camera
         self.wakers: list = []       # callbacks that wake a waiting writer (any thread)
         self.frame_cpu = 1.0         # recent seconds to make a frame (an average); a first frame is not cheap
-        self.held: list[HeldBuffers] | None = None     # OPS: what each camera's client holds
-        self._set_encoding(ops)
+        self.held: list[HeldBuffers] | None = None     # OPS, OPS_LINKED: what each camera's client holds
+        self.frame_encoding = pb.FRAME_ENCODING_RAW
+        self._set_encoding(frame_encoding)
 
-    def _set_encoding(self, ops: bool) -> None:
-        """Op streams on or off; turning them on starts from a keyframe of every camera."""
-        if ops and self.held is None:
-            self.held = [HeldBuffers(self.n_materials) for _ in self.cams]
-            self.keyframes.update(range(self.n_cameras))
-        elif not ops:
+    def _set_encoding(self, encoding: int) -> None:
+        """RAW, OPS or OPS_LINKED. Op streams from RAW start from a keyframe of every
+        camera; between OPS and OPS_LINKED the held buffers stay (the client's are the same)."""
+        if encoding == pb.FRAME_ENCODING_RAW:
             self.held = None
-
-    @property
-    def frame_encoding(self) -> int:
-        return pb.FRAME_ENCODING_OPS if self.held is not None else pb.FRAME_ENCODING_RAW
+        else:
+            links = self.served.op_links if encoding == pb.FRAME_ENCODING_OPS_LINKED else None
+            if self.held is None:
+                self.held = [HeldBuffers(self.n_materials) for _ in self.cams]
+                self.keyframes.update(range(self.n_cameras))
+            for held in self.held:
+                held.links = links
+        self.frame_encoding = encoding
 
     @property
     def cheap(self) -> bool:
@@ -158,7 +163,7 @@ class Session:
             + sum(h.nbytes for h in self.held or ())
 
     # -- streams --------------------------------------------------------------------
-    def attach(self, last_frame_seq: int, view_options: dict | None = None, ops: bool | None = None) -> int:
+    def attach(self, last_frame_seq: int, view_options: dict | None = None, frame_encoding: int | None = None) -> int:
         """Start a stream on this session; returns its generation.
 
         A resumed client that missed frames gets a keyframe of every camera;
@@ -172,8 +177,8 @@ class Session:
             self.acked = self.frame_seq
             if view_options is not None:
                 self.view_options = view_options
-            if ops is not None:
-                self._set_encoding(ops)
+            if frame_encoding is not None:
+                self._set_encoding(frame_encoding)
             self.attached, self.end = True, None
             self._notify()
             return self.generation

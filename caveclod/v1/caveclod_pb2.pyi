@@ -18,6 +18,7 @@ class FrameEncoding(int, metaclass=_enum_type_wrapper.EnumTypeWrapper):
     FRAME_ENCODING_UNSPECIFIED: _ClassVar[FrameEncoding]
     FRAME_ENCODING_RAW: _ClassVar[FrameEncoding]
     FRAME_ENCODING_OPS: _ClassVar[FrameEncoding]
+    FRAME_ENCODING_OPS_LINKED: _ClassVar[FrameEncoding]
 
 class CacheStrategy(int, metaclass=_enum_type_wrapper.EnumTypeWrapper):
     __slots__ = ()
@@ -60,6 +61,7 @@ VERTEX_ENCODING_PACKED: VertexEncoding
 FRAME_ENCODING_UNSPECIFIED: FrameEncoding
 FRAME_ENCODING_RAW: FrameEncoding
 FRAME_ENCODING_OPS: FrameEncoding
+FRAME_ENCODING_OPS_LINKED: FrameEncoding
 CACHE_STRATEGY_UNSPECIFIED: CacheStrategy
 CACHE_STRATEGY_FA: CacheStrategy
 CACHE_STRATEGY_LRU: CacheStrategy

@@ -428,6 +428,7 @@
                 values[valuesById[0] = "FRAME_ENCODING_UNSPECIFIED"] = 0;
                 values[valuesById[1] = "FRAME_ENCODING_RAW"] = 1;
                 values[valuesById[2] = "FRAME_ENCODING_OPS"] = 2;
+                values[valuesById[3] = "FRAME_ENCODING_OPS_LINKED"] = 3;
                 return values;
             })();
     
