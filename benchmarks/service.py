@@ -136,7 +136,7 @@ class Server:
 
 
 def loadtest(port: int, sessions: int, duration: float, plot: Path | None = None, rate: float = 30.0,
-             processes: int = 1, encoding: str = "ops", connections: int = 4, transport: str = "auto",
+             processes: int = 1, encoding: str = "linked", connections: int = 4, transport: str = "auto",
              decoder: str = "auto") -> dict:
     """Run ``caveclod loadtest`` (in ``processes`` processes, over ``connections`` connections, with
     ``transport``: h2, grpc or auto, and the op-stream ``decoder``); its JSON report."""
@@ -235,7 +235,7 @@ class Sampler:
 
 
 def capacity(mesh: Path, sessions: int, duration: float, command: list | None = None, processes: int = 1,
-             encoding: str = "ops", connections: int = 4, server_processes: int = 1, transport: str = "auto",
+             encoding: str = "linked", connections: int = 4, server_processes: int = 1, transport: str = "auto",
              server_transport: str = "grpc", decoder: str = "auto") -> dict:
     """One load level: server (``caveclod serve``, or ``command``) and load generator, with both processes'
     CPU, and the server's memory: idle (mesh mapped, kernels loaded) and the peak under load. The
@@ -727,7 +727,10 @@ def main() -> int:
     ap.add_argument("--out", default=str(RESULTS / "service.json"), help="the JSON report (default results/service.json)")
     ap.add_argument("--loadtest-processes", type=int, default=1,
                     help="processes of caveclod loadtest (its --processes; default 1)")
-    ap.add_argument("--frame-encoding", choices=("ops", "raw"), default="ops", help="the load test's (default ops)")
+    ap.add_argument("--frame-encoding", default="linked",
+                    help="the load test's --frame-encoding (linked, ops, raw; default linked); several, "
+                         "comma-separated, measure this server under each at each level, interleaved "
+                         "(capacity_encoding_<encoding>)")
     ap.add_argument("--repeats", type=int, default=1,
                     help="runs of each load level and server, interleaved; the summary holds their medians")
     ap.add_argument("--connections", type=int, default=4,
@@ -760,30 +763,37 @@ def main() -> int:
         transports = args.loadtest_transport.split(",")
         kinds = args.server_transport.split(",")           # serve --transport: the first is "this"
         decoders = args.loadtest_decoder.split(",")
-        servers = [("this", None, 1, levels, transports[0], kinds[0], decoders[0])]
+        encodings = args.frame_encoding.split(",")
+        servers = [("this", None, 1, levels, transports[0], kinds[0], decoders[0], encodings[0])]
         by_transport = {t: [] for t in transports[1:]}
         for t in transports[1:]:            # the same server under another load generator
-            servers.append((f"this, loadtest {t}", None, 1, by_transport[t], t, kinds[0], decoders[0]))
+            servers.append((f"this, loadtest {t}", None, 1, by_transport[t], t, kinds[0], decoders[0], encodings[0]))
         by_decoder = {d: [] for d in decoders[1:]}
         for d in decoders[1:]:              # the same server, the load generator decoding otherwise
-            servers.append((f"this, loadtest --decoder {d}", None, 1, by_decoder[d], transports[0], kinds[0], d))
+            servers.append((f"this, loadtest --decoder {d}", None, 1, by_decoder[d], transports[0], kinds[0], d,
+                            encodings[0]))
+        by_encoding = {e: [] for e in encodings[1:]}
+        for e in encodings[1:]:             # the same server, the sessions asking for another frame encoding
+            servers.append((f"this, --frame-encoding {e}", None, 1, by_encoding[e], transports[0], kinds[0],
+                            decoders[0], e))
         by_kind = {k: [] for k in kinds[1:]}
         for k in kinds[1:]:                 # the same server over another transport
-            servers.append((f"serve --transport {k}", None, 1, by_kind[k], transports[0], k, decoders[0]))
+            servers.append((f"serve --transport {k}", None, 1, by_kind[k], transports[0], k, decoders[0],
+                            encodings[0]))
         multi = {k: [] for k in kinds}
         if args.server_processes > 1:       # the same server as N processes (caveclod serve --processes N)
             for k in kinds:
                 servers.append((f"processes {args.server_processes}" + (f", --transport {k}" if len(kinds) > 1 else ""),
-                                None, args.server_processes, multi[k], transports[0], k, decoders[0]))
+                                None, args.server_processes, multi[k], transports[0], k, decoders[0], encodings[0]))
         if args.baseline:          # an older checkout's server, run right after ours at each level
             servers.append(("baseline", [sys.executable, "-c", "import sys; sys.path.insert(0, sys.argv.pop(1)); "
                                          "from caveclod.cli import main; sys.exit(main())", args.baseline, "serve"],
-                            1, baseline, transports[0], "grpc", decoders[0]))
+                            1, baseline, transports[0], "grpc", decoders[0], encodings[0]))
         for repeat in range(args.repeats):       # interleaved: the machine's drift hits every server alike
             for n in (int(x) for x in args.sessions.split(",")):
-                for name, command, nproc, into, transport, kind, decoder in servers:
+                for name, command, nproc, into, transport, kind, decoder, encoding in servers:
                     r = capacity(mesh, n, args.duration, command=command, processes=args.loadtest_processes,
-                                 encoding=args.frame_encoding, connections=args.connections,
+                                 encoding=encoding, connections=args.connections,
                                  server_processes=nproc, transport=transport, server_transport=kind,
                                  decoder=decoder)
                     r.update(server=name, repeat=repeat)
@@ -805,7 +815,7 @@ def main() -> int:
             for row in rows:
                 print(f"median {name} {row['sessions']:3d}: {row}", file=sys.stderr)
         for r in levels + baseline + sum(multi.values(), []) + sum(by_transport.values(), []) \
-                + sum(by_kind.values(), []) + sum(by_decoder.values(), []):
+                + sum(by_kind.values(), []) + sum(by_decoder.values(), []) + sum(by_encoding.values(), []):
             r.pop("latencies_ms", None)
         out["capacity"] = levels
         for k, rows in multi.items():
@@ -818,6 +828,8 @@ def main() -> int:
             out[f"capacity_transport_{k}"] = rows
         for d, rows in by_decoder.items():
             out[f"capacity_decoder_{d}"] = rows
+        for e, rows in by_encoding.items():
+            out[f"capacity_encoding_{e}"] = rows
         if baseline:
             out["capacity_baseline"] = {"checkout": args.baseline, "levels": baseline}
     if "parallel" not in skip:

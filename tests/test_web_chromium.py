@@ -141,8 +141,10 @@ def test_a_terrain_flyover_in_quadrants(make_server, browser, cameras):
         assert stats["frames"] >= 60 and stats["crcChecks"] >= 30 and stats["divergences"] == 0, stats
         assert stats["badFrames"] == 0 and stats["keyframeRequests"] == 0 and stats["facesDrawn"] > 100
         assert stats["cameras"] == cameras and 0 < stats["latencyMsP50"] <= stats["latencyMsP99"]
-        # Geomorphs (the page's default) ran: points grew and shrank between frames.
+        # Geomorphs (the page's default) ran: points grew and shrank between frames; their
+        # morph targets let the page read linked op streams (its default with them).
         assert stats["morphsStarted"] > 0, stats
+        assert stats["frameEncoding"] == "FRAME_ENCODING_OPS_LINKED", stats
         # The vertex buffer came packed (the page's default), under a quarter of its float32 bytes.
         payload = server.sessions.catalogue.get("terrain").vertex_format.payload_bytes
         assert stats["vertexPacked"] and 0 < 4 * stats["vertexDownloadBytes"] < payload, stats
@@ -293,6 +295,66 @@ def test_the_pages_op_stream_decoder_agrees_with_pythons(browser, terrain_path, 
         assert not isinstance(got, str), f"the page refused a stream Python decodes: {got}"
         assert got[0] == slots.tolist() and got[1] == tris.ravel().tolist()
     assert errors > 200 and len(cases) - errors > 100      # damaged streams refused, real ones decoded
+
+
+DECODE_LINKED_IN_PAGE = """async ([targets, cases]) => {
+  const { decodeLinked, linksOf } = await import('/static/opstream.js');
+  const links = linksOf(Uint32Array.from(targets));
+  return cases.map(([ops, old, count]) => {
+    try {
+      const { slots, tris } = decodeLinked(Uint8Array.from(ops), Uint32Array.from(old), old.length / 3, count, links);
+      return [Array.from(slots), Array.from(tris)];
+    } catch (err) {
+      return err.constructor.name + ': ' + err.message;
+    }
+  });
+}"""
+
+
+def test_the_pages_linked_op_stream_decoder_agrees_with_pythons(browser, terrain_path, make_server):
+    """OPS_LINKED streams of a flyover's real deltas, then damaged copies: the page decodes what
+    Python decodes, to the same writes, and refuses what Python refuses."""
+    import caveclod
+    from caveclod import opstream
+    from caveclod.paths import pose
+    from caveclod.refine.morphtargets import morph_targets
+    from caveclod.server.held import HeldBuffers
+
+    from fuzzing import damage
+    mesh = caveclod.load(terrain_path)
+    targets = morph_targets(mesh)
+    links = opstream.Links(targets)
+    lo, hi = mesh.bounds()
+    cam = mesh.new_camera()
+    held = HeldBuffers(cam.n_materials, (links.targets, opstream.child_ranks(targets)))
+    client = {m: cam.index_buffer(m).copy() for m in range(cam.n_materials)}
+    for m, buf in client.items():
+        held.replace(m, buf)
+    cases = []
+    for f in range(60):
+        p = pose("flyover", lo, hi, 0, f / 5)
+        delta = cam.update(caveclod.View(eye=p.eye, target=p.target, up=p.up, width=800, height=600))
+        for m, d in delta.surfaces.items():
+            cases.append((held.encode(m, d.count, d.slots, d.tris), client[m], d.count))
+            client[m] = cam.index_buffer(m).copy()
+    rng = np.random.default_rng(3)
+    real = [c for c in cases if c[0]]
+    cases += [(damage(real[i % len(real)][0], rng, i),) + real[i % len(real)][1:] for i in range(600)]
+    server = make_server(web_port=0)
+    with Page(browser, _base(server) + "?mesh=terrain&trajectory=rotate") as page:
+        results = page.page.evaluate(DECODE_LINKED_IN_PAGE, [targets.tolist(), [(list(ops), old.ravel().tolist(), count)
+                                                                                for ops, old, count in cases]])
+    errors = 0
+    for (ops, old, count), got in zip(cases, results):
+        try:
+            slots, tris = opstream.decode_linked(ops, old, count, links)
+        except opstream.OpStreamError:
+            assert isinstance(got, str) and got.startswith("OpStreamError"), "Python refused what the page decoded"
+            errors += 1
+            continue
+        assert not isinstance(got, str), f"the page refused a stream Python decodes: {got}"
+        assert got[0] == slots.tolist() and got[1] == tris.ravel().tolist()
+    assert errors > 200 and len(cases) - errors > 100
 
 
 def test_the_pages_crc32_is_zlibs(browser, make_server):

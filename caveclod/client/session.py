@@ -185,8 +185,9 @@ class Client:
         streams that also name vertices by their morph targets, about a third
         fewer bytes again, for a download about a byte a vertex larger (the
         targets come with the packed vertex buffer) and 12 bytes a vertex of
-        client memory. A server that does not know an encoding answers with
-        one it knows (linked -> ops -> raw), which the client reads as well.
+        client memory. A server that cannot grant linked answers ops, one
+        older than the encoding asked for answers raw; the client reads
+        whichever comes.
 
         ``vertex_encoding``: ``"packed"`` (the default) downloads the vertex
         buffer quantized and deflated (1-7 bytes a vertex against 32;

@@ -92,3 +92,118 @@ export function decodeOps(ops, old, oldCount, count, nVertices) {
   }
   return { slots, tris };
 }
+
+// -- FRAME_ENCODING_OPS_LINKED: the proto's "OPS_LINKED" (caveclod/opstream.py's decode_linked) --
+
+const SPLIT0 = 5, MERGE0 = 8, ADJ = 11, N_LINKED_KINDS = 12;
+const LINKED_PAYLOAD = [3, 1, 1, 1, 1, 1, 1, 1, 0, 0, 0, 2];
+const APPENDED_KINDS = [NEW, COPY, ADJ], APPENDED_PER_VARINT = 4, APPENDED_PACK_LIMIT = 81;
+const LINKED_KIND_NAMES = "0 NEW, 1 COPY, 2-4 CORNER, 5-7 SPLIT, 8-10 MERGE, 11 ADJ";
+
+/**
+ * The children of each vertex under the morph targets: the other vertices whose
+ * target it is, ascending (what SPLIT and ADJ name vertices by). Once per vertex buffer.
+ * @param {Uint32Array} targets each vertex's morph target (its own index without one)
+ */
+export function linksOf(targets) {
+  const d = targets.length, start = new Int32Array(d + 1);
+  for (let v = 0; v < d; v++) if (targets[v] !== v) start[targets[v] + 1]++;
+  for (let v = 0; v < d; v++) start[v + 1] += start[v];
+  const children = new Int32Array(start[d]), fill = start.slice(0, d);
+  for (let v = 0; v < d; v++) if (targets[v] !== v) children[fill[targets[v]]++] = v;   // ascending v
+  return { targets, start, children };
+}
+
+/**
+ * decodeOps for FRAME_ENCODING_OPS_LINKED streams.
+ * @param {Uint8Array} ops @param {Uint32Array} old @param {number} oldCount @param {number} count
+ * @param {{targets: Uint32Array, start: Int32Array, children: Int32Array}} links from linksOf
+ * @returns {{slots: Uint32Array, tris: Uint32Array}}
+ */
+export function decodeLinked(ops, old, oldCount, count, links) {
+  const nVertices = links.targets.length;
+  const values = readVarints(ops);
+  if (values.length === 0) throw new OpStreamError("an empty op stream (it starts with the number of writes)");
+  const n = values[0], appended = Math.max(count - oldCount, 0), inPlace = n - appended;
+  const packs = Math.ceil(appended / APPENDED_PER_VARINT);
+  if (inPlace < 0) throw new OpStreamError(`the buffer grows from ${oldCount} to ${count} triangles but the op stream announces only ${n} writes`);
+  if (inPlace + packs > values.length - 1) throw new OpStreamError(`the op stream announces ${n} writes but holds ${values.length - 1} varints`);
+  const slots = new Uint32Array(n), kinds = new Uint8Array(n), first = new Array(n);
+  let slot = -1;
+  for (let i = 0; i < inPlace; i++) {
+    const h = values[1 + i], kind = h % 16, gap = Math.floor(h / 16);
+    if (kind >= N_LINKED_KINDS) throw new OpStreamError(`op kind ${kind} is unknown (${LINKED_KIND_NAMES})`);
+    if (gap >= count) throw new OpStreamError(`a slot gap of ${gap} in a buffer of ${count} triangles`);
+    slot += gap + 1;
+    slots[i] = slot;
+    kinds[i] = kind;
+  }
+  const keep = Math.min(oldCount, count);
+  if (inPlace > 0 && slot >= keep) throw new OpStreamError(`slot ${slot} of an in-place write, past the ${keep} slots the buffer keeps`);
+  for (let g = 0; g < packs; g++) {
+    let pack = values[1 + inPlace + g];
+    if (pack >= APPENDED_PACK_LIMIT) throw new OpStreamError(`appended writes' kinds ${pack} (at most ${APPENDED_PACK_LIMIT - 1})`);
+    for (let t = 0; t < APPENDED_PER_VARINT; t++) {
+      const i = inPlace + APPENDED_PER_VARINT * g + t;
+      if (i < n) { kinds[i] = APPENDED_KINDS[pack % 3]; slots[i] = oldCount + (i - inPlace); }
+      pack = Math.floor(pack / 3);
+    }
+  }
+  let need = 0;
+  for (let i = 0; i < n; i++) { first[i] = 1 + inPlace + packs + need; need += LINKED_PAYLOAD[kinds[i]]; }
+  if (need !== values.length - 1 - inPlace - packs) {
+    throw new OpStreamError(`${n} writes need ${need} payload varints, the stream holds ${values.length - 1 - inPlace - packs}`);
+  }
+  const vertex = (v) => {
+    if (!(v >= 0 && v < nVertices)) throw new OpStreamError(`vertex index ${v} outside the vertex buffer's ${nVertices} vertices`);
+    return v;
+  };
+  const child = (x, r) => {
+    const have = links.start[x + 1] - links.start[x];
+    if (!(r < have)) throw new OpStreamError(`child ${r} of vertex ${x}, which has ${have} (see the morph targets)`);
+    return links.children[links.start[x] + r];
+  };
+  const tris = new Uint32Array(3 * n), done = new Uint8Array(n);
+  for (let i = 0; i < n; i++) {                  // the base writes: from the old buffer
+    const kind = kinds[i], o = 3 * i, p = first[i];
+    if (kind === COPY) {
+      const r = values[p];
+      if (r >= oldCount) throw new OpStreamError(`a COPY from ${r} slots before the end of a buffer of ${oldCount}`);
+      const from = 3 * (oldCount - 1 - r);
+      tris[o] = old[from]; tris[o + 1] = old[from + 1]; tris[o + 2] = old[from + 2];
+    } else if (kind >= CORNER0 && kind < ADJ) {
+      const s = 3 * slots[i];
+      tris[o] = old[s]; tris[o + 1] = old[s + 1]; tris[o + 2] = old[s + 2];
+      const c = (kind - CORNER0) % 3, x = old[s + c];
+      tris[o + c] = kind < SPLIT0 ? vertex(x + unzigzag(values[p])) : kind < MERGE0 ? child(x, values[p]) : links.targets[x];
+    } else continue;
+    done[i] = 1;
+  }
+  const named = (j, i) => {
+    if (!(j >= 0 && j < n) || j === i) throw new OpStreamError(`write ${i} names write ${j} of ${n}`);
+    if (!done[j]) throw new OpStreamError(`write ${i} names write ${j}, a NEW or ADJ write after it`);
+    return 3 * j;
+  };
+  let last = 0;
+  for (let i = 0; i < n; i++) {                  // then NEW and ADJ, in stream order
+    const kind = kinds[i], o = 3 * i, p = first[i];
+    if (kind === NEW) {
+      for (let k = 0; k < 3; k++) { last += unzigzag(values[p + k]); tris[o + k] = vertex(last); }
+    } else if (kind === ADJ) {
+      const h = values[p], w = values[p + 1];
+      const j = named(i + unzigzag(Math.floor(h / 9)), i), e = Math.floor((h % 9) / 3), q = h % 3;
+      const x = tris[j + e], y = tris[j + (e + 1) % 3];
+      const v = Math.floor(w / 6), mode = w % 6;
+      let z;
+      if (mode === 0) { last += unzigzag(v); z = vertex(last); }
+      else if (mode === 1 || mode === 2) z = child(mode === 1 ? x : y, v);
+      else if (mode === 3 || mode === 4) {
+        if (v !== 0) throw new OpStreamError(`an ADJ write's target with a value (${v}) it does not take`);
+        z = links.targets[mode === 3 ? x : y];
+      } else z = tris[named(i + unzigzag(Math.floor(v / 3)), i) + v % 3];
+      tris[o + q] = y; tris[o + (q + 1) % 3] = x; tris[o + (q + 2) % 3] = z;
+    }
+    done[i] = 1;
+  }
+  return { slots, tris };
+}

@@ -11,7 +11,7 @@
 // vertex buffer it holds so that it is not sent again.
 
 import { crc32 } from "./crc32.js";
-import { decodeOps, OpStreamError } from "./opstream.js";
+import { decodeLinked, decodeOps, linksOf, OpStreamError } from "./opstream.js";
 import { PackedVertexError, unpackVertices } from "./vertexpack.js";
 
 const pb = globalThis.protobuf.roots.default.caveclod.v1;
@@ -83,7 +83,8 @@ export class Session {
    * @param {number} o.cameras 1 to 4
    * @param {object} o.options RefineOptions fields (viewportWidth, viewportHeight, tolerancePx, ...)
    * @param {string} [o.tokenValue] the bearer token (--token-file), or none
-   * @param {string} [o.encoding] "ops" (default) or "raw"
+   * @param {string} [o.encoding] "ops" (default), "linked" (op streams that name vertices by their
+   *   morph targets: about a third fewer bytes; granted with morphTargets, else the server answers ops) or "raw"
    * @param {string} [o.vertices] "packed" (default: quantized and deflated, 1-7 bytes a vertex) or "float32"
    * @param {boolean} [o.morphTargets] ask for each vertex's geomorph target (packed only)
    * @param {function} o.onReady (info, payload Uint8Array) once the vertex buffer is whole
@@ -92,7 +93,8 @@ export class Session {
    */
   constructor(o) {
     Object.assign(this, { onReady() {}, onFrame() {}, onEnd() {} }, o);
-    this.encoding = o.encoding === "raw" ? pb.FrameEncoding.FRAME_ENCODING_RAW : pb.FrameEncoding.FRAME_ENCODING_OPS;
+    const encodings = { raw: "FRAME_ENCODING_RAW", linked: "FRAME_ENCODING_OPS_LINKED" };
+    this.encoding = pb.FrameEncoding[encodings[o.encoding] || "FRAME_ENCODING_OPS"];
     this.vertexEncoding = o.vertices === "float32" ? pb.VertexEncoding.VERTEX_ENCODING_FLOAT32 : pb.VertexEncoding.VERTEX_ENCODING_PACKED;
     this.unpacking = null; // messages that arrived while a packed vertex buffer was being decoded
     this.infoSeq = 0; // +1 per SessionInfo: a decode finished for an older one is dropped
@@ -147,6 +149,19 @@ export class Session {
     };
     ws.onmessage = (event) => this.receive(event.data);
     ws.onclose = (event) => this.closed(event);
+  }
+
+  /** The children of each vertex under the payload's morph targets (linksOf), made once per payload. */
+  links() {
+    if (!this.linked || this.linked.payload !== this.payload) {
+      const attr = this.info.vertexFormat.attributes.find(
+        (a) => a.semantic === pb.AttributeSemantic.ATTRIBUTE_SEMANTIC_MORPH_TARGET);
+      if (!attr) throw new OpStreamError("linked op streams, but the vertex buffer came without morph targets");
+      const d = Number(this.info.vertexFormat.vertexCount);
+      const targets = new Uint32Array(this.payload.buffer, this.payload.byteOffset + Number(attr.offset), d);
+      this.linked = { payload: this.payload, ...linksOf(targets) };
+    }
+    return this.linked;
   }
 
   openMessage() {
@@ -424,7 +439,9 @@ export class Session {
         let slots, tris;
         if (sd.ops && sd.ops.length) {
           if ((sd.slots && sd.slots.length) || (sd.tris && sd.tris.length)) throw new OpStreamError(`material ${m}: a SurfaceDelta with both ops and slots or tris`);
-          ({ slots, tris } = decodeOps(sd.ops, buffer.rows, buffer.count, sd.count, nVertices));
+          ({ slots, tris } = this.info.frameEncoding === pb.FrameEncoding.FRAME_ENCODING_OPS_LINKED
+            ? decodeLinked(sd.ops, buffer.rows, buffer.count, sd.count, this.links())
+            : decodeOps(sd.ops, buffer.rows, buffer.count, sd.count, nVertices));
         } else {
           ({ slots, tris } = this.rawWrites(sd, nVertices));
         }

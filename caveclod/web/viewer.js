@@ -8,7 +8,9 @@
 //                       paths); none: fly one camera yourself
 //   &tolerance=PX       screen-space error in pixels (default: the server's)
 //   &token=T            the server's bearer token (--token-file)
-//   &encoding=raw|ops   the frame encoding (default ops)
+//   &encoding=E         the frame encoding: linked (default with geomorphs, which
+//                       download the morph targets it reads), ops (default
+//                       without), raw
 //   &vertices=packed|float32  how the vertex buffer downloads (default packed)
 //   &morph=MS           geomorphs: splits and collapses change shape over MS
 //                       milliseconds (default 500; 0: off; needs packed)
@@ -31,6 +33,7 @@ const stats = (window.caveclodStats = {
   connected: false, error: null, badFrames: 0, keyframeRequests: 0, posesSent: 0, resumes: 0, status: null,
   fps: 0, mesh: null, cameras: 0, ready: false, ended: false,
   morphing: 0, morphsStarted: 0, // geomorphs under way now; frames' net additions to them so far
+  frameEncoding: null, // what the server granted (SessionInfo.frame_encoding's name)
 });
 const MORPH_TARGET = 5; // AttributeSemantic.ATTRIBUTE_SEMANTIC_MORPH_TARGET
 
@@ -128,9 +131,10 @@ async function main() {
     }
   };
   const session = new Session({
-    url, mesh, cameras, options, tokenValue: token(), encoding: params.get("encoding") || "ops",
+    url, mesh, cameras, options, tokenValue: token(), encoding: params.get("encoding") || (morphMs > 0 ? "linked" : "ops"),
     vertices: params.get("vertices") || "packed", morphTargets: morphMs > 0,
     onReady(info, payload) {
+      stats.frameEncoding = pb.FrameEncoding[info.frameEncoding] ?? String(info.frameEncoding);
       const b = (v) => [v.x, v.y, v.z];
       lo = b(info.mesh.boundsMin);
       hi = b(info.mesh.boundsMax);
