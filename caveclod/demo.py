@@ -163,7 +163,8 @@ def fly(target: str, mesh: str, out: Path, size: tuple, args) -> tuple[dict, lis
             print("demo: opening a session (the first run on a machine waits while the server compiles its "
                   "kernels, about a minute)", flush=True)
             with client.session(mesh, cameras=len(CAMERAS), width=qw, height=qh, timeout=OPEN_SECONDS,
-                                morph_targets=args.morph_ms > 0) as session:
+                                morph_targets=args.morph_ms > 0,
+                                frame_encoding="linked" if args.morph_ms > 0 else "ops") as session:
                 info = session.info
                 packed = info.vertex_packing if info.HasField("vertex_packing") else None
                 how = "" if packed is None else (

@@ -21,6 +21,7 @@ from caveclod.render.flight import fly, path_poses
 from caveclod.render.renderer import BACKGROUND
 from caveclod.render.session import SessionRenderer
 from caveclod.render.window import FlyController
+from caveclod.v1 import caveclod_pb2 as pb
 from service import ROOT
 
 SKY = np.round(np.array(BACKGROUND) * 255).astype(np.uint8)
@@ -82,7 +83,8 @@ def test_geomorphs_through_a_session_run_on_path_time_and_mirror_the_display(ser
     morphs are over the GPU holds the client library's buffers exactly."""
     with Client(f"127.0.0.1:{server.port}", cache_dir=tmp_path) as client:
         with client.session("terrain", cameras=2, width=160, height=90, tolerance_px=0.5,
-                            morph_targets=True) as s:
+                            morph_targets=True, frame_encoding="linked") as s:
+            assert s.info.frame_encoding == pb.FRAME_ENCODING_OPS_LINKED     # what render and view ask for
             view = SessionRenderer(s, 320, 90, ctx=gl, morph_ms=400)
             busy = 0
             for rec in fly(s, view, "flyover", 30, fps=10.0, verify=True):

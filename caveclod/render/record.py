@@ -63,8 +63,10 @@ def cache_options(args) -> dict:
         except ValueError as exc:
             raise InputError(f"--{str(exc).replace('_', '-')}") from None
     morph = morph_ms(args)
+    morphs = morph > 0 and getattr(args, "vertex_encoding", "packed") == "packed"
+    # Geomorphs download the morph targets, which is what linked op streams read: take them.
     encoding = {"vertex_encoding": getattr(args, "vertex_encoding", "packed"), "position_bits": bits,
-                "morph_targets": morph > 0 and getattr(args, "vertex_encoding", "packed") == "packed"}
+                "morph_targets": morphs, "frame_encoding": "linked" if morphs else "ops"}
     if n is None:
         if strategy is not None or fraction is not None:
             raise InputError("--cache-strategy and --cache-pq-fraction need --cache-vertices N (slots per camera)")
