@@ -333,17 +333,19 @@ def _varint_list(ops: bytes) -> list:
 SPLIT0 = 5        # + c: corner c becomes the r-th child of the vertex there (payload r)
 MERGE0 = 8        # + c: corner c becomes the target of the vertex there (no payload)
 ADJ = 11          # a triangle on an edge of another write of the delta (payload: where, which vertex)
-N_LINKED_KINDS = 12                   # kinds 12-15 are invalid
-LINKED_PAYLOAD_VARINTS = (3, 1, 1, 1, 1, 1, 1, 1, 0, 0, 0, 2)
+ADJ_TX = 12       # ADJ whose third vertex is the target of the edge's first end x (payload: where)
+ADJ_TY = 13       # ... of its second end y (the commonest names: a split's faces reach the vertex split)
+N_LINKED_KINDS = 14                   # kinds 14 and 15 are invalid
+LINKED_PAYLOAD_VARINTS = (3, 1, 1, 1, 1, 1, 1, 1, 0, 0, 0, 2, 1, 1)
 # How ADJ names its third vertex z (the low part of its second varint, base Z_MODES).
-Z_DELTA, Z_CHILD_X, Z_CHILD_Y, Z_TARGET_X, Z_TARGET_Y, Z_WRITE = range(6)
-Z_MODES = 6
-LINKED_KIND_NAMES = "0 NEW, 1 COPY, 2-4 CORNER, 5-7 SPLIT, 8-10 MERGE, 11 ADJ"
-# Writes to the slots a buffer grows by need no slot; their kinds (NEW, COPY or ADJ:
-# nothing is there to re-point) go four to a varint, k0 + 3 k1 + 9 k2 + 27 k3.
-APPENDED_KINDS = (NEW, COPY, ADJ)
-APPENDED_PER_VARINT = 4
-APPENDED_PACK_LIMIT = 3 ** APPENDED_PER_VARINT
+Z_DELTA, Z_CHILD_X, Z_CHILD_Y, Z_WRITE = range(4)
+Z_MODES = 4
+LINKED_KIND_NAMES = "0 NEW, 1 COPY, 2-4 CORNER, 5-7 SPLIT, 8-10 MERGE, 11-13 ADJ"
+# Writes to the slots a buffer grows by need no slot; their kinds (nothing is there to
+# re-point) go three to a varint, k0 + 5 k1 + 25 k2, as indices into APPENDED_KINDS.
+APPENDED_KINDS = (NEW, COPY, ADJ, ADJ_TX, ADJ_TY)
+APPENDED_PER_VARINT = 3
+APPENDED_PACK_LIMIT = len(APPENDED_KINDS) ** APPENDED_PER_VARINT
 
 
 def is_base_kind(kind: int) -> bool:
@@ -444,7 +446,7 @@ def decode_linked(ops: bytes, old: np.ndarray, count: int, links: Links) -> tupl
         if pack >= APPENDED_PACK_LIMIT:
             raise OpStreamError(f"appended writes' kinds {pack} (at most {APPENDED_PACK_LIMIT - 1})")
         for _ in range(min(APPENDED_PER_VARINT, appended - (len(kinds) - in_place))):
-            pack, code = divmod(pack, 3)
+            pack, code = divmod(pack, len(APPENDED_KINDS))
             kinds.append(APPENDED_KINDS[code])
     slots += range(old_count, old_count + appended)
     for kind in kinds:
@@ -505,21 +507,19 @@ def decode_linked(ops: bytes, old: np.ndarray, count: int, links: Links) -> tupl
                 last = vertex(last + ((z >> 1) ^ -(z & 1)))
                 tri.append(last)
             tris[i] = tri
-        elif kind == ADJ:
-            h, w = values[p], values[p + 1]
+        elif kind >= ADJ:
+            h = values[p]
             step, ep = divmod(h, 9)
             e, q = divmod(ep, 3)
             prev = written(i + ((step >> 1) ^ -(step & 1)), i)
             x, y = prev[e], prev[(e + 1) % 3]
-            v, mode = divmod(w, Z_MODES)
-            if mode == Z_DELTA:
+            v, mode = divmod(values[p + 1], Z_MODES) if kind == ADJ else (0, -1)
+            if kind == ADJ_TX or kind == ADJ_TY:
+                z = int(links.targets[x if kind == ADJ_TX else y])
+            elif mode == Z_DELTA:
                 z = last = vertex(last + ((v >> 1) ^ -(v & 1)))
             elif mode == Z_CHILD_X or mode == Z_CHILD_Y:
                 z = links.child(x if mode == Z_CHILD_X else y, v)
-            elif mode == Z_TARGET_X or mode == Z_TARGET_Y:
-                if v:
-                    raise OpStreamError(f"an ADJ write's target with a value ({v}) it does not take")
-                z = int(links.targets[x if mode == Z_TARGET_X else y])
             else:
                 j2, c = divmod(v, 3)
                 z = written(i + ((j2 >> 1) ^ -(j2 & 1)), i)[c]

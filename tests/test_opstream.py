@@ -300,10 +300,10 @@ def reference_decode_linked(ops: bytes, old: np.ndarray, count: int, targets: np
         slot += (h >> 4) + 1
         kinds.append(h & 15)
         slots.append(slot)
-    for g in range(-(-grown // 4)):
+    for g in range(-(-grown // 3)):
         pack = varint()
-        for t in range(min(4, grown - 4 * g)):
-            kinds.append((0, 1, 11)[pack // 3 ** t % 3])
+        for t in range(min(3, grown - 3 * g)):
+            kinds.append((0, 1, 11, 12, 13)[pack // 5 ** t % 5])
     slots += range(len(old), len(old) + grown)
     payload = [[varint() for _ in range(opstream.LINKED_PAYLOAD_VARINTS[k])] for k in kinds]
     assert pos == len(data), "trailing bytes"
@@ -324,20 +324,21 @@ def reference_decode_linked(ops: bytes, old: np.ndarray, count: int, targets: np
                 last += unzigzag(z)
                 tri.append(last)
             tris[i] = tri
-        elif k == 11:
-            h, w = p
+        elif k >= 11:
+            h = p[0]
             prev = tris[i + unzigzag(h // 9)]
             e, q = h % 9 // 3, h % 3
             x, y = prev[e], prev[(e + 1) % 3]
-            v, mode = divmod(w, 6)
-            if mode == 0:
+            v, mode = divmod(p[1], 4) if k == 11 else (None, None)
+            if k == 12:
+                z = targets[x]
+            elif k == 13:
+                z = targets[y]
+            elif mode == 0:
                 last += unzigzag(v)
                 z = last
             elif mode in (1, 2):
                 z = child(x if mode == 1 else y, v)
-            elif mode in (3, 4):
-                assert v == 0
-                z = targets[x if mode == 3 else y]
             else:
                 z = tris[i + unzigzag(v // 3)][v % 3]
             tri = [0, 0, 0]
@@ -451,18 +452,21 @@ def test_each_linked_kind_is_chosen_where_it_is_cheapest():
                         [0, 1, 2],             # slot 2: b+6 -> its target b: MERGE 0
                         [13, 14, 3],           # slot 3: the last triangle moved into a hole: COPY
                         [8, 0, 7],             # slot 4: on edge (b, b+8) of slot 0's, with b's child b+7: ADJ
-                        [50, 60, 70]], np.uint32)   # slot 5, appended: NEW
+                        [50, 60, 70],          # slot 5, appended: NEW
+                        [2, 8, 1]], np.uint32)     # slot 6, appended: on edge (b+8, b+2) of slot 0's, with
+                                                   # b+8's target b+1: ADJ_TX
     ops = _linked_round_trip(old, new, targets)
     values = [int(v) for v in opstream.read_varints(ops)]
-    assert values[0] == 5
+    assert values[0] == 6
     assert [h & 15 for h in values[1:5]] == [opstream.SPLIT0 + 1, opstream.MERGE0, opstream.COPY, opstream.ADJ]
-    assert values[5] == 0                      # the one appended write's kind: NEW
+    assert values[5] == 0 + 5 * 3              # the appended writes' kinds: NEW, ADJ_TX (APPENDED_KINDS 0 and 3)
     payload = values[6:]
     assert payload[:2] == [0, 0]               # SPLIT: child 0; (MERGE: nothing) COPY: the last row
     h, w = payload[2:4]                        # on edge 0 of write 0 (3 back: zigzag 5), b+8 at corner 0; b's child 1
     assert (h // 9, h % 9, w % opstream.Z_MODES, w // opstream.Z_MODES) == (5, 0, opstream.Z_CHILD_X, 1)
-    assert payload[4:] == [2 * (b + 50), 20, 20]    # NEW: chained zigzag deltas
-    assert len(ops) == 1 + 4 + 1 + 8           # n, four headers, one pack, seven payload varints (one of 2 bytes)
+    assert payload[4:7] == [2 * (b + 50), 20, 20]   # NEW: chained zigzag deltas
+    assert payload[7:] == [9 * 9 + 3 * 1 + 0]       # ADJ_TX: edge 1 of write 0 (5 back: zigzag 9), y at corner 0
+    assert len(ops) == 1 + 4 + 1 + 9           # n, four headers, one pack, eight payload varints (one of 2 bytes)
 
 
 def test_real_refinement_deltas_round_trip_linked_and_are_smaller(terrain_path):
@@ -546,14 +550,14 @@ def test_a_damaged_linked_stream_is_an_error_or_a_checked_buffer_never_a_crash(s
 @pytest.mark.parametrize("data, count, words", [
     (b"", 10, "empty"),
     (b"\x05\x00", 10, "announces 5 writes"),
-    (b"\x01\x0c", 10, "kind 12"),
+    (b"\x01\x0e", 10, "kind 14"),
     (b"\x00", 11, "announces only 0 writes"),                       # grows by one: one write at least
-    (b"\x01\x51\x00\x00\x00", 11, "at most 80"),                 # the appended write's kinds: 81
+    (b"\x01\x7d\x00\x00\x00", 11, "at most 124"),                # the appended write's kinds: 125
     (b"\x03\xa0\x01\x00" + b"\x00" * 9, 12, "past the 10 slots"),    # an in-place write to slot 10
     (b"\x01\x05\x0a", 10, "child 10 of vertex 0, which has 10"),   # SPLIT corner 0 of [0, 1, 2]
     (b"\x01\x0b\x00\x00", 10, "names write 0"),                   # an ADJ on its own edge
     (b"\x02\x0b\x00\x12\x00\x00\x00\x00", 10, "after it"),          # an ADJ on a NEW that follows it
-    (b"\x02\x0b\x01\x12\x09\x00", 10, "target with a value"),      # mode 3 (T[x]) with v = 1
+    (b"\x01\x0d\x00", 10, "names write 0"),                       # an ADJ_TY on its own edge
     (b"\x01\x08\x00", 10, "need 0 payload varints"),               # MERGE takes none
     (b"\x01\x02\x7f", 10, "vertex index -64"),                     # CORNER 0 of [0, 1, 2] by -64
 ])

@@ -22,9 +22,11 @@ import numpy as np
 # The format's constants, from the module that specifies it: op kinds (CORNER0 + k
 # re-points corner k; EDGE0 + 3 e + p is a triangle on edge e of the previous, NEW one),
 # header bits, and the limits a decoder enforces.
-from ..opstream import (ADJ, APPENDED_PACK_LIMIT, APPENDED_PER_VARINT, COPY, CORNER0, EDGE0, KIND_BITS,
-                        MAX_VARINT_BYTES, MERGE0, N_KINDS, N_LINKED_KINDS, NEW, SPLIT0, Z_CHILD_X, Z_CHILD_Y,
-                        Z_DELTA, Z_MODES, Z_TARGET_X, Z_TARGET_Y, Z_WRITE)
+from ..opstream import (ADJ, ADJ_TX, ADJ_TY, APPENDED_KINDS, APPENDED_PACK_LIMIT, APPENDED_PER_VARINT, COPY,
+                        CORNER0, EDGE0, KIND_BITS, MAX_VARINT_BYTES, MERGE0, N_KINDS, N_LINKED_KINDS, NEW, SPLIT0,
+                        Z_CHILD_X, Z_CHILD_Y, Z_DELTA, Z_MODES, Z_WRITE)
+
+APPENDED_BASE = len(APPENDED_KINDS)
 
 MAX_OP_BYTES = 21                     # worst case of one write: a 6-byte header (a 32-bit gap and 4 kind
                                       # bits) and three 5-byte deltas (33-bit zigzag)
@@ -275,6 +277,7 @@ def encode_linked_and_apply(held, old_count, new_count, slots, tris, targets, ra
         best = _varint_bytes(_zigzag(a - last)) + _varint_bytes(_zigzag(b - a)) + _varint_bytes(_zigzag(c - b))
         h_best = -1
         w_best = 0
+        kind_best = ADJ
         for q in range(3):
             y = np.int64(tris[i, q])
             x = np.int64(tris[i, (q + 1) % 3])
@@ -292,9 +295,16 @@ def encode_linked_and_apply(held, old_count, new_count, slots, tris, targets, ra
                 p = (p + 1) & mask
             if h < 0 or h_cost >= best:
                 continue
-            # The third vertex: the shortest of its names.
-            w = np.int64(_zigzag(z - last)) * Z_MODES + Z_DELTA
-            w_cost = _varint_bytes(w)
+            # The third vertex: the shortest of its names (a target of an end of the
+            # edge is named by the kind alone).
+            kind = ADJ
+            if targets[x] == z and x != z:
+                kind, w, w_cost = ADJ_TX, 0, 0
+            elif targets[y] == z and y != z:
+                kind, w, w_cost = ADJ_TY, 0, 0
+            else:
+                w = np.int64(_zigzag(z - last)) * Z_MODES + Z_DELTA
+                w_cost = _varint_bytes(w)
             rz = np.int64(rank[z])
             if targets[z] == x and z != x and rz < 255 and _varint_bytes(rz * Z_MODES + Z_CHILD_X) < w_cost:
                 w = rz * Z_MODES + Z_CHILD_X
@@ -302,10 +312,6 @@ def encode_linked_and_apply(held, old_count, new_count, slots, tris, targets, ra
             if targets[z] == y and z != y and rz < 255 and _varint_bytes(rz * Z_MODES + Z_CHILD_Y) < w_cost:
                 w = rz * Z_MODES + Z_CHILD_Y
                 w_cost = _varint_bytes(w)
-            if targets[x] == z and x != z and 1 < w_cost:
-                w, w_cost = Z_TARGET_X, 1
-            if targets[y] == z and y != z and 1 < w_cost:
-                w, w_cost = Z_TARGET_Y, 1
             if w_cost > 1:
                 p = _bucket(np.uint64(z), shift)
                 while vert_at[p] >= 0:             # the nearest write holding z, if that is shorter
@@ -317,12 +323,12 @@ def encode_linked_and_apply(held, old_count, new_count, slots, tris, targets, ra
                     p = (p + 1) & mask
             if h_cost + w_cost < best:
                 best = h_cost + w_cost
-                h_best, w_best = h, w
+                h_best, w_best, kind_best = h, w, kind
         if h_best >= 0:
-            kinds[i] = ADJ
+            kinds[i] = kind_best
             arg[i] = h_best
             arg2[i] = w_best
-            if w_best % Z_MODES == Z_DELTA:
+            if kind_best == ADJ and w_best % Z_MODES == Z_DELTA:
                 q = (h_best % 3 + 2) % 3
                 last = np.int64(tris[i, q])
         else:
@@ -339,9 +345,10 @@ def encode_linked_and_apply(held, old_count, new_count, slots, tris, targets, ra
         pack = np.uint64(0)
         scale = np.uint64(1)
         for i in range(g, min(g + APPENDED_PER_VARINT, k)):
-            code = 0 if kinds[i] == NEW else (1 if kinds[i] == COPY else 2)
+            # APPENDED_KINDS: NEW, COPY, ADJ, ADJ_TX, ADJ_TY
+            code = 0 if kinds[i] == NEW else (1 if kinds[i] == COPY else kinds[i] - ADJ + 2)
             pack += np.uint64(code) * scale
-            scale *= np.uint64(3)
+            scale *= np.uint64(APPENDED_BASE)
         n = _put_varint(out, n, pack)
     last = np.int64(0)
     for i in range(k):
@@ -357,11 +364,12 @@ def encode_linked_and_apply(held, old_count, new_count, slots, tris, targets, ra
             n = _put_varint(out, n, _zigzag(arg[i] - np.int64(held[slots[i], kind - CORNER0])))
         elif kind < MERGE0:
             n = _put_varint(out, n, np.uint64(arg[i]))
-        elif kind == ADJ:
+        elif kind >= ADJ:
             n = _put_varint(out, n, np.uint64(arg[i]))
-            n = _put_varint(out, n, np.uint64(arg2[i]))
-            if arg2[i] % Z_MODES == Z_DELTA:
-                last = np.int64(tris[i, (arg[i] % 3 + 2) % 3])
+            if kind == ADJ:
+                n = _put_varint(out, n, np.uint64(arg2[i]))
+                if arg2[i] % Z_MODES == Z_DELTA:
+                    last = np.int64(tris[i, (arg[i] % 3 + 2) % 3])
     _apply(held, slots, tris)
     return n
 
@@ -542,15 +550,15 @@ def decode_linked(ops, old, count, targets, child_start, children):
         for t in range(APPENDED_PER_VARINT):
             i = in_place + APPENDED_PER_VARINT * g + t
             if i < n:
-                code = pack % 3
-                kinds[i] = NEW if code == 0 else (COPY if code == 1 else ADJ)
+                code = pack % APPENDED_BASE
+                kinds[i] = NEW if code == 0 else (COPY if code == 1 else ADJ + code - 2)
                 slots[i] = old_count + (i - in_place)
-            pack //= 3
+            pack //= APPENDED_BASE
     need = 0
     for i in range(n):
         kind = kinds[i]
         first[i] = 1 + in_place + packs + need
-        need += 3 if kind == NEW else (2 if kind == ADJ else (0 if kind >= MERGE0 else 1))
+        need += 3 if kind == NEW else (2 if kind == ADJ else (0 if MERGE0 <= kind < ADJ else 1))
     if need != m - 1 - in_place - packs:
         return bad
     tris = np.empty((n, 3), np.uint32)
@@ -601,9 +609,9 @@ def decode_linked(ops, old, count, targets, child_start, children):
                 if last < 0 or last >= n_vertices:
                     return bad
                 tris[i, q] = last
-        elif kind == ADJ:
+        elif kind >= ADJ:
             h = values[p]
-            w = values[p + 1]
+            w = values[p + 1] if kind == ADJ else 0
             step = h // 9
             e = (h % 9) // 3
             q = h % 3
@@ -614,7 +622,9 @@ def decode_linked(ops, old, count, targets, child_start, children):
             y = np.int64(tris[j, (e + 1) % 3])
             v = w // Z_MODES
             mode = w % Z_MODES
-            if mode == Z_DELTA:
+            if kind == ADJ_TX or kind == ADJ_TY:
+                z = targets[x if kind == ADJ_TX else y]
+            elif mode == Z_DELTA:
                 last += _unzigzag(v)
                 if last < 0 or last >= n_vertices:
                     return bad
@@ -624,10 +634,6 @@ def decode_linked(ops, old, count, targets, child_start, children):
                 if v >= child_start[o + 1] - child_start[o]:
                     return bad
                 z = children[child_start[o] + v]
-            elif mode == Z_TARGET_X or mode == Z_TARGET_Y:
-                if v != 0:
-                    return bad
-                z = targets[x if mode == Z_TARGET_X else y]
             else:
                 j2 = i + _unzigzag(v // 3)
                 if j2 < 0 or j2 >= n or j2 == i or not done[j2]:

@@ -95,10 +95,11 @@ export function decodeOps(ops, old, oldCount, count, nVertices) {
 
 // -- FRAME_ENCODING_OPS_LINKED: the proto's "OPS_LINKED" (caveclod/opstream.py's decode_linked) --
 
-const SPLIT0 = 5, MERGE0 = 8, ADJ = 11, N_LINKED_KINDS = 12;
-const LINKED_PAYLOAD = [3, 1, 1, 1, 1, 1, 1, 1, 0, 0, 0, 2];
-const APPENDED_KINDS = [NEW, COPY, ADJ], APPENDED_PER_VARINT = 4, APPENDED_PACK_LIMIT = 81;
-const LINKED_KIND_NAMES = "0 NEW, 1 COPY, 2-4 CORNER, 5-7 SPLIT, 8-10 MERGE, 11 ADJ";
+const SPLIT0 = 5, MERGE0 = 8, ADJ = 11, ADJ_TX = 12, ADJ_TY = 13, N_LINKED_KINDS = 14;
+const LINKED_PAYLOAD = [3, 1, 1, 1, 1, 1, 1, 1, 0, 0, 0, 2, 1, 1];
+const APPENDED_KINDS = [NEW, COPY, ADJ, ADJ_TX, ADJ_TY], APPENDED_PER_VARINT = 3, APPENDED_PACK_LIMIT = 125;
+const Z_MODES = 4, Z_DELTA = 0, Z_CHILD_X = 1, Z_CHILD_Y = 2;
+const LINKED_KIND_NAMES = "0 NEW, 1 COPY, 2-4 CORNER, 5-7 SPLIT, 8-10 MERGE, 11-13 ADJ";
 
 /**
  * The children of each vertex under the morph targets: the other vertices whose
@@ -145,8 +146,8 @@ export function decodeLinked(ops, old, oldCount, count, links) {
     if (pack >= APPENDED_PACK_LIMIT) throw new OpStreamError(`appended writes' kinds ${pack} (at most ${APPENDED_PACK_LIMIT - 1})`);
     for (let t = 0; t < APPENDED_PER_VARINT; t++) {
       const i = inPlace + APPENDED_PER_VARINT * g + t;
-      if (i < n) { kinds[i] = APPENDED_KINDS[pack % 3]; slots[i] = oldCount + (i - inPlace); }
-      pack = Math.floor(pack / 3);
+      if (i < n) { kinds[i] = APPENDED_KINDS[pack % APPENDED_KINDS.length]; slots[i] = oldCount + (i - inPlace); }
+      pack = Math.floor(pack / APPENDED_KINDS.length);
     }
   }
   let need = 0;
@@ -189,18 +190,16 @@ export function decodeLinked(ops, old, oldCount, count, links) {
     const kind = kinds[i], o = 3 * i, p = first[i];
     if (kind === NEW) {
       for (let k = 0; k < 3; k++) { last += unzigzag(values[p + k]); tris[o + k] = vertex(last); }
-    } else if (kind === ADJ) {
-      const h = values[p], w = values[p + 1];
+    } else if (kind >= ADJ) {
+      const h = values[p], w = kind === ADJ ? values[p + 1] : 0;
       const j = named(i + unzigzag(Math.floor(h / 9)), i), e = Math.floor((h % 9) / 3), q = h % 3;
       const x = tris[j + e], y = tris[j + (e + 1) % 3];
-      const v = Math.floor(w / 6), mode = w % 6;
+      const v = Math.floor(w / Z_MODES), mode = w % Z_MODES;
       let z;
-      if (mode === 0) { last += unzigzag(v); z = vertex(last); }
-      else if (mode === 1 || mode === 2) z = child(mode === 1 ? x : y, v);
-      else if (mode === 3 || mode === 4) {
-        if (v !== 0) throw new OpStreamError(`an ADJ write's target with a value (${v}) it does not take`);
-        z = links.targets[mode === 3 ? x : y];
-      } else z = tris[named(i + unzigzag(Math.floor(v / 3)), i) + v % 3];
+      if (kind !== ADJ) z = links.targets[kind === ADJ_TX ? x : y];
+      else if (mode === Z_DELTA) { last += unzigzag(v); z = vertex(last); }
+      else if (mode === Z_CHILD_X || mode === Z_CHILD_Y) z = child(mode === Z_CHILD_X ? x : y, v);
+      else z = tris[named(i + unzigzag(Math.floor(v / 3)), i) + v % 3];
       tris[o + q] = y; tris[o + (q + 1) % 3] = x; tris[o + (q + 2) % 3] = z;
     }
     done[i] = 1;
