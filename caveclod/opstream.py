@@ -1,4 +1,5 @@
-"""The compact index-buffer delta ("op stream", FRAME_ENCODING_OPS): the format and its decoder.
+"""The compact index-buffer delta ("op stream", FRAME_ENCODING_OPS): the format and its decoder
+(and, below, FRAME_ENCODING_OPS_LINKED's: :func:`decode_linked`).
 
 Numpy only, so the thin client runs it (the server's encoder is the compiled
 :func:`caveclod.kernels.opstream.encode_and_apply`; a compiled twin of the
@@ -235,16 +236,7 @@ def _decode_small(ops: bytes, old: np.ndarray, count: int, n_vertices: int) -> t
     if n > len(values) - 1:
         raise OpStreamError(f"the op stream announces {n} writes but holds {len(values) - 1} varints")
     old_count = len(old)
-    slots, kinds, slot = [], [], -1
-    for h in values[1:1 + n]:
-        kind, gap = h & 15, h >> KIND_BITS
-        if kind >= N_KINDS:
-            raise OpStreamError(f"op kind {kind} is unknown (0 NEW, 1 COPY, 2-4 CORNER, 5-13 EDGE)")
-        if gap >= count:
-            raise OpStreamError(f"a slot gap of {gap} in a buffer of {count} triangles")
-        slot += gap + 1
-        slots.append(slot)
-        kinds.append(kind)
+    slots, kinds = _headers(values[1:1 + n], count, N_KINDS, "0 NEW, 1 COPY, 2-4 CORNER, 5-13 EDGE")
     if slots and slots[-1] >= count:
         raise OpStreamError(f"slot {slots[-1]} past the count {count}")
     if count > old_count and sum(s >= old_count for s in slots) != count - old_count:
@@ -298,6 +290,22 @@ def _decode_small(ops: bytes, old: np.ndarray, count: int, n_vertices: int) -> t
     return np.array(slots, np.uint32), np.array(tris, np.uint32).reshape(-1, 3)
 
 
+def _headers(headers: list, count: int, n_kinds: int, names: str) -> tuple[list, list]:
+    """(slots, kinds) of write headers ``(gap << 4) | kind``; OpStreamError for a kind
+    of ``n_kinds`` or more (``names`` says which there are) or a gap past ``count``."""
+    slots, kinds, slot = [], [], -1
+    for h in headers:
+        kind, gap = h & 15, h >> KIND_BITS
+        if kind >= n_kinds:
+            raise OpStreamError(f"op kind {kind} is unknown ({names})")
+        if gap >= count:
+            raise OpStreamError(f"a slot gap of {gap} in a buffer of {count} triangles")
+        slot += gap + 1
+        slots.append(slot)
+        kinds.append(kind)
+    return slots, kinds
+
+
 def _varint_list(ops: bytes) -> list:
     """Every LEB128 varint of ``ops`` as Python ints, a byte at a time (short streams);
     raises OpStreamError for an empty stream, a cut-off varint or one too long."""
@@ -346,12 +354,6 @@ LINKED_KIND_NAMES = "0 NEW, 1 COPY, 2-4 CORNER, 5-7 SPLIT, 8-10 MERGE, 11-13 ADJ
 APPENDED_KINDS = (NEW, COPY, ADJ, ADJ_TX, ADJ_TY)
 APPENDED_PER_VARINT = 3
 APPENDED_PACK_LIMIT = len(APPENDED_KINDS) ** APPENDED_PER_VARINT
-
-
-def is_base_kind(kind: int) -> bool:
-    """Kinds read only the old buffer (and the morph targets), so an ADJ may name them
-    wherever they are in the stream; NEW and ADJ writes only before it."""
-    return COPY <= kind < ADJ
 
 
 def _children(targets: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -429,18 +431,10 @@ def decode_linked(ops: bytes, old: np.ndarray, count: int, links: Links) -> tupl
                             f"announces only {n} writes")
     if in_place + packs > len(values) - 1:
         raise OpStreamError(f"the op stream announces {n} writes but holds {len(values) - 1} varints")
-    slots, kinds, first, slot, need = [], [], [], -1, 0
-    for h in values[1:1 + in_place]:
-        kind, gap = h & 15, h >> KIND_BITS
-        if kind >= N_LINKED_KINDS:
-            raise OpStreamError(f"op kind {kind} is unknown ({LINKED_KIND_NAMES})")
-        if gap >= count:
-            raise OpStreamError(f"a slot gap of {gap} in a buffer of {count} triangles")
-        slot += gap + 1
-        slots.append(slot)
-        kinds.append(kind)
-    if slots and slot >= min(old_count, count):
-        raise OpStreamError(f"slot {slot} of an in-place write, past the {min(old_count, count)} slots the "
+    slots, kinds = _headers(values[1:1 + in_place], count, N_LINKED_KINDS, LINKED_KIND_NAMES)
+    first, need = [], 0
+    if slots and slots[-1] >= min(old_count, count):
+        raise OpStreamError(f"slot {slots[-1]} of an in-place write, past the {min(old_count, count)} slots the "
                             "buffer keeps")
     for pack in values[1 + in_place:1 + in_place + packs]:
         if pack >= APPENDED_PACK_LIMIT:
@@ -461,12 +455,14 @@ def decode_linked(ops: bytes, old: np.ndarray, count: int, links: Links) -> tupl
             raise OpStreamError(f"vertex index {v} outside the vertex buffer's {n_vertices} vertices")
         return v
 
+    # The base writes (COPY, CORNER, SPLIT, MERGE) read only the old buffer and the
+    # targets, so an ADJ may name them wherever they are; NEW and ADJ only before it.
     tris = [None] * n
-    in_place = [s for s, k in zip(slots, kinds) if CORNER0 <= k < ADJ]      # one gather for all of them
-    if in_place and max(in_place) >= old_count:
-        raise OpStreamError(f"a CORNER, SPLIT or MERGE write to slot {max(in_place)}, which the buffer of "
+    re_pointed = [s for s, k in zip(slots, kinds) if CORNER0 <= k < ADJ]      # one gather for all of them
+    if re_pointed and max(re_pointed) >= old_count:
+        raise OpStreamError(f"a CORNER, SPLIT or MERGE write to slot {max(re_pointed)}, which the buffer of "
                             f"{old_count} triangles does not hold yet")
-    rows = old[in_place].tolist()
+    rows = old[re_pointed].tolist()
     at = 0
     for i, kind in enumerate(kinds):                  # the base writes: from the old buffer
         if kind == COPY:

@@ -22,8 +22,8 @@ from fuzzing import damage
 
 # -- a reference decoder: one write at a time, as the proto's comment reads --------------
 
-def reference_decode(ops: bytes, old: np.ndarray, count: int, n_vertices: int):
-    """The proto's SurfaceDelta.ops rules, a varint and a write at a time."""
+def _varint_reader(ops: bytes):
+    """(varint(), at_end()): read the next LEB128 varint of ``ops``; whether all are read."""
     data, pos = bytes(ops), 0
 
     def varint():
@@ -39,8 +39,16 @@ def reference_decode(ops: bytes, old: np.ndarray, count: int, n_vertices: int):
             if b < 0x80:
                 return value
 
-    def unzigzag(z):
-        return z >> 1 if z % 2 == 0 else -(z >> 1) - 1
+    return varint, lambda: pos == len(data)
+
+
+def unzigzag(z):
+    return z >> 1 if z % 2 == 0 else -(z >> 1) - 1
+
+
+def reference_decode(ops: bytes, old: np.ndarray, count: int, n_vertices: int):
+    """The proto's SurfaceDelta.ops rules, a varint and a write at a time."""
+    varint, at_end = _varint_reader(ops)
 
     n = varint()
     headers = [varint() for _ in range(n)]
@@ -70,7 +78,7 @@ def reference_decode(ops: bytes, old: np.ndarray, count: int, n_vertices: int):
         assert 0 <= slot < count and all(0 <= v < n_vertices for v in tri)
         slots.append(slot)
         tris.append([int(v) for v in tri])
-    assert pos == len(data), "trailing bytes"
+    assert at_end(), "trailing bytes"
     return np.array(slots, np.uint32), np.array(tris, np.uint32).reshape(-1, 3)
 
 
@@ -214,13 +222,20 @@ def test_a_damaged_stream_is_an_error_or_a_checked_buffer_never_a_crash(seed):
         new += [[1, 2, 3], [3, 2, 4]]
     new = np.array(new, np.uint32)
     ops = _round_trip(old, new, 500)
+    assert _damaged_copies_judged_alike(ops, rng, DECODERS, old, len(new), 500, 500) > 200
+
+
+def _damaged_copies_judged_alike(ops: bytes, rng, decoders, old: np.ndarray, count: int, last, n_vertices: int) -> int:
+    """400 damaged copies of ``ops``, each given to every decoder (``decoder(data, old, count,
+    last)``): all refuse it with a one-line OpStreamError, or all return the same writes, inside
+    the buffer and below ``n_vertices``. Returns how many were refused."""
     errors = 0
     for trial in range(400):
         data = damage(ops, rng, trial)
         results = []
-        for decode in DECODERS:
+        for decode in decoders:
             try:
-                results.append(decode(bytes(data), old, len(new), 500))
+                results.append(decode(bytes(data), old, count, last))
             except opstream.OpStreamError as exc:
                 assert str(exc) and "\n" not in str(exc)
                 results.append(None)
@@ -230,12 +245,12 @@ def test_a_damaged_stream_is_an_error_or_a_checked_buffer_never_a_crash(seed):
             continue
         for slots, tris in results:
             assert slots.dtype == np.uint32 and tris.dtype == np.uint32 and tris.shape == (len(slots), 3)
-            assert (np.diff(slots.astype(np.int64)) > 0).all() and (len(slots) == 0 or slots[-1] < len(new))
-            assert (tris < 500).all()
+            assert (np.diff(slots.astype(np.int64)) > 0).all() and (len(slots) == 0 or slots[-1] < count)
+            assert (tris < n_vertices).all()
         for slots, tris in results[1:]:
             np.testing.assert_array_equal(results[0][0], slots)
             np.testing.assert_array_equal(results[0][1], tris)
-    assert errors > 200
+    return errors
 
 
 @pytest.mark.parametrize("data, count, words", [
@@ -265,24 +280,8 @@ def test_malformed_streams_say_what_is_wrong(data, count, words, decode):
 
 def reference_decode_linked(ops: bytes, old: np.ndarray, count: int, targets: np.ndarray):
     """The proto's OPS_LINKED rules, a varint and a write at a time; children found by a scan."""
-    data, pos = bytes(ops), 0
+    varint, at_end = _varint_reader(ops)
     targets = [int(t) for t in targets]
-
-    def varint():
-        nonlocal pos
-        value = shift = 0
-        while True:
-            if pos >= len(data) or shift > 56:
-                raise opstream.OpStreamError("cut off")
-            b = data[pos]
-            pos += 1
-            value |= (b & 0x7F) << shift
-            shift += 7
-            if b < 0x80:
-                return value
-
-    def unzigzag(z):
-        return z >> 1 if z % 2 == 0 else -(z >> 1) - 1
 
     children = {}
     for y, x in enumerate(targets):        # ascending y: each list in index order
@@ -306,7 +305,7 @@ def reference_decode_linked(ops: bytes, old: np.ndarray, count: int, targets: np
             kinds.append((0, 1, 11, 12, 13)[pack // 5 ** t % 5])
     slots += range(len(old), len(old) + grown)
     payload = [[varint() for _ in range(opstream.LINKED_PAYLOAD_VARINTS[k])] for k in kinds]
-    assert pos == len(data), "trailing bytes"
+    assert at_end(), "trailing bytes"
     tris = [None] * n
     for i, (k, s, p) in enumerate(zip(kinds, slots, payload)):
         if k == 1:
@@ -523,28 +522,7 @@ def test_a_damaged_linked_stream_is_an_error_or_a_checked_buffer_never_a_crash(s
     new = np.array(new, np.uint32)
     ops = _linked_round_trip(old, new, targets)
     links = opstream.Links(targets)
-    errors = 0
-    for trial in range(400):
-        data = damage(ops, rng, trial)
-        results = []
-        for decode in LINKED_DECODERS:
-            try:
-                results.append(decode(bytes(data), old, len(new), links))
-            except opstream.OpStreamError as exc:
-                assert str(exc) and "\n" not in str(exc)
-                results.append(None)
-        assert len({r is None for r in results}) == 1, "the decoders disagree on a damaged stream"
-        if results[0] is None:
-            errors += 1
-            continue
-        for slots, tris in results:
-            assert slots.dtype == np.uint32 and tris.dtype == np.uint32 and tris.shape == (len(slots), 3)
-            assert (np.diff(slots.astype(np.int64)) > 0).all() and (len(slots) == 0 or slots[-1] < len(new))
-            assert (tris < 500).all()
-        for slots, tris in results[1:]:
-            np.testing.assert_array_equal(results[0][0], slots)
-            np.testing.assert_array_equal(results[0][1], tris)
-    assert errors > 150
+    assert _damaged_copies_judged_alike(ops, rng, LINKED_DECODERS, old, len(new), links, 500) > 150
 
 
 @pytest.mark.parametrize("data, count, words", [

@@ -30,6 +30,20 @@ def _same_as_server(protocol, server) -> None:
                 assert np.array_equal(session.held_buffer(c, m), mine[m])
 
 
+def _op_stream_sizes(protocol) -> list:
+    """The byte counts of the op streams ``protocol`` receives from now on (a list that grows)."""
+    sizes = []
+    original = protocol.receive
+
+    def record(msg):
+        if msg.WhichOneof("kind") == "frame":
+            sizes.extend(len(sd.ops) for cf in msg.frame.cameras for sd in cf.surfaces if sd.ops)
+        return original(msg)
+
+    protocol.receive = record
+    return sizes
+
+
 def _fly(driver, steps: int, start: int = 0) -> list:
     """Poses along a line over the terrain, each answered before the next; the frames."""
     info = driver.protocol.info
@@ -122,15 +136,7 @@ def test_a_resume_may_switch_the_frame_encoding(server, first, then):
 def test_cache_mode_sends_op_streams_of_slot_numbers(server):
     protocol = SessionProtocol("terrain", 1, _options(), cache=None, ack_window=1,
                                cache_mode={"vertices": 2500, "strategy": "lru", "pq_fraction": None})
-    sizes = []
-    original = protocol.receive
-
-    def record(msg):
-        if msg.WhichOneof("kind") == "frame":
-            sizes.extend(len(sd.ops) for cf in msg.frame.cameras for sd in cf.surfaces if sd.ops)
-        return original(msg)
-
-    protocol.receive = record
+    sizes = _op_stream_sizes(protocol)
     driver = Driver(server.port, protocol)
     try:
         driver.next_frame()
@@ -166,15 +172,7 @@ def test_linked_op_streams_are_smaller_and_give_the_same_buffers(server):
     sizes = {}
     for encoding in ("ops", "linked"):
         protocol = SessionProtocol("terrain", 2, _options(), cache=None, ack_window=1, frame_encoding=encoding)
-        original = protocol.receive
-        sizes[encoding] = []
-
-        def record(msg, out=sizes[encoding], original=original):
-            if msg.WhichOneof("kind") == "frame":
-                out.extend(len(sd.ops) for cf in msg.frame.cameras for sd in cf.surfaces if sd.ops)
-            return original(msg)
-
-        protocol.receive = record
+        sizes[encoding] = _op_stream_sizes(protocol)
         driver = Driver(server.port, protocol)
         try:
             driver.next_frame()

@@ -247,17 +247,21 @@ DECODE_IN_PAGE = """async (cases) => {
 }"""
 
 
-def _opstream_cases(terrain_path) -> list:
-    """(ops, old rows flat, count, n_vertices): a flyover's real deltas, then damaged copies of them."""
+def _opstream_cases(terrain_path, linked: bool = False) -> tuple[list, object]:
+    """([(ops, old rows, count, n_vertices)], Links or None): a flyover's real deltas as op
+    streams (``linked``: OPS_LINKED ones, with the mesh's Links), then damaged copies of them."""
     import caveclod
+    from caveclod import opstream
     from caveclod.paths import pose
+    from caveclod.refine.morphtargets import morph_targets
     from caveclod.server.held import HeldBuffers
 
     from fuzzing import damage
     mesh = caveclod.load(terrain_path)
+    links = opstream.Links(morph_targets(mesh)) if linked else None
     lo, hi = mesh.bounds()
     cam = mesh.new_camera()
-    held = HeldBuffers(cam.n_materials)
+    held = HeldBuffers(cam.n_materials, (links.targets, opstream.child_ranks(links.targets)) if linked else None)
     client = {m: cam.index_buffer(m).copy() for m in range(cam.n_materials)}
     for m, buf in client.items():
         held.replace(m, buf)
@@ -274,26 +278,34 @@ def _opstream_cases(terrain_path) -> list:
     for i in range(600):
         ops, old, count, n = real[i % len(real)]
         cases.append((damage(ops, rng, i), old, count, n))
-    return cases
+    return cases, links
 
 
-def test_the_pages_op_stream_decoder_agrees_with_pythons(browser, terrain_path, make_server):
+def _decoded_alike(cases: list, results: list, decode) -> int:
+    """Each page result against Python's ``decode(ops, old, count)``: the same writes, or both
+    refusing the stream (the page with an OpStreamError). Returns how many were refused."""
     from caveclod import opstream
-    server = make_server(web_port=0)
-    cases = _opstream_cases(terrain_path)
-    with Page(browser, _base(server) + "?mesh=terrain&trajectory=rotate") as page:
-        results = page.page.evaluate(DECODE_IN_PAGE, [(list(ops), old.ravel().tolist(), count, n)
-                                                      for ops, old, count, n in cases])
     errors = 0
-    for (ops, old, count, n), got in zip(cases, results):
+    for (ops, old, count, _), got in zip(cases, results):
         try:
-            slots, tris = opstream.decode(ops, old, count, n)
+            slots, tris = decode(ops, old, count)
         except opstream.OpStreamError:
             assert isinstance(got, str) and got.startswith("OpStreamError"), "Python refused what the page decoded"
             errors += 1
             continue
         assert not isinstance(got, str), f"the page refused a stream Python decodes: {got}"
         assert got[0] == slots.tolist() and got[1] == tris.ravel().tolist()
+    return errors
+
+
+def test_the_pages_op_stream_decoder_agrees_with_pythons(browser, terrain_path, make_server):
+    from caveclod import opstream
+    server = make_server(web_port=0)
+    cases, _ = _opstream_cases(terrain_path)
+    with Page(browser, _base(server) + "?mesh=terrain&trajectory=rotate") as page:
+        results = page.page.evaluate(DECODE_IN_PAGE, [(list(ops), old.ravel().tolist(), count, n)
+                                                      for ops, old, count, n in cases])
+    errors = _decoded_alike(cases, results, lambda ops, old, count: opstream.decode(ops, old, count, cases[0][3]))
     assert errors > 200 and len(cases) - errors > 100      # damaged streams refused, real ones decoded
 
 
@@ -314,46 +326,14 @@ DECODE_LINKED_IN_PAGE = """async ([targets, cases]) => {
 def test_the_pages_linked_op_stream_decoder_agrees_with_pythons(browser, terrain_path, make_server):
     """OPS_LINKED streams of a flyover's real deltas, then damaged copies: the page decodes what
     Python decodes, to the same writes, and refuses what Python refuses."""
-    import caveclod
     from caveclod import opstream
-    from caveclod.paths import pose
-    from caveclod.refine.morphtargets import morph_targets
-    from caveclod.server.held import HeldBuffers
-
-    from fuzzing import damage
-    mesh = caveclod.load(terrain_path)
-    targets = morph_targets(mesh)
-    links = opstream.Links(targets)
-    lo, hi = mesh.bounds()
-    cam = mesh.new_camera()
-    held = HeldBuffers(cam.n_materials, (links.targets, opstream.child_ranks(targets)))
-    client = {m: cam.index_buffer(m).copy() for m in range(cam.n_materials)}
-    for m, buf in client.items():
-        held.replace(m, buf)
-    cases = []
-    for f in range(60):
-        p = pose("flyover", lo, hi, 0, f / 5)
-        delta = cam.update(caveclod.View(eye=p.eye, target=p.target, up=p.up, width=800, height=600))
-        for m, d in delta.surfaces.items():
-            cases.append((held.encode(m, d.count, d.slots, d.tris), client[m], d.count))
-            client[m] = cam.index_buffer(m).copy()
-    rng = np.random.default_rng(3)
-    real = [c for c in cases if c[0]]
-    cases += [(damage(real[i % len(real)][0], rng, i),) + real[i % len(real)][1:] for i in range(600)]
     server = make_server(web_port=0)
+    cases, links = _opstream_cases(terrain_path, linked=True)
     with Page(browser, _base(server) + "?mesh=terrain&trajectory=rotate") as page:
-        results = page.page.evaluate(DECODE_LINKED_IN_PAGE, [targets.tolist(), [(list(ops), old.ravel().tolist(), count)
-                                                                                for ops, old, count in cases]])
-    errors = 0
-    for (ops, old, count), got in zip(cases, results):
-        try:
-            slots, tris = opstream.decode_linked(ops, old, count, links)
-        except opstream.OpStreamError:
-            assert isinstance(got, str) and got.startswith("OpStreamError"), "Python refused what the page decoded"
-            errors += 1
-            continue
-        assert not isinstance(got, str), f"the page refused a stream Python decodes: {got}"
-        assert got[0] == slots.tolist() and got[1] == tris.ravel().tolist()
+        results = page.page.evaluate(DECODE_LINKED_IN_PAGE, [links.targets.tolist(),
+                                                             [(list(ops), old.ravel().tolist(), count)
+                                                              for ops, old, count, _ in cases]])
+    errors = _decoded_alike(cases, results, lambda ops, old, count: opstream.decode_linked(ops, old, count, links))
     assert errors > 200 and len(cases) - errors > 100
 
 

@@ -1,4 +1,5 @@
-"""The compact index-buffer delta ("op stream", FRAME_ENCODING_OPS): the encoder.
+"""The compact index-buffer deltas ("op streams", FRAME_ENCODING_OPS and _OPS_LINKED): the
+encoders, and compiled twins of the decoders (the load generator's).
 
 The format is specified in the proto (``SurfaceDelta.ops``) and in
 :mod:`caveclod.opstream`, whose numpy decoder every client can run; this
@@ -13,15 +14,16 @@ last triangle into the hole (a COPY of a triangle the client already holds,
 2-3 bytes); only the faces a split creates are new, and they come in
 pairs that share an edge: the first is NEW (three vertex indices,
 delta-coded against the previous vertex written), the second an EDGE of it
-(one vertex).
+(one vertex). OPS_LINKED names those vertices by the morph targets and by
+the delta's other writes instead (:func:`encode_linked_and_apply`).
 """
 
 import numba as nb
 import numpy as np
 
-# The format's constants, from the module that specifies it: op kinds (CORNER0 + k
-# re-points corner k; EDGE0 + 3 e + p is a triangle on edge e of the previous, NEW one),
-# header bits, and the limits a decoder enforces.
+# The formats' constants, from the module that specifies them: op kinds (CORNER0 + k
+# re-points corner k; EDGE0 + 3 e + p is a triangle on edge e of the previous, NEW one;
+# OPS_LINKED's SPLIT0, MERGE0, ADJ*), header bits, and the limits a decoder enforces.
 from ..opstream import (ADJ, ADJ_TX, ADJ_TY, APPENDED_KINDS, APPENDED_PACK_LIMIT, APPENDED_PER_VARINT, COPY,
                         CORNER0, EDGE0, KIND_BITS, MAX_VARINT_BYTES, MERGE0, N_KINDS, N_LINKED_KINDS, NEW, SPLIT0,
                         Z_CHILD_X, Z_CHILD_Y, Z_DELTA, Z_MODES, Z_WRITE)
@@ -114,6 +116,17 @@ def _put_header(out, n, gap, kind):
 
 
 @nb.njit(cache=True, nogil=True, inline="always")
+def _put_new(out, n, tris, i, last):
+    """NEW's payload: triangle i's three vertices as chained zigzag deltas from ``last``;
+    returns (bytes written so far, the new last vertex)."""
+    for q in range(3):
+        v = np.int64(tris[i, q])
+        n = _put_varint(out, n, _zigzag(v - last))
+        last = v
+    return n, last
+
+
+@nb.njit(cache=True, nogil=True, inline="always")
 def _apply(held, slots, tris):
     """The client applies the writes after reading every source: do the same."""
     for i in range(slots.shape[0]):
@@ -167,10 +180,7 @@ def encode_and_apply(held, old_count, new_count, slots, tris, out):
     for i in range(k):
         kind = kinds[i]
         if kind == NEW:
-            for q in range(3):
-                v = np.int64(tris[i, q])
-                n = _put_varint(out, n, _zigzag(v - last))
-                last = v
+            n, last = _put_new(out, n, tris, i, last)
         elif kind == COPY:
             n = _put_varint(out, n, np.uint64(old_count - 1 - arg[i]))
         elif kind < EDGE0:
@@ -354,10 +364,7 @@ def encode_linked_and_apply(held, old_count, new_count, slots, tris, targets, ra
     for i in range(k):
         kind = kinds[i]
         if kind == NEW:
-            for q in range(3):
-                v = np.int64(tris[i, q])
-                n = _put_varint(out, n, _zigzag(v - last))
-                last = v
+            n, last = _put_new(out, n, tris, i, last)
         elif kind == COPY:
             n = _put_varint(out, n, np.uint64(old_count - 1 - arg[i]))
         elif kind < SPLIT0:
@@ -385,6 +392,31 @@ def _unzigzag(z):
     return (z >> 1) ^ -(z & 1)
 
 
+@nb.njit(cache=True, nogil=True, inline="always")
+def _read_varints(ops):
+    """(values (m,) int64, m): every varint of ``ops`` first (a varint holds at most
+    63 bits); m = 0 for an empty stream, -1 for a cut-off or too long varint."""
+    values = np.empty(len(ops), np.int64)
+    m = 0
+    value = 0
+    shift = 0
+    for i in range(len(ops)):
+        b = np.int64(ops[i])
+        if b < 0x80:
+            values[m] = value | (b << shift)
+            m += 1
+            value = 0
+            shift = 0
+        else:
+            value |= (b & 0x7F) << shift
+            shift += 7
+            if shift >= 7 * MAX_VARINT_BYTES:
+                return values, -1
+    if shift:
+        return values, -1
+    return values, m
+
+
 @nb.njit(cache=True, nogil=True)
 def decode(ops, old, count, n_vertices):
     """The slot writes of one op stream, read against ``old``: the compiled twin of
@@ -401,24 +433,8 @@ def decode(ops, old, count, n_vertices):
     reference decoder refuses.
     """
     bad = (DECODE_MALFORMED, np.zeros(0, np.uint32), np.zeros((0, 3), np.uint32))
-    # Every varint first (int64: a varint holds at most 63 bits).
-    values = np.empty(len(ops), np.int64)
-    m = 0
-    value = 0
-    shift = 0
-    for i in range(len(ops)):
-        b = np.int64(ops[i])
-        if b < 0x80:
-            values[m] = value | (b << shift)
-            m += 1
-            value = 0
-            shift = 0
-        else:
-            value |= (b & 0x7F) << shift
-            shift += 7
-            if shift >= 7 * MAX_VARINT_BYTES:
-                return bad
-    if shift or m == 0:
+    values, m = _read_varints(ops)
+    if m <= 0:
         return bad
     n = values[0]
     if n > m - 1:
@@ -503,23 +519,8 @@ def decode_linked(ops, old, count, targets, child_start, children):
     """
     bad = (DECODE_MALFORMED, np.zeros(0, np.uint32), np.zeros((0, 3), np.uint32))
     n_vertices = targets.shape[0]
-    values = np.empty(len(ops), np.int64)
-    m = 0
-    value = 0
-    shift = 0
-    for i in range(len(ops)):
-        b = np.int64(ops[i])
-        if b < 0x80:
-            values[m] = value | (b << shift)
-            m += 1
-            value = 0
-            shift = 0
-        else:
-            value |= (b & 0x7F) << shift
-            shift += 7
-            if shift >= 7 * MAX_VARINT_BYTES:
-                return bad
-    if shift or m == 0:
+    values, m = _read_varints(ops)
+    if m <= 0:
         return bad
     n = values[0]
     old_count = old.shape[0]
