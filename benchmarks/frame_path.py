@@ -43,7 +43,8 @@ def run(mesh: Path, sessions: int, frames: int) -> dict:
     lo, hi = served.mesh.bounds()
     view = {"fov_y": 60.0, "width": 1280, "height": 720, "tolerance_px": 1.0, "cull": True, "backface": False}
     metrics = Metrics()
-    group = [Session(f"s{i}", served, view, (None, None), 1, 4, 0.05, metrics, ops=True) for i in range(sessions)]
+    group = [Session(f"s{i}", served, view, (None, None), 1, 4, 0.05, metrics,
+                     frame_encoding=pb.FRAME_ENCODING_OPS) for i in range(sessions)]
     generations = [s.attach(0) for s in group]
     spent = {"parse_accept_poll": 0.0, "make_frame": 0.0, "update": 0.0}
     original = CameraState.update_params
