@@ -392,7 +392,9 @@ class Links:
     """
 
     def __init__(self, targets: np.ndarray):
-        self.targets, self.child_start, self.children = _children(targets)
+        # Its own writable copy of the targets: a view of the downloaded payload is
+        # read-only, which the compiled decoder would take as another type to compile.
+        self.targets, self.child_start, self.children = _children(np.array(targets, np.uint32))
 
     @property
     def n_vertices(self) -> int:

@@ -548,3 +548,18 @@ def test_malformed_linked_streams_say_what_is_wrong(data, count, words, decode):
         decode(data, old, count, links)
     with pytest.raises(opstream.OpStreamError):
         compiled_decode_linked(data, old, count, links)
+
+
+def test_links_of_a_read_only_download_need_no_second_compilation():
+    """A vertex buffer's morph targets are a view of the read-only payload; Links keeps its
+    own writable copy, so the load generator's compiled decoder runs the signature
+    compiled_decoding() warmed instead of compiling another one inside the timed run."""
+    payload = np.array([0, 0, 1, 1, 4], np.uint32).tobytes()
+    links = opstream.Links(np.frombuffer(payload, np.uint32))
+    assert links.targets.flags.writeable
+    with opstream.compiled_decoding():
+        before = len(op_kernel.decode_linked.signatures)
+        ops = _linked_round_trip(np.array([[0, 1, 4]], np.uint32), np.array([[0, 2, 4], [2, 0, 3]], np.uint32),
+                                 links.targets)
+        opstream.decode_linked(ops, np.array([[0, 1, 4]], np.uint32), 2, links)
+        assert len(op_kernel.decode_linked.signatures) == before
