@@ -13,10 +13,10 @@ from hypothesis import given, settings, strategies as st
 import caveclod
 from caveclod import opstream
 from caveclod.kernels import opstream as op_kernel
-from caveclod.paths import pose
 from caveclod.server.held import HeldBuffers
 
 import meshes
+from flights import flyover_streams
 from fuzzing import damage
 
 
@@ -182,27 +182,15 @@ def test_real_refinement_deltas_round_trip_and_are_small(terrain_path):
     RAW's 16 bytes a write."""
     sources = [caveclod.load(terrain_path), caveclod.build(meshes.holey_scan(seed=3, n=40))]
     for mesh in sources:
-        lo, hi = mesh.bounds()
         ops_bytes = writes = 0
-        for c in range(4):
-            cam = mesh.new_camera()
-            held = HeldBuffers(cam.n_materials)
-            client = {m: cam.index_buffer(m).copy() for m in range(cam.n_materials)}
-            for m, buf in client.items():
-                held.replace(m, buf)
-            for f in range(120):
-                p = pose("flyover", lo, hi, c, f / 10)
-                delta = cam.update(caveclod.View(eye=p.eye, target=p.target, up=p.up, width=800, height=600))
-                for m, d in delta.surfaces.items():
-                    ops = held.encode(m, d.count, d.slots, d.tris)
-                    slots, tris = opstream.decode(ops, client[m], d.count, mesh.n_vertices)
-                    compiled = compiled_decode(ops, client[m], d.count, mesh.n_vertices)
-                    np.testing.assert_array_equal(compiled[0], slots)
-                    np.testing.assert_array_equal(compiled[1], tris)
-                    client[m] = _apply(client[m], d.count, slots, tris)
-                    np.testing.assert_array_equal(client[m], cam.index_buffer(m))
-                    ops_bytes += len(ops)
-                    writes += len(d.slots)
+        for cam, m, d, old, ops, _ in flyover_streams(mesh):
+            slots, tris = opstream.decode(ops, old, d.count, mesh.n_vertices)
+            compiled = compiled_decode(ops, old, d.count, mesh.n_vertices)
+            np.testing.assert_array_equal(compiled[0], slots)
+            np.testing.assert_array_equal(compiled[1], tris)
+            np.testing.assert_array_equal(_apply(old, d.count, slots, tris), cam.index_buffer(m))
+            ops_bytes += len(ops)
+            writes += len(d.slots)
         assert writes > 500
         assert ops_bytes / writes < 8, f"{ops_bytes / writes:.1f} bytes a write"
 
@@ -471,36 +459,21 @@ def test_each_linked_kind_is_chosen_where_it_is_cheapest():
 def test_real_refinement_deltas_round_trip_linked_and_are_smaller(terrain_path):
     """The flyover of four cameras on the test terrain and a scan with seams: every
     OPS_LINKED delta decodes to the server's buffer with every decoder, in at most 85 %
-    of the OPS bytes (77-81 % here, where a pose moves far and deltas are large; 62 %
-    on the 1M terrain's 30 Hz flyover)."""
+    of the OPS bytes (77-81 % here, where a pose moves far and deltas are large; 58 %
+    on the 1M terrain's 30 Hz flyover: benchmarks/opstream.py)."""
     from caveclod.refine.morphtargets import morph_targets
     sources = [caveclod.load(terrain_path), caveclod.build(meshes.holey_scan(seed=3, n=40))]
     for mesh in sources:
-        lo, hi = mesh.bounds()
-        targets = morph_targets(mesh)
-        links = opstream.Links(targets)
+        links = opstream.Links(morph_targets(mesh))
         ops_bytes = linked_bytes = 0
-        for c in range(4):
-            cam = mesh.new_camera()
-            plain = HeldBuffers(cam.n_materials)
-            linked = HeldBuffers(cam.n_materials, (links.targets, opstream.child_ranks(targets)))
-            client = {m: cam.index_buffer(m).copy() for m in range(cam.n_materials)}
-            for m, buf in client.items():
-                plain.replace(m, buf)
-                linked.replace(m, buf)
-            for f in range(120):
-                p = pose("flyover", lo, hi, c, f / 10)
-                delta = cam.update(caveclod.View(eye=p.eye, target=p.target, up=p.up, width=800, height=600))
-                for m, d in delta.surfaces.items():
-                    ops_bytes += len(plain.encode(m, d.count, d.slots, d.tris))
-                    ops = linked.encode(m, d.count, d.slots, d.tris)
-                    linked_bytes += len(ops)
-                    slots, tris = opstream.decode_linked(ops, client[m], d.count, links)
-                    compiled = compiled_decode_linked(ops, client[m], d.count, links)
-                    np.testing.assert_array_equal(compiled[0], slots)
-                    np.testing.assert_array_equal(compiled[1], tris)
-                    client[m] = _apply(client[m], d.count, slots, tris)
-                    np.testing.assert_array_equal(client[m], cam.index_buffer(m))
+        for cam, m, d, old, plain, ops in flyover_streams(mesh, links):
+            ops_bytes += len(plain)
+            linked_bytes += len(ops)
+            slots, tris = opstream.decode_linked(ops, old, d.count, links)
+            compiled = compiled_decode_linked(ops, old, d.count, links)
+            np.testing.assert_array_equal(compiled[0], slots)
+            np.testing.assert_array_equal(compiled[1], tris)
+            np.testing.assert_array_equal(_apply(old, d.count, slots, tris), cam.index_buffer(m))
         assert ops_bytes > 5000
         assert linked_bytes <= ops_bytes * 0.85, (linked_bytes, ops_bytes)
 

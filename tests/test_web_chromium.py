@@ -252,27 +252,14 @@ def _opstream_cases(terrain_path, linked: bool = False) -> tuple[list, object]:
     streams (``linked``: OPS_LINKED ones, with the mesh's Links), then damaged copies of them."""
     import caveclod
     from caveclod import opstream
-    from caveclod.paths import pose
     from caveclod.refine.morphtargets import morph_targets
-    from caveclod.server.held import HeldBuffers
 
+    from flights import flyover_streams
     from fuzzing import damage
     mesh = caveclod.load(terrain_path)
     links = opstream.Links(morph_targets(mesh)) if linked else None
-    lo, hi = mesh.bounds()
-    cam = mesh.new_camera()
-    held = HeldBuffers(cam.n_materials, (links.targets, opstream.child_ranks(links.targets)) if linked else None)
-    client = {m: cam.index_buffer(m).copy() for m in range(cam.n_materials)}
-    for m, buf in client.items():
-        held.replace(m, buf)
-    cases = []
-    for f in range(60):
-        p = pose("flyover", lo, hi, 0, f / 5)
-        delta = cam.update(caveclod.View(eye=p.eye, target=p.target, up=p.up, width=800, height=600))
-        for m, d in delta.surfaces.items():
-            ops = held.encode(m, d.count, d.slots, d.tris)
-            cases.append((ops, client[m], d.count, mesh.n_vertices))
-            client[m] = cam.index_buffer(m).copy()
+    cases = [(linked_ops if linked else ops, old, d.count, mesh.n_vertices)
+             for _, _, d, old, ops, linked_ops in flyover_streams(mesh, links, cameras=1, frames=60, step=0.2)]
     rng = np.random.default_rng(1)
     real = [c for c in cases if c[0]]
     for i in range(600):
