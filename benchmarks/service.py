@@ -764,38 +764,41 @@ def main() -> int:
         kinds = args.server_transport.split(",")           # serve --transport: the first is "this"
         decoders = args.loadtest_decoder.split(",")
         encodings = args.frame_encoding.split(",")
-        servers = [("this", None, 1, levels, transports[0], kinds[0], decoders[0], encodings[0])]
+        # (name, the list its runs go to, capacity()'s keywords): this server, then each
+        # variant of it that the options ask for, measured at every level in turn.
+        this = {"command": None, "server_processes": 1, "transport": transports[0], "server_transport": kinds[0],
+                "decoder": decoders[0], "encoding": encodings[0]}
+        servers = [("this", levels, this)]
+
+        def variant(name: str, into: list, **changes) -> None:
+            servers.append((name, into, {**this, **changes}))
+
         by_transport = {t: [] for t in transports[1:]}
         for t in transports[1:]:            # the same server under another load generator
-            servers.append((f"this, loadtest {t}", None, 1, by_transport[t], t, kinds[0], decoders[0], encodings[0]))
+            variant(f"this, loadtest {t}", by_transport[t], transport=t)
         by_decoder = {d: [] for d in decoders[1:]}
         for d in decoders[1:]:              # the same server, the load generator decoding otherwise
-            servers.append((f"this, loadtest --decoder {d}", None, 1, by_decoder[d], transports[0], kinds[0], d,
-                            encodings[0]))
+            variant(f"this, loadtest --decoder {d}", by_decoder[d], decoder=d)
         by_encoding = {e: [] for e in encodings[1:]}
         for e in encodings[1:]:             # the same server, the sessions asking for another frame encoding
-            servers.append((f"this, --frame-encoding {e}", None, 1, by_encoding[e], transports[0], kinds[0],
-                            decoders[0], e))
+            variant(f"this, --frame-encoding {e}", by_encoding[e], encoding=e)
         by_kind = {k: [] for k in kinds[1:]}
         for k in kinds[1:]:                 # the same server over another transport
-            servers.append((f"serve --transport {k}", None, 1, by_kind[k], transports[0], k, decoders[0],
-                            encodings[0]))
+            variant(f"serve --transport {k}", by_kind[k], server_transport=k)
         multi = {k: [] for k in kinds}
         if args.server_processes > 1:       # the same server as N processes (caveclod serve --processes N)
             for k in kinds:
-                servers.append((f"processes {args.server_processes}" + (f", --transport {k}" if len(kinds) > 1 else ""),
-                                None, args.server_processes, multi[k], transports[0], k, decoders[0], encodings[0]))
+                variant(f"processes {args.server_processes}" + (f", --transport {k}" if len(kinds) > 1 else ""),
+                        multi[k], server_processes=args.server_processes, server_transport=k)
         if args.baseline:          # an older checkout's server, run right after ours at each level
-            servers.append(("baseline", [sys.executable, "-c", "import sys; sys.path.insert(0, sys.argv.pop(1)); "
-                                         "from caveclod.cli import main; sys.exit(main())", args.baseline, "serve"],
-                            1, baseline, transports[0], "grpc", decoders[0], encodings[0]))
+            variant("baseline", baseline, server_transport="grpc",
+                    command=[sys.executable, "-c", "import sys; sys.path.insert(0, sys.argv.pop(1)); "
+                             "from caveclod.cli import main; sys.exit(main())", args.baseline, "serve"])
         for repeat in range(args.repeats):       # interleaved: the machine's drift hits every server alike
             for n in (int(x) for x in args.sessions.split(",")):
-                for name, command, nproc, into, transport, kind, decoder, encoding in servers:
-                    r = capacity(mesh, n, args.duration, command=command, processes=args.loadtest_processes,
-                                 encoding=encoding, connections=args.connections,
-                                 server_processes=nproc, transport=transport, server_transport=kind,
-                                 decoder=decoder)
+                for name, into, how in servers:
+                    r = capacity(mesh, n, args.duration, processes=args.loadtest_processes,
+                                 connections=args.connections, **how)
                     r.update(server=name, repeat=repeat)
                     into.append(r)
                     print(f"{name} {n:3d} sessions: p50 {r['latency_ms']['p50']} ms  p99 {r['latency_ms']['p99']} ms  "
@@ -808,9 +811,9 @@ def main() -> int:
                           f" ms), loadtest "
                           f"{r['client_cpu_cores']} ({r['client_cpu_ms_per_frame']} ms a frame), others "
                           f"{r['other_cpu_cores']}", file=sys.stderr)
-        out["summary"] = {name: medians(into) for name, _, _, into, *_ in servers}
+        out["summary"] = {name: medians(into) for name, into, _ in servers}
         plot([r for r in levels if r["repeat"] == 0], path.with_name(f"{path.stem}_latency.png"),
-             {name: medians(into, rows=True) for name, _, _, into, *_ in servers[1:]}, medians(levels, rows=True))
+             {name: medians(into, rows=True) for name, into, _ in servers[1:]}, medians(levels, rows=True))
         for name, rows in out["summary"].items():
             for row in rows:
                 print(f"median {name} {row['sessions']:3d}: {row}", file=sys.stderr)
