@@ -226,8 +226,9 @@ def encode_linked_and_apply(held, old_count, new_count, slots, tris, targets, ra
     is the old one's target (a collapse), MERGE. A new triangle becomes ADJ
     where another write of the delta holds one of its edges, reversed (the
     faces around a split share edges with the faces it re-points or makes),
-    when that is shorter: the nearest such write, and the shortest of six
-    names of the third vertex.
+    when that is shorter: the nearest such write, and the shortest name of
+    the third vertex (ADJ_TX and ADJ_TY name a target of an end of the edge
+    by the kind alone).
 
     Args (besides :func:`encode_and_apply`'s):
         targets: (d,) uint32 morph targets (a vertex's own index without one).
