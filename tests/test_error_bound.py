@@ -4,9 +4,10 @@ For each mesh, cameras at several views refine until they converge; then
 :func:`caveclod.refine.measure.pixel_errors` measures, renderer-free, how far
 every original position in view lies from the triangles the camera draws,
 in pixels. At a tolerance of t pixels the 99th percentile must stay within
-t and the maximum within 1.5 t: on rough terrain with holes, a range scan
-with an open border, holes and a cut-up UV atlas, seam meshes, and the
-smooth terrain.
+t and the maximum within 1.5 t (1.25 t for points of the drawn surface
+against the original): on rough terrain with holes, a range scan with an
+open border, holes and a cut-up UV atlas, seam meshes, and the smooth
+terrain.
 
 The distance kernels behind the measurement (and the build's own error
 measurement) are checked against plainly written references first.
@@ -119,8 +120,9 @@ def originals(meshes):
 @pytest.mark.parametrize("tolerance", [1.0, 3.0])
 def test_drawn_surface_stays_within_the_tolerance(meshes, originals, name, tolerance):
     """The other direction (issue 18's two-sided bound): points of the drawn triangles (18 a
-    triangle, none of them a point the build measured) against the original surface. Without the
-    build's measure of it (caveclod.kernels.surfacegap) 7 of these 16 cases failed, up to 2.7 t."""
+    triangle, none of them a point the build measured) against the original surface, max within
+    1.25 t. Without the build's measure of it (caveclod.kernels.surfacegap) 7 of these 16 cases
+    failed 1.5 t, up to 2.7 t."""
     from caveclod.refine.measure import surface_errors
     mesh = meshes(name)
     errors = [surface_errors(mesh, converged(mesh, view).triangles(), originals(name), view)
@@ -128,7 +130,9 @@ def test_drawn_surface_stays_within_the_tolerance(meshes, originals, name, toler
     px = np.concatenate(errors)
     assert len(px) > 500, "the views see too little of the mesh to say anything"
     assert np.percentile(px, 99) <= tolerance, f"p99 {np.percentile(px, 99):.3f} px at {tolerance} px"
-    assert px.max() <= 1.5 * tolerance, f"max {px.max():.3f} px at {tolerance} px"
+    # Issue 18's 1.25 t. Before new edges were measured at more than their midpoints
+    # (caveclod.kernels.surfacegap.edge_gap2) the scan reached 1.48 t here; now at most 0.98 t.
+    assert px.max() <= 1.25 * tolerance, f"max {px.max():.3f} px at {tolerance} px"
     assert (px > 0.1 * tolerance).any(), "the drawn surface lies on the original: the test would not see a bad bound"
 
 

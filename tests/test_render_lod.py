@@ -147,7 +147,7 @@ def test_one_pixel_tolerance_differs_slightly(gl, built):
     over larger triangles). Asserted: pixels more than 32 levels off lie
     within 2 px of such an edge of the original image (1 px of error, 1 of
     rasterisation), but for 0.05 % of the image; PSNR >= 35 dB; and the LOD
-    really is coarser (at most 60 % of the faces)."""
+    really is coarser (at most 65 % of the faces)."""
     W, H = 320, 240
     mesh = built.mesh
     with built.renderer(gl, W, H) as lod, built.renderer(gl, W, H) as original:
@@ -165,7 +165,9 @@ def test_one_pixel_tolerance_differs_slightly(gl, built):
             off_edges = float((strong & ~edge_band(b)).mean())
             print(f"\n1 px, t={t}: {cam.n_faces} of {mesh.n_faces} faces; {stats}; "
                   f"> 32 levels: {strong.mean():.4%}, of which off edges: {off_edges:.4%}")
-            assert cam.n_faces <= 0.6 * mesh.n_faces
+            # Coarser, not the original redrawn: the small scan draws 50-60 % of its faces here
+            # (57 % before new edges were measured at up to 7 points), the terrains 10-36 %.
+            assert cam.n_faces <= 0.65 * mesh.n_faces
             assert 0 < stats["fraction_differing"] and stats["psnr_db"] >= 35.0
             assert off_edges <= 0.0005
 

@@ -20,7 +20,7 @@ from caveclod.builder.hierarchy import build_static_mesh
 from caveclod.builder.topology import face_neighbours
 from caveclod.kernels.carried import new_store
 from caveclod.kernels.nearest import build_bvh, nearest_dist2
-from caveclod.kernels.surfacegap import sample_gap2, star_lists
+from caveclod.kernels.surfacegap import EDGE_HALVINGS, _piece_bound2, edge_gap2, sample_gap2, star_lists
 from caveclod.paths import flyover
 
 from meshes import holey_scan
@@ -104,3 +104,74 @@ def test_never_below_the_true_distance_on_rough_surfaces_with_holes(seed, holes)
     got = _gaps(P, FP, S, starts)
     exact = _surface(P, FP)[3](S)
     assert (got >= exact * (1 - 1e-9) - 1e-12).all()
+
+
+def _heightfield(z):
+    """(P, FP): the grid of heights ``z`` (n, n), one unit apart, two triangles a cell."""
+    n = z.shape[0]
+    x, y = np.meshgrid(np.arange(n, dtype=np.float64), np.arange(n, dtype=np.float64))
+    P = np.c_[x.ravel(), y.ravel(), z.ravel()]
+    i = (np.arange(n - 1)[:, None] * n + np.arange(n - 1)[None, :]).ravel()
+    FP = np.concatenate([np.c_[i, i + 1, i + n + 1], np.c_[i, i + n + 1, i + n]]).astype(np.int32)
+    return P, FP
+
+
+def _edge_gaps(P, FP, edges, worst=0.0):
+    start, faces, nbrs, _ = _surface(P, FP)
+    pt_head, pt = new_store(len(FP), len(P))
+    pieces = np.empty((EDGE_HALVINGS + 3, 5))
+    ends = np.empty((EDGE_HALVINGS + 3, 2), np.int64)
+    return np.array([edge_gap2(int(t), int(x), 0, P, pt_head, pt, FP, nbrs, start, faces, worst, pieces, ends)
+                     for t, x in edges])
+
+
+def _along_edges(P, edges, w):
+    """(k, len(w), 3) points a fraction w of the way along each edge."""
+    a, b = P[edges[:, 0]], P[edges[:, 1]]
+    return a[:, None] + np.asarray(w)[None, :, None] * (b - a)[:, None]
+
+
+def test_a_ridge_near_an_end_of_an_edge_is_found():
+    """A straight coarse edge over flat ground passes under a ridge a fifth of the way along: its
+    midpoint lies on the original surface (gap 0, all the build used to measure), the largest gap
+    sits near the ridge. Regression: the rough terrain drew edges like it at 1.3-1.4 t."""
+    z = np.zeros((11, 11))
+    z[:, 1:4] = [1.5, 3.0, 1.5]                       # a ridge along x = 2
+    P, FP = _heightfield(z)
+    edge = np.array([[5 * 11 + 0, 5 * 11 + 10]])      # from (0, 5) to (10, 5), height 0
+    dense = np.sqrt(_surface(P, FP)[3](_along_edges(P, edge, np.linspace(0, 1, 401))[0])).max()
+    midpoint = np.sqrt(_gaps(P, FP, _along_edges(P, edge, [0.5])[0], edge[:, 0]))[0]
+    assert midpoint == pytest.approx(0.0, abs=1e-12)
+    got = np.sqrt(_edge_gaps(P, FP, edge))[0]
+    assert got >= 0.7 * dense, f"found {got:.3f} of the edge's largest gap {dense:.3f}"
+
+
+@settings(max_examples=30, deadline=None)
+@given(seed=st.integers(0, 2**32 - 1), holes=st.floats(0.0, 0.3))
+def test_edges_are_measured_at_their_quarters_at_least(seed, holes):
+    """Random rough heightfields with holes, edges between any two positions: the gap reported
+    for an edge is at least the true gap at its quarter, half and three-quarter points (each is
+    either measured or covered by a piece's bound), and a piece's bound is at least the true gap
+    everywhere on the piece (the convexity it rests on)."""
+    rng = np.random.default_rng(seed)
+    P, FP = _heightfield(rng.normal(0.0, rng.uniform(0.1, 3.0), (9, 9)))
+    FP = FP[rng.random(len(FP)) >= holes]
+    if len(FP) == 0:
+        return
+    used = np.unique(FP)
+    edges = rng.choice(used, (24, 2))
+    edges = edges[edges[:, 0] != edges[:, 1]]
+    exact = _surface(P, FP)[3]
+    got = _edge_gaps(P, FP, edges)
+    want = exact(_along_edges(P, edges, [0.25, 0.5, 0.75]).reshape(-1, 3)).reshape(-1, 3).max(axis=1)
+    assert (got >= want * (1 - 1e-9) - 1e-12).all()
+    start, faces, _, _ = _surface(P, FP)
+    w = np.linspace(0.0, 1.0, 33)
+    for t, x in edges[:8]:
+        wa, wb = np.sort(rng.uniform(0, 1, 2))
+        ga = -1 if rng.random() < 0.3 else int(rng.integers(len(FP)))
+        gb = -1 if rng.random() < 0.3 else int(rng.integers(len(FP)))
+        wa, wb = (0.0 if ga == -1 else wa), (1.0 if gb == -1 else wb)
+        bound = _piece_bound2(wa, wb, ga, gb, int(t), int(x), P, FP, start, faces)
+        inside = _along_edges(P, np.array([[t, x]]), wa + w * (wb - wa))[0]
+        assert bound >= exact(inside).max() * (1 - 1e-9) - 1e-12

@@ -9,9 +9,10 @@ face (measured on the smooth built-in terrain, benchmarks/error.py: points
 of drawn faces up to 4.6 px from the original surface at a tolerance of
 1 px, every original position within it).
 
-So every collapse also measures what it made new: the midpoint of each
-new edge (from t to u's old ring) and the centroid of each face it
-reshaped (u's faces, whose corner u became t). Each sample walks from a
+So every collapse also measures what it made new: each new edge (from t
+to u's old ring) at its midpoint and, where a piece of it may hide a
+larger gap, at more points (:func:`edge_gap2`), and the centroid of each
+face it reshaped (u's faces, whose corner u became t). Each sample walks from a
 near original position over the original mesh's edges to the position
 nearest to it, then from the faces around that position across faces'
 edges to the nearest original face it can reach; a walk that ends at a
@@ -29,7 +30,8 @@ measured with, by the collapse that made them; its node is a child of this
 one or the current node of a position of the new ring, and both feed this
 node's error (children's errors and saturation), so new ones are enough.
 The samples are points, not the whole face: between them the gap can be
-larger (``benchmarks/error.py`` measures the drawn surface at other points).
+larger (``benchmarks/error.py`` measures the drawn surface at other points),
+unless a piece's bound (:func:`_piece_bound2`) rules it out.
 """
 
 import math
@@ -41,24 +43,33 @@ from .carried import NEXT
 from .distance import point_triangle_dist2
 from .fans import corner_of
 
-EDGE_SAMPLES = (0.5,)
-"""Where along a new edge the build measures it (with each new face's centroid).
+EDGE_HALVINGS = 2
+"""How many times :func:`edge_gap2` may halve the pieces of a new edge: at most
+1 + 2 + 4 = 7 points measured along it.
 
-Its thirds instead of its midpoint made the 1M terrain's build 1.7 s slower
-on one core (12.6 s against 10.9). Sampling long edges about every original
-edge length (at most 8 points) and large faces at 3 more points lowered the
-largest LOD -> original error of benchmarks/error.py from 1.36 to 1.19 t
-on the rough terrain at 1 px (1.14 to 1.12 on the smooth one, 1.25 to 1.18
-on the scan) for 0.5-8 % more faces, but made the 1M terrains' builds
-2.2-3.9 s slower on one core (a quarter): not kept. Tried again once the
-walks stopped at the first point within the error (2026-11-27): an odd
-number of samples a new edge, about one every original edge length (the
-longest at t) up to 7, and faces whose centroid lies over two such lengths
-from its corners measured halfway to each corner too. The rough 256 terrain
-at 1 px went from 1.36 to 1.29 t, the scan at 1 px from 1.25 to 1.18, but
-the scan at 0.5 px from 1.39 to 1.48 (a different tree), with 0-4 % more
-faces: 8 of the 12 pairs within 1.25 t, as before, for 28 % more CPU in the
-1M rough terrain's build. Not kept."""
+The build used to measure a new edge at its midpoint only. On the rough
+terrain the largest gaps of drawn edges sat elsewhere (where the nearest
+original face changes: a straight coarse edge passing over a ridge peaks
+near the ridge, which may be a fifth of the way along), and the drawn
+surface reached 1.36-1.40 t at 0.5 and 1 px (benchmarks/error.py,
+``--size 256``). Halving up to twice, with the bound of
+:func:`_piece_bound2` sparing pieces that cannot exceed the gap found so
+far, brought all 12 meshes and tolerances of that benchmark within 1.18 t
+(1.23 t with one halving) for 0.5-3 % more faces, and cost 20-25 % more
+CPU in the 1M rough terrain's build (6.8 s against 5.5 s). Sampling
+without the bound was tried twice before and not kept: long edges about
+every original edge length (at most 8 points) and large faces at 3 more
+points (rough terrain at 1 px 1.36 -> 1.19 t, builds a quarter slower),
+and an odd number of samples an edge up to 7 with walks stopping at the
+first point within the error (1.36 -> 1.29 t, the scan at 0.5 px 1.39 ->
+1.48 t: 8 of 12 within 1.25 t, 28 % more CPU). Faces' interiors were never
+where the largest gap was found (their 6 inner check points against 12 on
+edges), so a face is still measured at its centroid only."""
+
+HALVE_ABOVE = 0.5
+"""After the first halving, a piece is halved again only if the gap at one of its ends exceeds
+this share of the largest gap found so far: an edge whose measured points all lie well within
+it is left there (the 1M rough terrain's build: 6.8 s of CPU, 7.2 s halving every piece twice)."""
 
 MAX_STEPS = 4096
 """Most steps of each of a sample's walks, over positions and then faces (a walk
@@ -170,27 +181,28 @@ def _walk(q, d1, sx, sy, sz, P, face_pos, face_nbrs, star_start, star_faces, wor
 
 
 @nb.njit(cache=True, nogil=True)
-def sample_gap2(sx, sy, sz, start, f, P, pt_head, pt, face_pos, face_nbrs, star_start, star_faces, worst):
-    """Squared distance from sample s to the original surface, if more than
-    ``worst`` (squared); ``worst`` otherwise.
+def nearest_face2(sx, sy, sz, start, f, P, pt_head, pt, face_pos, face_nbrs, star_start, star_faces, worst):
+    """(squared distance, face): an original face near sample s and s's squared distance to it,
+    which is at least s's gap to the original surface; a face within ``worst`` (squared) of s if
+    the walks find one (then not necessarily the nearest), else the nearest they reach.
 
     Walks from the original position ``start`` over the original mesh's edges
     to the nearest position it can reach, then measures the original faces
     around it and walks across faces' edges while a face is nearer. A walk
     that ends on a face with a border edge may have stopped short of the
     sample at a hole or a border: it starts again from the nearest point
-    coarse face ``f`` carries.
+    coarse face ``f`` carries. The face is -1 only if the walk reached a
+    position with no face (then the distance is that position's).
     """
     q, d1 = _walk(start, _dist2(start, sx, sy, sz, P), sx, sy, sz, P, face_pos, face_nbrs, star_start, star_faces,
                   worst)
-    if d1 <= worst:
-        return worst
     gap, g = _surface_dist2(q, sx, sy, sz, P, face_pos, face_nbrs, star_start, star_faces, worst)
-    gap = min(d1, gap)
+    if g == -1:
+        return d1, -1
     if gap <= worst:
-        return worst
-    if g >= 0 and face_nbrs[g, 0] >= 0 and face_nbrs[g, 1] >= 0 and face_nbrs[g, 2] >= 0:
-        return gap               # nothing stopped the walk: a border edge is what can
+        return gap, g
+    if face_nbrs[g, 0] >= 0 and face_nbrs[g, 1] >= 0 and face_nbrs[g, 2] >= 0:
+        return gap, g            # nothing stopped the walk: a border edge is what can
     x = pt_head[f]
     q2, d2 = q, d1
     while x != -1:
@@ -200,10 +212,95 @@ def sample_gap2(sx, sy, sz, start, f, P, pt_head, pt, face_pos, face_nbrs, star_
         x = pt[x, NEXT]
     if q2 != q:
         q2, d2 = _walk(q2, d2, sx, sy, sz, P, face_pos, face_nbrs, star_start, star_faces, worst)
-        gap = min(gap, d2)
-        if gap > worst:
-            gap = min(gap, _surface_dist2(q2, sx, sy, sz, P, face_pos, face_nbrs, star_start, star_faces, worst)[0])
+        gap2, g2 = _surface_dist2(q2, sx, sy, sz, P, face_pos, face_nbrs, star_start, star_faces, worst)
+        if g2 != -1 and gap2 < gap:
+            gap, g = gap2, g2
+    return gap, g
+
+
+@nb.njit(cache=True, nogil=True)
+def sample_gap2(sx, sy, sz, start, f, P, pt_head, pt, face_pos, face_nbrs, star_start, star_faces, worst):
+    """Squared distance from sample s to the original surface, if more than
+    ``worst`` (squared); ``worst`` otherwise (:func:`nearest_face2`'s walks)."""
+    gap = nearest_face2(sx, sy, sz, start, f, P, pt_head, pt, face_pos, face_nbrs, star_start, star_faces, worst)[0]
     return max(gap, worst)
+
+
+@nb.njit(cache=True, nogil=True, inline="always")
+def _along(w, t, x, P):
+    """The point a fraction ``w`` of the way from position t to position x."""
+    return ((1.0 - w) * P[t, 0] + w * P[x, 0], (1.0 - w) * P[t, 1] + w * P[x, 1],
+            (1.0 - w) * P[t, 2] + w * P[x, 2])
+
+
+@nb.njit(cache=True, nogil=True)
+def _piece_bound2(wa, wb, ga, gb, t, x, P, face_pos, star_start, star_faces):
+    """Squared upper bound of the gap over the piece [wa, wb] of edge t-x.
+
+    The distance to one original face (a convex set) is a convex function
+    along a segment, so over the piece it is at most the larger of its values
+    at the piece's ends; the gap is at most the distance to any face. The
+    least such bound over the faces found at the ends: ``ga`` and ``gb``, or
+    where one is -1 (an end of the edge, an original position) every face
+    around that position, which holds it (distance 0 there).
+    """
+    ax, ay, az = _along(wa, t, x, P)
+    bx, by, bz = _along(wb, t, x, P)
+    best = np.inf
+    for side in range(2):
+        g = ga if side == 0 else gb
+        if g >= 0:
+            best = min(best, max(_tri_dist2(g, ax, ay, az, P, face_pos), _tri_dist2(g, bx, by, bz, P, face_pos)))
+            continue
+        q = t if side == 0 else x
+        ox, oy, oz = (bx, by, bz) if side == 0 else (ax, ay, az)
+        for j in range(star_start[q], star_start[q + 1]):
+            best = min(best, _tri_dist2(star_faces[j], ox, oy, oz, P, face_pos))
+    return best
+
+
+@nb.njit(cache=True, nogil=True)
+def edge_gap2(t, x, f, P, pt_head, pt, face_pos, face_nbrs, star_start, star_faces, worst, pieces, faces):
+    """The larger of ``worst`` and the gap (squared) measured along the edge t-x.
+
+    The midpoint is measured (:func:`nearest_face2`), then the halves on
+    either side of a measured point are halved again (at most
+    :data:`EDGE_HALVINGS` times) while a half may hide a larger gap: unless
+    a half's bound (:func:`_piece_bound2`, from the faces found at its ends)
+    is within ``worst``, and unless its ends both lie within
+    :data:`HALVE_ABOVE` of ``worst`` (the edge is then far from the largest
+    gap). ``f`` is a coarse face with the edge (its carried points restart
+    walks stopped by holes); ``pieces`` (k, 5) float64 (ends, halvings,
+    squared gaps at the ends) and ``faces`` (k, 2) int64 (the faces at the
+    ends; -1 at the edge's own ends), k > :data:`EDGE_HALVINGS` + 1: the
+    stack of pieces still to look at.
+    """
+    pieces[0, 0], pieces[0, 1], pieces[0, 2], pieces[0, 3], pieces[0, 4] = 0.0, 1.0, 0.0, 0.0, 0.0
+    faces[0, 0], faces[0, 1] = -1, -1
+    n = 1
+    while n > 0:
+        n -= 1
+        wa, wb, depth, da, db = pieces[n, 0], pieces[n, 1], pieces[n, 2], pieces[n, 3], pieces[n, 4]
+        ga, gb = faces[n, 0], faces[n, 1]
+        if depth > EDGE_HALVINGS or (depth > 1 and max(da, db) <= HALVE_ABOVE * HALVE_ABOVE * worst):
+            continue
+        if depth > 0 and _piece_bound2(wa, wb, ga, gb, t, x, P, face_pos, star_start, star_faces) <= worst:
+            continue
+        wm = 0.5 * (wa + wb)
+        sx, sy, sz = _along(wm, t, x, P)
+        start = face_pos[ga, 0] if ga >= 0 else t
+        gap, gm = nearest_face2(sx, sy, sz, start, f, P, pt_head, pt, face_pos, face_nbrs, star_start, star_faces,
+                                worst)
+        worst = max(worst, gap)
+        if gm == -1:
+            continue
+        pieces[n, 0], pieces[n, 1], pieces[n, 2], pieces[n, 3], pieces[n, 4] = wm, wb, depth + 1.0, gap, db
+        faces[n, 0], faces[n, 1] = gm, gb
+        pieces[n + 1, 0], pieces[n + 1, 1], pieces[n + 1, 2], pieces[n + 1, 3], pieces[n + 1, 4] = \
+            wa, wm, depth + 1.0, da, gap
+        faces[n + 1, 0], faces[n + 1, 1] = ga, gm
+        n += 2
+    return worst
 
 
 @nb.njit(cache=True, nogil=True)
@@ -212,15 +309,17 @@ def reshaped_gap(t, fan_u, nu, fl, fr, vl, vr, F, P, pt_head, pt, face_pos, face
     """The largest gap (not squared) of what a collapse onto ``t`` made new, at least ``floor``.
 
     New are the edges from t to u's old ring (but vl and vr, whose edges to
-    t existed: :data:`EDGE_SAMPLES` of each) and the interiors of u's faces
-    (``fan_u[:nu]``, all but ``fl`` and ``fr`` surviving with t in u's place:
-    their centroids). Every other edge and face keeps the shape it was
+    t existed: bounded whole, :func:`edge_gap2`) and the interiors of u's
+    faces (``fan_u[:nu]``, all but ``fl`` and ``fr`` surviving with t in u's
+    place: their centroids, a sample). Every other edge and face keeps the shape it was
     measured with, by the collapse that made it, whose node is a child of
     this one or the current node of a position of the new ring (both feed
     this node's error: children's errors and saturation). ``mark`` (e,)
     int64 with ``stamp`` (never used before) lists each ring position once.
     """
     worst = floor * floor
+    pieces = np.empty((EDGE_HALVINGS + 3, 5))
+    faces = np.empty((EDGE_HALVINGS + 3, 2), np.int64)
     for i in range(nu):
         f = fan_u[i]
         if f == fl or f == fr:
@@ -230,12 +329,8 @@ def reshaped_gap(t, fan_u, nu, fl, fr, vl, vr, F, P, pt_head, pt, face_pos, face
             if x == vl or x == vr or mark[x] == stamp:
                 continue
             mark[x] = stamp
-            for w in EDGE_SAMPLES:
-                sx = (1.0 - w) * P[t, 0] + w * P[x, 0]
-                sy = (1.0 - w) * P[t, 1] + w * P[x, 1]
-                sz = (1.0 - w) * P[t, 2] + w * P[x, 2]
-                worst = sample_gap2(sx, sy, sz, t if w < 0.5 else x, f, P, pt_head, pt, face_pos, face_nbrs,
-                                    star_start, star_faces, worst)
+            worst = edge_gap2(t, x, f, P, pt_head, pt, face_pos, face_nbrs, star_start, star_faces, worst,
+                              pieces, faces)
         a, b, c = F[f, 0], F[f, 1], F[f, 2]
         sx = (P[a, 0] + P[b, 0] + P[c, 0]) / 3.0
         sy = (P[a, 1] + P[b, 1] + P[c, 1]) / 3.0
