@@ -19,7 +19,7 @@ DEFAULT_SIZE = 256
 def build(source, *, cell_size: float = 1.0, z_scale: float = 1.0, materials=None,
           crease_angle: float | None = None, size: int = DEFAULT_SIZE, seed: int | None = None, nodata: float | None = None,
           weld: float | None = None, progress: bool = False, tiles: int | None = None,
-          workers: int | None = None, packed: bool = True) -> StaticMesh:
+          workers: int | None = None, packed: bool = True, check_memory: bool = True) -> StaticMesh:
     """Build the static CAVECLOD mesh of ``source``.
 
     Args:
@@ -54,14 +54,20 @@ def build(source, *, cell_size: float = 1.0, z_scale: float = 1.0, materials=Non
             targets), kept in the mesh's attachments and its file, so that a
             server need not pack it when it starts
             (:func:`caveclod.vertexpack.attach_packed`).
+        check_memory: refuse (:class:`InputError`) an input whose build
+            would not fit in the memory available
+            (:mod:`caveclod.builder.memory`), before the work starts.
     """
     from .builder.hierarchy import build_static_mesh
+    from .builder.memory import check_build_memory
     from .builder.tiles import check_tiles
     _check_options(crease_angle=crease_angle, cell_size=cell_size, z_scale=z_scale)
     _check_workers(workers)
     check_tiles(tiles)
     src = to_source(source, cell_size=cell_size, z_scale=z_scale, materials=materials, size=size, seed=seed,
-                    nodata=nodata)
+                    nodata=nodata, check_memory=check_memory)
+    if check_memory:
+        check_build_memory(len(src.faces), _input_name(source, size))
     if weld is not None:
         from .builder.weld import weld_positions
         src = weld_positions(src, weld)
@@ -107,10 +113,39 @@ def load(path: str | os.PathLike) -> StaticMesh:
     return _load_file(path)
 
 
+def _input_name(source, size) -> str:
+    """How a build's error messages name its input."""
+    from .builder.builtin import BUILTINS
+    if isinstance(source, str) and source in BUILTINS:
+        return f"the built-in {source!r} at --size {size}"
+    if isinstance(source, (str, os.PathLike)):
+        return Path(source).name
+    if isinstance(source, np.ndarray):
+        return "the heightfield"
+    return "the mesh"
+
+
+def _grid_triangles(shape) -> int:
+    """Triangles of a heightfield of ``shape`` samples with no holes (two a cell): what its
+    build may need memory for, known before the mesh is made."""
+    rows, cols = shape[:2]
+    return 2 * max(rows - 1, 0) * max(cols - 1, 0)
+
+
 def to_source(source, *, cell_size=1.0, z_scale=1.0, materials=None, size=DEFAULT_SIZE, seed=None,
-              nodata=None) -> SourceMesh:
-    """Turn any accepted ``source`` into a validated :class:`SourceMesh`."""
+              nodata=None, check_memory: bool = False) -> SourceMesh:
+    """Turn any accepted ``source`` into a validated :class:`SourceMesh`.
+
+    ``check_memory``: refuse a heightfield or built-in terrain whose build
+    would not fit in memory from its grid's size alone, before its mesh
+    (itself about 100 bytes a triangle) is made.
+    """
     from .builder import builtin, meshfile, terrain
+    from .builder.memory import check_build_memory
+
+    def check_grid(triangles):
+        if check_memory:
+            check_build_memory(triangles, _input_name(source, size))
     if isinstance(source, SourceMesh):
         source.validate()
         return source
@@ -118,11 +153,14 @@ def to_source(source, *, cell_size=1.0, z_scale=1.0, materials=None, size=DEFAUL
         _refuse_heightfield_options(f"the built-in {source!r}", cell_size, z_scale, materials, nodata)
         if not isinstance(size, (int, np.integer)) or not 2 <= size <= 8192:
             raise InputError(f"--size must be an integer between 2 and 8192 cells, got {size!r}")
+        if source in builtin.TERRAINS:
+            check_grid(_grid_triangles((size + 1, size + 1)))
         return builtin.BUILTINS[source](int(size)) if seed is None else builtin.BUILTINS[source](int(size), seed)
     if isinstance(source, (str, os.PathLike)):
         path = Path(source)
         if path.suffix.lower() in HEIGHTFIELD_SUFFIXES:
             heights = terrain.load_heightfield(path, nodata=nodata)
+            check_grid(_grid_triangles(heights.shape))
             classes = None
             if materials is not None:
                 classes = terrain.load_material_map(materials) if isinstance(materials, (str, os.PathLike)) \
@@ -131,6 +169,7 @@ def to_source(source, *, cell_size=1.0, z_scale=1.0, materials=None, size=DEFAUL
         _refuse_heightfield_options(f"the mesh file {path.name}", cell_size, z_scale, materials, nodata)
         return meshfile.load_mesh_file(path)
     if isinstance(source, np.ndarray):
+        check_grid(_grid_triangles(source.shape))
         return terrain.heightfield_to_source(source, cell_size=cell_size, z_scale=z_scale,
                                              materials=None if materials is None else np.asarray(materials))
     try:

@@ -92,6 +92,9 @@ def _parser() -> argparse.ArgumentParser:
                                              "65,536-131,072 faces a tile; 1: no tiles)")
     b.add_argument("--workers", type=int, help="threads of the build (default: the cores, at most 8); the file is the "
                                                "same whatever their number")
+    b.add_argument("--no-memory-check", action="store_true",
+                   help="build even if the input looks too large for the memory available (by default such a build "
+                        "is refused before it starts: it needs about 340 bytes per input triangle)")
     b.add_argument("--quiet", action="store_true", help="no progress on stderr")
     b.set_defaults(run=_build)
 
@@ -344,7 +347,8 @@ def _build(args) -> int:
     from .api import build
     mesh = build(args.input, cell_size=args.cell_size, z_scale=args.z_scale, materials=args.materials,
                  crease_angle=args.crease_angle, size=args.size, seed=args.seed, nodata=args.nodata, weld=args.weld,
-                 progress=not args.quiet, tiles=args.tiles, workers=args.workers)
+                 progress=not args.quiet, tiles=args.tiles, workers=args.workers,
+                 check_memory=not args.no_memory_check)
     _save(mesh, args.output)
     report = mesh.summary()
     report["output"] = args.output

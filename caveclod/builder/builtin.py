@@ -552,3 +552,6 @@ def _drop_unused(source: SourceMesh) -> SourceMesh:
 
 BUILTINS = {"default": default_terrain, "rough": rough_terrain, "scan": range_scan, "debris": debris_field}
 """Built-in sources by name: ``(size, seed) -> SourceMesh``."""
+
+TERRAINS = ("default", "rough")
+"""Built-ins that are heightfields of ``size`` x ``size`` cells: at most two triangles a cell."""
