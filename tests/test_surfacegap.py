@@ -119,8 +119,8 @@ def _heightfield(z):
 def _edge_gaps(P, FP, edges, worst=0.0):
     start, faces, nbrs, _ = _surface(P, FP)
     pt_head, pt = new_store(len(FP), len(P))
-    pieces = np.empty((EDGE_HALVINGS + 3, 5))
-    ends = np.empty((EDGE_HALVINGS + 3, 2), np.int64)
+    pieces = np.empty((EDGE_HALVINGS + 1, 5))
+    ends = np.empty((EDGE_HALVINGS + 1, 2), np.int64)
     return np.array([edge_gap2(int(t), int(x), 0, P, pt_head, pt, FP, nbrs, start, faces, worst, pieces, ends)
                      for t, x in edges])
 

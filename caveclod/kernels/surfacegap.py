@@ -267,13 +267,13 @@ def edge_gap2(t, x, f, P, pt_head, pt, face_pos, face_nbrs, star_start, star_fac
     either side of a measured point are halved again (at most
     :data:`EDGE_HALVINGS` times) while a half may hide a larger gap: unless
     a half's bound (:func:`_piece_bound2`, from the faces found at its ends)
-    is within ``worst``, and unless its ends both lie within
-    :data:`HALVE_ABOVE` of ``worst`` (the edge is then far from the largest
-    gap). ``f`` is a coarse face with the edge (its carried points restart
+    is within ``worst``, and, past the first halving, unless the gaps at its
+    ends are both within :data:`HALVE_ABOVE` of ``worst`` (it is then far
+    from the largest gap). ``f`` is a coarse face with the edge (its carried points restart
     walks stopped by holes); ``pieces`` (k, 5) float64 (ends, halvings,
     squared gaps at the ends) and ``faces`` (k, 2) int64 (the faces at the
-    ends; -1 at the edge's own ends), k > :data:`EDGE_HALVINGS` + 1: the
-    stack of pieces still to look at.
+    ends; -1 at the edge's own ends), k > :data:`EDGE_HALVINGS`: the stack
+    of pieces still to look at.
     """
     pieces[0, 0], pieces[0, 1], pieces[0, 2], pieces[0, 3], pieces[0, 4] = 0.0, 1.0, 0.0, 0.0, 0.0
     faces[0, 0], faces[0, 1] = -1, -1
@@ -282,7 +282,7 @@ def edge_gap2(t, x, f, P, pt_head, pt, face_pos, face_nbrs, star_start, star_fac
         n -= 1
         wa, wb, depth, da, db = pieces[n, 0], pieces[n, 1], pieces[n, 2], pieces[n, 3], pieces[n, 4]
         ga, gb = faces[n, 0], faces[n, 1]
-        if depth > EDGE_HALVINGS or (depth > 1 and max(da, db) <= HALVE_ABOVE * HALVE_ABOVE * worst):
+        if depth > 1 and max(da, db) <= HALVE_ABOVE * HALVE_ABOVE * worst:
             continue
         if depth > 0 and _piece_bound2(wa, wb, ga, gb, t, x, P, face_pos, star_start, star_faces) <= worst:
             continue
@@ -292,7 +292,7 @@ def edge_gap2(t, x, f, P, pt_head, pt, face_pos, face_nbrs, star_start, star_fac
         gap, gm = nearest_face2(sx, sy, sz, start, f, P, pt_head, pt, face_pos, face_nbrs, star_start, star_faces,
                                 worst)
         worst = max(worst, gap)
-        if gm == -1:
+        if gm == -1 or depth >= EDGE_HALVINGS:
             continue
         pieces[n, 0], pieces[n, 1], pieces[n, 2], pieces[n, 3], pieces[n, 4] = wm, wb, depth + 1.0, gap, db
         faces[n, 0], faces[n, 1] = gm, gb
@@ -318,8 +318,8 @@ def reshaped_gap(t, fan_u, nu, fl, fr, vl, vr, F, P, pt_head, pt, face_pos, face
     int64 with ``stamp`` (never used before) lists each ring position once.
     """
     worst = floor * floor
-    pieces = np.empty((EDGE_HALVINGS + 3, 5))
-    faces = np.empty((EDGE_HALVINGS + 3, 2), np.int64)
+    pieces = np.empty((EDGE_HALVINGS + 1, 5))
+    faces = np.empty((EDGE_HALVINGS + 1, 2), np.int64)
     for i in range(nu):
         f = fan_u[i]
         if f == fl or f == fr:
