@@ -19,9 +19,9 @@ per-frame jumps over all cameras, and the share of frames over 0.25 px.
 Camera motion is not a jump (the surfaces are compared in world space);
 a morphing vertex moves a little every frame, a popping one all at once.
 
-    .venv/bin/python benchmarks/geomorph.py [--size 708] [--frames 300] [--durations 0 250 500 1000]
+    .venv/bin/python benchmarks/geomorph.py [--size 708] [--frames 300] [--durations 0 250 500 1000] [--out F]
 
-Writes benchmarks/results/geomorph.json and geomorph.png.
+Writes benchmarks/results/geomorph.json (or ``--out``) and a .png beside it.
 """
 
 from __future__ import annotations
@@ -159,6 +159,7 @@ def main() -> int:
     ap.add_argument("--frames", type=int, default=300)
     ap.add_argument("--durations", type=float, nargs="+", default=[0, 250, 500, 1000], help="morph ms (0: none)")
     ap.add_argument("--meshes", nargs="+", default=["default", "rough"])
+    ap.add_argument("--out", type=Path, default=RESULTS / "geomorph.json", help="the JSON to write (and a .png beside)")
     args = ap.parse_args()
     import caveclod
     from caveclod.refine.morphtargets import morph_targets
@@ -178,10 +179,10 @@ def main() -> int:
                   f"max {row['max_px']:.3f} px, {100 * row['over_0_25_px']:.1f} % of frames over 0.25 px; "
                   f"client {row['client_ms_per_camera_frame']} ms a camera-frame",
                   file=sys.stderr)
-    RESULTS.mkdir(parents=True, exist_ok=True)
-    (RESULTS / "geomorph.json").write_text(json.dumps({"tolerance_px": TOLERANCE, "cameras": CAMERAS,
-                                                       "fps": FPS, "results": results}, indent=1))
-    plot(results, RESULTS / "geomorph.png")
+    args.out.parent.mkdir(parents=True, exist_ok=True)
+    args.out.write_text(json.dumps({"tolerance_px": TOLERANCE, "cameras": CAMERAS, "fps": FPS, "results": results},
+                                   indent=1))
+    plot(results, args.out.with_suffix(".png"))
     return 0
 
 
