@@ -633,7 +633,8 @@ def shared_mesh(mesh: Path, sessions: int, duration: float) -> dict:
 
 
 MEDIAN_KEYS = ("p50", "p99", "frames_per_second", "steady_server_refine_ms_per_frame",
-               "steady_server_other_ms_per_frame", "client_cpu_ms_per_frame", "bytes_per_frame",
+               "steady_server_other_ms_per_frame", "server_refine_ms_per_frame", "server_other_ms_per_frame",
+               "client_cpu_ms_per_frame", "bytes_per_frame",
                "bytes_per_changed_triangle", "bytes_per_changed_triangle_steady", "server_cpu_cores",
                "client_cpu_cores", "other_cpu_cores", "divergences")
 
@@ -652,10 +653,15 @@ def medians(runs: list, rows: bool = False) -> list:
         row["errors"] = sum(sum(r["errors"].values()) for r in mine)
         if rows:
             row["latency_ms"] = {"p50": row["p50"], "p99": row["p99"]}
-            row["server_refine_ms_per_frame"] = row["steady_server_refine_ms_per_frame"] or 0.0
-            row["server_other_ms_per_frame"] = row["steady_server_other_ms_per_frame"] or 0.0
         out.append(row)
     return out
+
+
+def _server_ms_per_frame(r: dict, kind: str) -> float:
+    """The server's CPU a frame (``kind`` "refine" or "other") in steady state, or over the whole
+    run where a run was too short for a steady window (the key is then absent, or None in medians)."""
+    steady = r.get(f"steady_server_{kind}_ms_per_frame")
+    return steady if steady is not None else r[f"server_{kind}_ms_per_frame"]
 
 
 def plot(levels: list, path: Path, others: dict | None = None, summary: list | None = None) -> None:
@@ -683,8 +689,8 @@ def plot(levels: list, path: Path, others: dict | None = None, summary: list | N
         colour = f"C{k}"
         bx.plot(n, [r["latency_ms"]["p99"] for r in rs], "o-", color=colour, label=f"{name} p99")
         bx.plot(n, [r["latency_ms"]["p50"] for r in rs], "o:", color=colour, label=f"{name} p50")
-        refine = [r.get("steady_server_refine_ms_per_frame", r["server_refine_ms_per_frame"]) for r in rs]
-        other = [r.get("steady_server_other_ms_per_frame", r["server_other_ms_per_frame"]) for r in rs]
+        refine = [_server_ms_per_frame(r, "refine") for r in rs]
+        other = [_server_ms_per_frame(r, "other") for r in rs]
         cx.plot(n, [a + b for a, b in zip(refine, other)], "o-", color=colour, label=f"{name}: all")
         cx.plot(n, other, "o:", color=colour, label=f"{name}: outside refinement")
         dx.plot(n, [r["client_cpu_ms_per_frame"] for r in rs], "o-", color=colour, label=name)
