@@ -20,7 +20,7 @@ from caveclod.builder.hierarchy import build_static_mesh
 from caveclod.builder.topology import face_neighbours
 from caveclod.kernels.carried import new_store
 from caveclod.kernels.nearest import build_bvh, nearest_dist2
-from caveclod.kernels.surfacegap import EDGE_HALVINGS, _piece_bound2, edge_gap2, sample_gap2, star_lists
+from caveclod.kernels.surfacegap import _piece_bound2, edge_gap2, edge_stack, sample_gap2, star_lists
 from caveclod.paths import flyover
 
 from meshes import holey_scan
@@ -119,8 +119,7 @@ def _heightfield(z):
 def _edge_gaps(P, FP, edges, worst=0.0):
     start, faces, nbrs, _ = _surface(P, FP)
     pt_head, pt = new_store(len(FP), len(P))
-    pieces = np.empty((EDGE_HALVINGS + 1, 5))
-    ends = np.empty((EDGE_HALVINGS + 1, 2), np.int64)
+    pieces, ends = edge_stack()
     return np.array([edge_gap2(int(t), int(x), 0, P, pt_head, pt, FP, nbrs, start, faces, worst, pieces, ends)
                      for t, x in edges])
 

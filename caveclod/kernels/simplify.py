@@ -60,7 +60,7 @@ import numpy as np
 from .bounds import cone_add_cone, quadric_add_plane, quadric_eval, sphere_add_sphere
 from .carried import remeasure
 from .fans import collect_fan, corner_of, replace_in_row
-from .surfacegap import reshaped_gap
+from .surfacegap import edge_stack, reshaped_gap
 
 FREE, SHARP, RIGID = 0, 1, 2
 BOUNDARY_WEIGHT = 4.0   # keep borders and seams in place, relative to area
@@ -469,6 +469,7 @@ def perform_collapses(P, F, N, vface, alive, fgroup, pclass, fixed, pg_start, pg
     fan_u = np.empty(4096, np.int32)
     fan_t = np.empty(4096, np.int32)
     heads = np.empty(4096, np.int32)
+    pieces, ends = edge_stack()
     if nc == 0:
         return m
     # The cheapest ``fraction`` of the ranked collapses are made first (the
@@ -515,7 +516,7 @@ def perform_collapses(P, F, N, vface, alive, fgroup, pclass, fixed, pg_start, pg
             # (dev) and the reshaped coarse faces to the original surface.
             counter[0] += 1
             err[s - e] = reshaped_gap(t, fan_u, nu, fl, fr, vl, vr, F, P, pt_head, pt, face_pos, face_nbrs,
-                                      star_start, star_faces, mark, counter[0], dev)
+                                      star_start, star_faces, mark, counter[0], dev, pieces, ends)
             # Each point lies within dev of a fan face, and the fan lies in
             # the sphere: growing it by dev makes it hold every point charged
             # to s.

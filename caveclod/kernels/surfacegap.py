@@ -260,6 +260,12 @@ def _piece_bound2(wa, wb, ga, gb, t, x, P, face_pos, star_start, star_faces):
 
 
 @nb.njit(cache=True, nogil=True)
+def edge_stack():
+    """(pieces, faces): empty scratch for :func:`edge_gap2`, made once per caller, not once an edge."""
+    return np.empty((EDGE_HALVINGS + 1, 5)), np.empty((EDGE_HALVINGS + 1, 2), np.int64)
+
+
+@nb.njit(cache=True, nogil=True)
 def edge_gap2(t, x, f, P, pt_head, pt, face_pos, face_nbrs, star_start, star_faces, worst, pieces, faces):
     """The larger of ``worst`` and the gap (squared) measured along the edge t-x.
 
@@ -305,7 +311,7 @@ def edge_gap2(t, x, f, P, pt_head, pt, face_pos, face_nbrs, star_start, star_fac
 
 @nb.njit(cache=True, nogil=True)
 def reshaped_gap(t, fan_u, nu, fl, fr, vl, vr, F, P, pt_head, pt, face_pos, face_nbrs, star_start, star_faces,
-                 mark, stamp, floor):
+                 mark, stamp, floor, pieces, faces):
     """The largest gap (not squared) of what a collapse onto ``t`` made new, at least ``floor``.
 
     New are the edges from t to u's old ring (but vl and vr, whose edges to
@@ -316,10 +322,9 @@ def reshaped_gap(t, fan_u, nu, fl, fr, vl, vr, F, P, pt_head, pt, face_pos, face
     this one or the current node of a position of the new ring (both feed
     this node's error: children's errors and saturation). ``mark`` (e,)
     int64 with ``stamp`` (never used before) lists each ring position once.
+    ``pieces``, ``faces``: :func:`edge_gap2`'s stack (:func:`edge_stack`).
     """
     worst = floor * floor
-    pieces = np.empty((EDGE_HALVINGS + 1, 5))
-    faces = np.empty((EDGE_HALVINGS + 1, 2), np.int64)
     for i in range(nu):
         f = fan_u[i]
         if f == fl or f == fr:
