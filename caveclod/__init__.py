@@ -35,6 +35,7 @@ from .errors import CaveclodError, FileFormatError, InputError
 
 _LAZY = {
     "build": ".api",
+    "build_tiles": ".api",
     "load": ".api",
     "StaticMesh": ".staticmesh",
     "View": ".refine.view",
@@ -44,7 +45,7 @@ _LAZY = {
     "CachedCamera": ".refine.cachedcamera",
 }
 
-__all__ = ["build", "load", "StaticMesh", "View", "CameraState", "Delta", "SurfaceDelta", "CachedCamera",
+__all__ = ["build", "build_tiles", "load", "StaticMesh", "View", "CameraState", "Delta", "SurfaceDelta", "CachedCamera",
            "CaveclodError", "InputError", "FileFormatError"]
 __version__ = "0.1.0"
 

@@ -19,7 +19,8 @@ DEFAULT_SIZE = 256
 def build(source, *, cell_size: float = 1.0, z_scale: float = 1.0, materials=None,
           crease_angle: float | None = None, size: int = DEFAULT_SIZE, seed: int | None = None, nodata: float | None = None,
           weld: float | None = None, progress: bool = False, tiles: int | None = None,
-          workers: int | None = None, packed: bool = True, check_memory: bool = True) -> StaticMesh:
+          workers: int | None = None, packed: bool = True, check_memory: bool = True,
+          tiles_dir: str | os.PathLike | None = None) -> StaticMesh:
     """Build the static CAVECLOD mesh of ``source``.
 
     Args:
@@ -57,8 +58,52 @@ def build(source, *, cell_size: float = 1.0, z_scale: float = 1.0, materials=Non
         check_memory: refuse (:class:`InputError`) an input whose build
             would not fit in the memory available
             (:mod:`caveclod.builder.memory`), before the work starts.
+        tiles_dir: a directory of first-level tiles made by
+            :func:`build_tiles` jobs, read instead of made (the file is the
+            same; tiles missing there are made here).
     """
     from .builder.hierarchy import build_static_mesh
+    from .builder.tilestore import TileStore
+    store = None if tiles_dir is None else TileStore(Path(tiles_dir))
+    src = _prepared_source(source, cell_size=cell_size, z_scale=z_scale, materials=materials, crease_angle=crease_angle,
+                           size=size, seed=seed, nodata=nodata, weld=weld, tiles=tiles, workers=workers,
+                           check_memory=check_memory)
+    mesh = build_static_mesh(src, crease_angle=crease_angle, progress=progress, tiles=tiles, workers=workers,
+                             store=store)
+    if packed:
+        from .vertexpack import attach_packed
+        attach_packed(mesh, progress=progress)
+    return mesh
+
+
+def build_tiles(source, tiles_dir: str | os.PathLike, job: str | tuple[int, int], *, cell_size: float = 1.0,
+                z_scale: float = 1.0, materials=None, crease_angle: float | None = None, size: int = DEFAULT_SIZE,
+                seed: int | None = None, nodata: float | None = None, weld: float | None = None,
+                progress: bool = False, tiles: int | None = None, workers: int | None = None,
+                check_memory: bool = True) -> dict:
+    """Make one tile job's share of ``source``'s first-level tiles and write them to ``tiles_dir``.
+
+    ``job``: ``"I/N"`` or (I, N), this job's index and the number of jobs;
+    the job makes the tiles whose number modulo N is I (tiles already in
+    the directory, from an earlier try, are kept). A :func:`build` with the
+    same ``source`` and options and ``tiles_dir`` then reads them and writes
+    the same file as a build in one process; see
+    :mod:`caveclod.builder.tilestore`. The other arguments are
+    :func:`build`'s. Returns a report (tiles written, found, seconds).
+    """
+    from .builder.hierarchy import build_tile_job
+    from .builder.tilestore import TileStore, parse_job
+    job = parse_job(f"{job[0]}/{job[1]}" if isinstance(job, tuple) else job)
+    store = TileStore(Path(tiles_dir), job=job)
+    src = _prepared_source(source, cell_size=cell_size, z_scale=z_scale, materials=materials, crease_angle=crease_angle,
+                           size=size, seed=seed, nodata=nodata, weld=weld, tiles=tiles, workers=workers,
+                           check_memory=check_memory)
+    return build_tile_job(src, store, crease_angle=crease_angle, progress=progress, tiles=tiles, workers=workers)
+
+
+def _prepared_source(source, *, cell_size, z_scale, materials, crease_angle, size, seed, nodata, weld, tiles, workers,
+                     check_memory) -> SourceMesh:
+    """The options checked, then ``source`` as a (welded) :class:`SourceMesh` that fits in memory."""
     from .builder.memory import check_build_memory
     from .builder.tiles import check_tiles
     _check_options(crease_angle=crease_angle, cell_size=cell_size, z_scale=z_scale)
@@ -71,11 +116,7 @@ def build(source, *, cell_size: float = 1.0, z_scale: float = 1.0, materials=Non
     if weld is not None:
         from .builder.weld import weld_positions
         src = weld_positions(src, weld)
-    mesh = build_static_mesh(src, crease_angle=crease_angle, progress=progress, tiles=tiles, workers=workers)
-    if packed:
-        from .vertexpack import attach_packed
-        attach_packed(mesh, progress=progress)
-    return mesh
+    return src
 
 
 def _check_workers(workers) -> None:

@@ -18,7 +18,7 @@ import argparse
 import json
 import sys
 
-from .errors import CaveclodError
+from .errors import CaveclodError, InputError
 from .server.config import DEFAULT_MAX_SESSIONS, default_checked_dir
 
 DEFAULT_MORPH_MS = 500.0     # geomorph duration of render, view and demo (benchmarks/geomorph.py)
@@ -72,7 +72,7 @@ def _parser() -> argparse.ArgumentParser:
     b.add_argument("input", help="mesh file (OBJ, PLY, GLB/glTF, STL, OFF), heightfield (.npy, 16-bit .png/.tif) or a "
                                  "built-in: 'default' (smooth terrain), 'rough' (rough terrain with no-data holes), "
                                  "'scan' (a range scan), 'debris' (20 x --size small parts)")
-    b.add_argument("-o", "--output", required=True, help="the .cvc file to write")
+    b.add_argument("-o", "--output", help="the .cvc file to write (required but with --tile-job)")
     b.add_argument("--json", action="store_true", help="print the build report as one JSON object on stdout")
     b.add_argument("--size", type=int, default=256, help="cells per side of a built-in (default 256: 131,072 "
                                                          "triangles of the default terrain)")
@@ -92,6 +92,13 @@ def _parser() -> argparse.ArgumentParser:
                                              "65,536-131,072 faces a tile; 1: no tiles)")
     b.add_argument("--workers", type=int, help="threads of the build (default: the cores, at most 8); the file is the "
                                                "same whatever their number")
+    b.add_argument("--tiles-dir", help="directory of first-level tiles shared by separate build jobs: with "
+                                       "--tile-job, this job's tiles are written there; without, tiles found there "
+                                       "are read instead of made (the file is the same as without)")
+    b.add_argument("--tile-job", metavar="I/N", help="be job I of N tile jobs (e.g. a Kubernetes Indexed Job's "
+                                                     "completion index): make first-level tiles I, I+N, ... into "
+                                                     "--tiles-dir and stop; then run the build with --tiles-dir and "
+                                                     "-o to merge them")
     b.add_argument("--no-memory-check", action="store_true",
                    help="build even if the input looks too large for the memory available (by default such a build "
                         "is refused before it starts: it needs about 340 bytes per input triangle)")
@@ -344,11 +351,20 @@ def _loadtest(args) -> int:
 
 
 def _build(args) -> int:
-    from .api import build
-    mesh = build(args.input, cell_size=args.cell_size, z_scale=args.z_scale, materials=args.materials,
-                 crease_angle=args.crease_angle, size=args.size, seed=args.seed, nodata=args.nodata, weld=args.weld,
-                 progress=not args.quiet, tiles=args.tiles, workers=args.workers,
-                 check_memory=not args.no_memory_check)
+    from .api import build, build_tiles
+    options = dict(cell_size=args.cell_size, z_scale=args.z_scale, materials=args.materials,
+                   crease_angle=args.crease_angle, size=args.size, seed=args.seed, nodata=args.nodata, weld=args.weld,
+                   progress=not args.quiet, tiles=args.tiles, workers=args.workers,
+                   check_memory=not args.no_memory_check)
+    if args.tile_job is not None:
+        if args.tiles_dir is None or args.output is not None:
+            raise InputError("--tile-job writes tiles, not a .cvc: give it --tiles-dir and no -o (the merge, "
+                             "'caveclod build INPUT --tiles-dir DIR -o OUT.cvc', writes the file)")
+        _print(build_tiles(args.input, args.tiles_dir, args.tile_job, **options), args.json)
+        return 0
+    if args.output is None:
+        raise InputError("-o/--output is required: the .cvc file to write")
+    mesh = build(args.input, tiles_dir=args.tiles_dir, **options)
     _save(mesh, args.output)
     report = mesh.summary()
     report["output"] = args.output

@@ -42,7 +42,8 @@ K8S = DEPLOY / "k8s"
 DOCKERFILE = DEPLOY / "Dockerfile"
 COMPOSE = DEPLOY / "compose.yaml"
 TEMPLATE = DEPLOY / "nginx" / "caveclod.conf.template"
-MANIFESTS = ("namespace.yaml", "caveclod.yaml", "balancer.yaml", "autoscaling.yaml")
+MANIFESTS = ("namespace.yaml", "caveclod.yaml", "balancer.yaml", "autoscaling.yaml", "build-tiles.yaml",
+             "build-merge.yaml")
 K8S_VERSIONS = ("1.27.0", "1.37.0")
 
 
@@ -126,6 +127,12 @@ def _serve_commands() -> dict:
             "StatefulSet caveclod": _container(sts, "caveclod")["args"]}
 
 
+def _build_jobs() -> tuple[dict, dict]:
+    """The tile jobs' Indexed Job and the merge Job (deploy/k8s/build-*.yaml)."""
+    k8s = _k8s()
+    return k8s["Job", "caveclod-build-tiles"], k8s["Job", "caveclod-build-merge"]
+
+
 def _server_lines(text: str) -> list[tuple[str, int, list[str]]]:
     """(host, port, parameters) of each `server HOST:PORT ...;` in an nginx snippet."""
     out = []
@@ -150,7 +157,7 @@ def test_manifests_validate_against_the_kubernetes_schemas():
             for doc in _docs(K8S / name):
                 kv.validate(doc, version, strict=True)
                 count += 1
-    assert count == 2 * 8
+    assert count == 2 * 11
     # A field Kubernetes does not know is refused (strict), as is a wrong type.
     sts = _k8s()["StatefulSet", "caveclod"]
     _container(sts, "caveclod")["readinessProbe"]["grpcc"] = {"port": 50051}
@@ -207,6 +214,42 @@ def test_every_serve_command_line_parses_with_the_real_cli():
         _parse(["serve", "/meshes/terrain.cvc", "--drain-second", "20"])
     with pytest.raises(AssertionError, match="rejects"):
         _parse(["serve", "/meshes/terrain.cvc", "--max-sessions", "many"])
+
+
+def test_build_jobs_parse_and_agree_with_each_other(tmp_path):
+    """The Indexed Job's pods and the merge build the same input with the same options (the tiles'
+    fingerprint would refuse anything else, but only once the pods had run), index by index."""
+    from caveclod.builder.tilestore import parse_job
+    tiles, merge = _build_jobs()
+    assert tiles["spec"]["completionMode"] == "Indexed"
+    (pod,) = tiles["spec"]["template"]["spec"]["containers"]
+    (env,) = [v for v in pod["env"] if v["name"] == "TILE_JOB_INDEX"]
+    assert env["valueFrom"]["fieldRef"]["fieldPath"] == \
+        "metadata.annotations['batch.kubernetes.io/job-completion-index']"
+    argv = pod["args"]
+    job = argv[argv.index("--tile-job") + 1]
+    assert job == f"$(TILE_JOB_INDEX)/{tiles['spec']['completions']}", job
+    for index in (0, tiles["spec"]["completions"] - 1):
+        a = _parse([w.replace("$(TILE_JOB_INDEX)", str(index)) for w in argv])
+        assert parse_job(a.tile_job) == (index, tiles["spec"]["completions"])
+        assert a.tiles_dir and a.output is None
+    (merger,) = merge["spec"]["template"]["spec"]["containers"]
+    m = _parse(merger["args"])
+    assert m.tile_job is None and m.output and m.tiles_dir == a.tiles_dir
+    same = ("input", "size", "seed", "cell_size", "z_scale", "materials", "nodata", "crease_angle", "weld", "tiles")
+    assert {k: getattr(a, k) for k in same} == {k: getattr(m, k) for k in same}
+    assert pod["image"] == merger["image"], "the tiles' fingerprint holds the code: one image for both"
+    # Both write to and read from the one shared claim, mounted where the paths point.
+    for obj, c in ((tiles, pod), (merge, merger)):
+        (vol,) = obj["spec"]["template"]["spec"]["volumes"]
+        assert vol["persistentVolumeClaim"]["claimName"] == "caveclod-build-data"
+        (mount,) = c["volumeMounts"]
+        assert m.tiles_dir.startswith(mount["mountPath"] + "/") and m.output.startswith(mount["mountPath"] + "/")
+    assert _k8s()["PersistentVolumeClaim", "caveclod-build-data"]["spec"]["accessModes"] == ["ReadWriteMany"]
+    # A merge whose input differs from the pods' is caught here.
+    merger["args"][merger["args"].index("4096")] = "2048"
+    m = _parse(merger["args"])
+    assert {k: getattr(a, k) for k in same} != {k: getattr(m, k) for k in same}
 
 
 def test_ports_agree_with_the_serve_flags():
@@ -371,7 +414,8 @@ def test_template_placeholders_are_filled_everywhere():
     (volume,) = balancer["spec"]["template"]["spec"]["volumes"]
     assert volume["configMap"]["name"] == generator["name"] and volume["name"] == mount["name"]
     assert all((DEPLOY / r).is_file() for r in kustomization["resources"])
-    assert sorted(kustomization["resources"]) == sorted(f"k8s/{m}" for m in MANIFESTS)
+    # The serving stack; the build jobs are applied on their own, when a mesh is built.
+    assert sorted(kustomization["resources"]) == sorted(f"k8s/{m}" for m in MANIFESTS if not m.startswith("build-"))
     # Every placeholder is replaced; nginx's own variables are left alone.
     text = render_template(CAVECLOD_LISTEN="127.0.0.1:1", CAVECLOD_RESOLVER="",
                            CAVECLOD_UPSTREAM_SERVERS="server 127.0.0.1:2;")

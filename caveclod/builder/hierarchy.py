@@ -28,33 +28,27 @@ from .source import SourceMesh
 from ..staticmesh import StaticMesh
 from .surfaces import RIGID, corner_vertices, layout_surfaces
 from .tiles import positions_left_to_merge, tile_grid, tiles_per_side
+from .tilestore import TileStore, apply_rows, fingerprint, tile_rows
 from .topology import Topology, count_components, face_neighbours
 
 PASS_FRACTION = 0.5   # share of ranked collapses a pass may make (shallower tree)
 
 
 def build_static_mesh(source: SourceMesh, crease_angle: float | None = None, progress: bool = False,
-                      tiles: int | None = None, workers: int | None = None) -> StaticMesh:
+                      tiles: int | None = None, workers: int | None = None,
+                      store: TileStore | None = None) -> StaticMesh:
     """Run the whole offline build; see the module docstring.
 
     ``crease_angle`` (degrees) applies where the source has no normals;
     None takes the source's own default (``SourceMesh.crease_angle``).
     ``tiles`` (per side, a power of two; None chooses by size) and
     ``workers`` (threads; None: the cores) are :func:`collapse_all`'s; the
-    file does not depend on ``workers``.
+    file does not depend on ``workers``. ``store``: first-level tiles made
+    by tile jobs (:func:`build_tile_job`) are read from it.
     """
     t0 = time.perf_counter()
-    source.validate()
-    face_pos = source.face_positions.astype(np.int32)       # once: 0.2 s a gather at 2M faces
-    _refuse_faces_float32_collapses(source, face_pos)
-    stage(f"preparing {len(source.faces):,} triangles: normals, topology, surface groups", progress)
-    source, topo = prepare_source(source, crease_angle, face_pos)
-    lay = layout_surfaces(face_pos, source.faces.astype(np.int32), source.face_material, topo.nbrs,
-                          topo.nonmanifold, len(source.positions))
-    if max(lay.n_sgids, len(source.materials)) > 65535:
-        raise InputError(f"{lay.n_sgids:,} surface group ids and {len(source.materials):,} materials: at most "
-                         "65,535 of each fit the .cvc format; merge materials before building")
-    hier = collapse_all(source.positions, face_pos, topo, lay, progress, tiles=tiles, workers=workers)
+    source, face_pos, topo, lay = _prepare(source, crease_angle, progress)
+    hier = collapse_all(source.positions, face_pos, topo, lay, progress, tiles=tiles, workers=workers, store=store)
     mesh = StaticMesh(arrays=static_arrays(source, face_pos, lay, hier), materials=list(source.materials))
     mesh.info = {
         "build_seconds": round(time.perf_counter() - t0, 3),
@@ -66,9 +60,40 @@ def build_static_mesh(source: SourceMesh, crease_angle: float | None = None, pro
         "base_mesh": _base_mesh_reasons(hier, face_pos, topo, lay, source.face_material),
         "notes": list(source.notes),
     }
+    if store is not None:
+        mesh.info["tiles_read"] = len(store.loaded)
+        mesh.info["tiles_made"] = len(store.made)
     if mesh.info["base_mesh"]["large"]:
         mesh.info["notes"].append(mesh.info["base_mesh"]["why"])
     return mesh
+
+
+def build_tile_job(source: SourceMesh, store: TileStore, crease_angle: float | None = None, progress: bool = False,
+                   tiles: int | None = None, workers: int | None = None) -> dict:
+    """Make and write this job's first-level tiles (``store.job``); see
+    :mod:`caveclod.builder.tilestore`. Returns a report: tiles written, tiles
+    found already written (a retried job), the grid and the seconds."""
+    t0 = time.perf_counter()
+    source, face_pos, topo, lay = _prepare(source, crease_angle, progress)
+    collapse_all(source.positions, face_pos, topo, lay, progress, tiles=tiles, workers=workers, store=store)
+    return {"tiles_dir": str(store.path), "job": list(store.job), "tiles_written": len(store.made),
+            "tiles_found": len(store.loaded), "tiles_per_side": tiles_per_side(len(face_pos), tiles),
+            "input_triangles": len(face_pos), "seconds": round(time.perf_counter() - t0, 3)}
+
+
+def _prepare(source: SourceMesh, crease_angle, progress) -> tuple:
+    """(source with normals, face_pos (p, 3) int32, topology, surface layout), checked."""
+    source.validate()
+    face_pos = source.face_positions.astype(np.int32)       # once: 0.2 s a gather at 2M faces
+    _refuse_faces_float32_collapses(source, face_pos)
+    stage(f"preparing {len(source.faces):,} triangles: normals, topology, surface groups", progress)
+    source, topo = prepare_source(source, crease_angle, face_pos)
+    lay = layout_surfaces(face_pos, source.faces.astype(np.int32), source.face_material, topo.nbrs,
+                          topo.nonmanifold, len(source.positions))
+    if max(lay.n_sgids, len(source.materials)) > 65535:
+        raise InputError(f"{lay.n_sgids:,} surface group ids and {len(source.materials):,} materials: at most "
+                         "65,535 of each fit the .cvc format; merge materials before building")
+    return source, face_pos, topo, lay
 
 
 @dataclass
@@ -107,7 +132,8 @@ class Hierarchy:
 
 
 def collapse_all(positions: np.ndarray, face_pos: np.ndarray, topo: Topology, lay, progress: bool,
-                 tiles: int | None = None, workers: int | None = None) -> Hierarchy:
+                 tiles: int | None = None, workers: int | None = None,
+                 store: TileStore | None = None) -> Hierarchy | None:
     """Collapse pass after pass until no legal collapse is left.
 
     With a grid of tiles (:mod:`caveclod.builder.tiles`; ``tiles`` per side,
@@ -117,6 +143,10 @@ def collapse_all(positions: np.ndarray, face_pos: np.ndarray, topo: Topology, la
     afterwards, so the result does not depend on ``workers``. A level of one
     tile (the last, or the only one of a small mesh) ranks on every thread,
     each over its own share of the positions, and collapses on one.
+
+    ``store`` (:mod:`caveclod.builder.tilestore`): first-level tiles found
+    there are read instead of made; for a tile job (``store.job``), only
+    that job's first-level tiles are made and written, and None returned.
     """
     e, p = len(positions), len(face_pos)
     P = np.ascontiguousarray(positions, dtype=np.float64)
@@ -139,6 +169,9 @@ def collapse_all(positions: np.ndarray, face_pos: np.ndarray, topo: Topology, la
         fixed=topo.nonmanifold, face_pos=face_pos, face_nbrs=topo.nbrs, star_start=star_start, star_faces=star_faces)
     workers = max(1, min(os.cpu_count() or 1, 8)) if workers is None else max(1, int(workers))
     grid = tile_grid(P, face_pos, tiles_per_side(p, tiles))
+    if store is not None:
+        store.key = fingerprint((P, face_pos, lay.face_group, lay.position_class, lay.pos_vstart, lay.vertex_group,
+                                 topo.nonmanifold), grid.per_side)
     scratch: queue.SimpleQueue = queue.SimpleQueue()      # (mark, stamp counter) per thread at work
     for _ in range(workers):
         scratch.put((np.full(e, -1, np.int64), np.zeros(1, np.int64)))
@@ -149,6 +182,9 @@ def collapse_all(positions: np.ndarray, face_pos: np.ndarray, topo: Topology, la
     with ThreadPoolExecutor(workers) as pool:
         for level in range(grid.levels):
             regions, border = grid.regions(level, face_pos, vface >= 0)
+            if store is not None and store.job is not None and (level > 0 or len(regions) < 2):
+                bar.close()
+                return None      # a tile job makes first-level tiles only: the merge does the rest
             if not regions:
                 continue                      # every live position on a border: the next level frees some
             st.fixed = topo.nonmanifold | border if level < grid.levels - 1 else topo.nonmanifold
@@ -159,14 +195,8 @@ def collapse_all(positions: np.ndarray, face_pos: np.ndarray, topo: Topology, la
                 m += made
                 bar.update(m)
             else:
-                jobs = [pool.submit(_collapse_region, st, r, int(b), scratch, keep=positions_left_to_merge(len(r)))
-                        for r, b in zip(regions, bases)]
-                done = []
-                for job in jobs:
-                    done.append(job.result())
-                    bar.update(m + sum(d[0] for d in done))
-                made = np.array([d[0] for d in done], np.int64)
-                level_passes = max(d[1] for d in done)
+                tiles = store if level == 0 else None
+                made, level_passes = _collapse_tiles(st, grid, regions, bases, scratch, pool, tiles, bar, m)
                 m = _number_nodes(st, e, m, bases[:-1], made)
             passes += level_passes
     bar.close()
@@ -175,6 +205,39 @@ def collapse_all(positions: np.ndarray, face_pos: np.ndarray, topo: Topology, la
                      nfn=st.nfn, sphere=sphere, cone=cone, err=err, creator=st.creator, rotation=st.rotation,
                      base=base, base_nodes=st.cur_node[F[base]].astype(np.int32), base_nbrs=N[base].astype(np.int32),
                      tiles=grid.per_side)
+
+
+def _collapse_tiles(st: _CollapseState, grid, regions, bases, scratch, pool, store, bar, m):
+    """Simplify a level's tiles at once, each keeping what the merge needs;
+    returns (nodes made (t,) int64, passes). With ``store``, tiles found there
+    are read, and a tile job makes and writes only its own."""
+    e = len(st.P)
+    todo, made, passes = [], np.zeros(len(regions), np.int64), np.zeros(len(regions), np.int64)
+    numbers = grid.face_tiles(0)[st.vface[[r[0] for r in regions]]] if store is not None else None
+    for i, b in enumerate(bases[:-1]):
+        if store is not None and not store.mine(int(numbers[i])):
+            continue                          # another tile job's
+        rows = store.read(int(numbers[i]), int(b)) if store is not None else None
+        if rows is not None:                  # read, not made (for a tile job: made by an earlier try)
+            made[i], passes[i] = apply_rows(st, rows, int(b), e)
+            store.loaded.append(int(numbers[i]))
+        else:
+            todo.append(i)
+    if store is not None and todo:
+        tile_of_face = grid.face_tiles(0)
+    jobs = {i: pool.submit(_collapse_region, st, regions[i], int(bases[i]), scratch,
+                           keep=positions_left_to_merge(len(regions[i]))) for i in todo}
+    for i in todo:
+        made[i], passes[i] = jobs[i].result()
+        bar.update(m + int(made.sum()))
+        if store is not None:
+            number = int(numbers[i])
+            store.made.append(number)
+            if store.job is not None:
+                faces = np.flatnonzero(tile_of_face == number).astype(np.int32)
+                store.write(number, int(bases[i]), tile_rows(st, faces, regions[i], int(bases[i]), int(made[i]),
+                                                             int(passes[i]), e))
+    return made, int(passes.max(initial=0))
 
 
 @dataclass
