@@ -195,8 +195,8 @@ def collapse_all(positions: np.ndarray, face_pos: np.ndarray, topo: Topology, la
                 m += made
                 bar.update(m)
             else:
-                tiles = store if level == 0 else None
-                made, level_passes = _collapse_tiles(st, grid, regions, bases, scratch, pool, tiles, bar, m)
+                level_store = store if level == 0 else None
+                made, level_passes = _collapse_tiles(st, grid, regions, bases, scratch, pool, level_store, bar, m)
                 m = _number_nodes(st, e, m, bases[:-1], made)
             passes += level_passes
     bar.close()
@@ -213,7 +213,9 @@ def _collapse_tiles(st: _CollapseState, grid, regions, bases, scratch, pool, sto
     are read, and a tile job makes and writes only its own."""
     e = len(st.P)
     todo, made, passes = [], np.zeros(len(regions), np.int64), np.zeros(len(regions), np.int64)
-    numbers = grid.face_tiles(0)[st.vface[[r[0] for r in regions]]] if store is not None else None
+    if store is not None:
+        face_tile = grid.face_tiles(0)
+        numbers = face_tile[st.vface[[r[0] for r in regions]]]     # an inside position's face is in its tile
     for i, b in enumerate(bases[:-1]):
         if store is not None and not store.mine(int(numbers[i])):
             continue                          # another tile job's
@@ -223,8 +225,9 @@ def _collapse_tiles(st: _CollapseState, grid, regions, bases, scratch, pool, sto
             store.loaded.append(int(numbers[i]))
         else:
             todo.append(i)
-    if store is not None and todo:
-        tile_of_face = grid.face_tiles(0)
+    if store is not None and store.job is not None and todo:
+        by_tile = np.argsort(face_tile, kind="stable").astype(np.int32)     # faces tile by tile, ascending
+        starts = np.searchsorted(face_tile[by_tile], np.arange(grid.per_side ** 2 + 1))
     jobs = {i: pool.submit(_collapse_region, st, regions[i], int(bases[i]), scratch,
                            keep=positions_left_to_merge(len(regions[i]))) for i in todo}
     for i in todo:
@@ -234,9 +237,9 @@ def _collapse_tiles(st: _CollapseState, grid, regions, bases, scratch, pool, sto
             number = int(numbers[i])
             store.made.append(number)
             if store.job is not None:
-                faces = np.flatnonzero(tile_of_face == number).astype(np.int32)
-                store.write(number, int(bases[i]), tile_rows(st, faces, regions[i], int(bases[i]), int(made[i]),
-                                                             int(passes[i]), e))
+                faces = by_tile[starts[number]:starts[number + 1]]
+                store.write(number, int(bases[i]), tile_rows(st, faces, face_tile, number, regions[i], int(bases[i]),
+                                                             int(made[i]), int(passes[i]), e))
     return made, int(passes.max(initial=0))
 
 

@@ -178,15 +178,15 @@ class TileStore:
         return sorted(int(m.group(1)) for m in map(_NAME.match, os.listdir(self.path)) if m)
 
 
-def tile_rows(st, faces: np.ndarray, region: np.ndarray, base: int, made: int, passes: int, e: int) -> dict:
-    """What a first-level tile changed in the build's arrays ``st`` (a
-    ``_CollapseState``): its faces' rows (``faces`` (f,) int32), its inside
-    positions' (``region`` (k,) int32), the kept faces of border positions
-    that are its own, and its node rows ``base .. base + made``."""
-    own = np.zeros(len(st.alive), bool)
-    own[faces] = True
+def tile_rows(st, faces: np.ndarray, face_tile: np.ndarray, tile: int, region: np.ndarray, base: int, made: int,
+              passes: int, e: int) -> dict:
+    """What first-level tile ``tile`` changed in the build's arrays ``st`` (a
+    ``_CollapseState``): its faces' rows (``faces`` (f,) int32; ``face_tile``
+    (p,) the tile of every face), its inside positions' (``region`` (k,)
+    int32), the kept faces of border positions that are its own, and its
+    node rows ``base .. base + made``."""
     corners = np.unique(st.face_pos[faces])
-    kept = corners[(st.vface[corners] >= 0) & own[np.maximum(st.vface[corners], 0)]]
+    kept = corners[(st.vface[corners] >= 0) & (face_tile[np.maximum(st.vface[corners], 0)] == tile)]
     pt_head, pt = st.pt
     nodes = slice(base, base + made)
     return {
