@@ -168,7 +168,7 @@ class TileStore:
         except OSError as exc:
             tmp.unlink(missing_ok=True)
             raise InputError(f"cannot write tile file {path}: {exc.strerror}; check that --tiles-dir is a writable "
-                             "directory with room (a tile is about 150 bytes per face it holds)") from None
+                             "directory with room (tiles take about 140 bytes per input triangle)") from None
         return path
 
     def present(self) -> list[int]:
