@@ -25,7 +25,7 @@ from caveclod import cli  # noqa: E402
 from caveclod.client.h2session import H2Target  # noqa: E402
 from caveclod.client.h2wire import MAX_MESSAGE, CallEnded  # noqa: E402
 from failover import free_port  # noqa: E402
-from service import proxy_to  # noqa: E402
+from service import proxy_to, wait_until  # noqa: E402
 
 OK_HEADERS = [(":status", "200"), ("content-type", "application/grpc")]
 
@@ -247,14 +247,23 @@ def _loadtest(port: int, tmp_path, capsys, *extra: str) -> tuple[int, dict]:
 
 
 def test_sessions_resume_with_their_tokens_after_a_network_cut(server, tmp_path, capsys):
+    stop = threading.Event()
+
+    def cut_mid_flight():
+        # Once all three sessions are open and have flown a moment (about 0.6 s
+        # after the start here; a fixed 2.5 s cut came before the opens on a
+        # loaded machine, and nothing resumed).
+        if wait_until(lambda: stop.is_set() or server.sessions.counts()[0] == 3, timeout=20) and not stop.wait(0.8):
+            proxy.cut()
+
     with proxy_to(server.port) as proxy:
-        cut = threading.Timer(2.5, proxy.cut)          # mid-flight: sessions open at about 0.6 s
-        cut.start()
+        cutter = threading.Thread(target=cut_mid_flight, daemon=True)
+        cutter.start()
         try:
-            status, report = _loadtest(proxy.port, tmp_path, capsys)
+            status, report = _loadtest(proxy.port, tmp_path, capsys, "--duration", "6")
         finally:
-            cut.cancel()
-            cut.join(10)
+            stop.set()
+            cutter.join(10)
     assert status == 0, report
     assert report["transport"] == "h2" and report["errors"] == {}
     assert report["resumes"] == 3 and report["failovers"] == 0
