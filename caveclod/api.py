@@ -58,9 +58,9 @@ def build(source, *, cell_size: float = 1.0, z_scale: float = 1.0, materials=Non
         check_memory: refuse (:class:`InputError`) an input whose build
             would not fit in the memory available
             (:mod:`caveclod.builder.memory`), before the work starts.
-        tiles_dir: a directory of first-level tiles made by
-            :func:`build_tiles` jobs, read instead of made (the file is the
-            same; tiles missing there are made here).
+        tiles_dir: a directory of blocks of tiles made by
+            :func:`build_tiles` jobs, read and merged instead of made (the
+            mesh is the same).
     """
     from .builder.hierarchy import build_static_mesh
     from .builder.tilestore import TileStore
@@ -81,15 +81,17 @@ def build_tiles(source, tiles_dir: str | os.PathLike, job: str | tuple[int, int]
                 seed: int | None = None, nodata: float | None = None, weld: float | None = None,
                 progress: bool = False, tiles: int | None = None, workers: int | None = None,
                 check_memory: bool = True) -> dict:
-    """Make one tile job's share of ``source``'s first-level tiles and write them to ``tiles_dir``.
+    """Make one tile job's share of ``source``'s blocks of tiles and write them to ``tiles_dir``.
 
     ``job``: ``"I/N"`` or (I, N), this job's index and the number of jobs;
-    the job makes the tiles whose number modulo N is I (tiles already in
-    the directory, from an earlier try, are kept). A :func:`build` with the
-    same ``source`` and options and ``tiles_dir`` then reads them and writes
-    the same file as a build in one process; see
+    the job makes the blocks whose number modulo N is I, through every
+    level up to theirs (blocks already in the directory, from an earlier
+    try, are kept). A :func:`build` with the same ``source`` and options
+    and ``tiles_dir`` then reads them all, makes the levels above and
+    returns the mesh one process would make; see
     :mod:`caveclod.builder.tilestore`. The other arguments are
-    :func:`build`'s. Returns a report (tiles written, found, seconds).
+    :func:`build`'s. Returns a report (blocks written, found, their level,
+    seconds).
     """
     from .builder.hierarchy import build_tile_job
     from .builder.tilestore import TileStore, parse_job

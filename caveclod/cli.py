@@ -92,11 +92,11 @@ def _parser() -> argparse.ArgumentParser:
                                              "65,536-131,072 faces a tile; 1: no tiles)")
     b.add_argument("--workers", type=int, help="threads of the build (default: the cores, at most 8); the file is the "
                                                "same whatever their number")
-    b.add_argument("--tiles-dir", help="directory of first-level tiles shared by separate build jobs: with "
-                                       "--tile-job, this job's tiles are written there; without, tiles found there "
-                                       "are read instead of made (the file is the same as without)")
+    b.add_argument("--tiles-dir", help="directory of blocks of tiles shared by separate build jobs: with "
+                                       "--tile-job, this job's blocks are written there; without, the blocks there "
+                                       "are read and merged (the mesh is the same as a build in one process)")
     b.add_argument("--tile-job", metavar="I/N", help="be job I of N tile jobs (e.g. a Kubernetes Indexed Job's "
-                                                     "completion index): make first-level tiles I, I+N, ... into "
+                                                     "completion index): make blocks of tiles I, I+N, ... into "
                                                      "--tiles-dir and stop; then run the build with --tiles-dir and "
                                                      "-o to merge them")
     b.add_argument("--no-memory-check", action="store_true",

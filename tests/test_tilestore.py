@@ -1,10 +1,11 @@
-"""First-level tiles made by separate jobs, then merged: the same mesh as one process makes.
+"""Blocks of tiles made by separate jobs, then merged: the same mesh as one process makes.
 
-The merge reads each tile's rows from a file written by another process
-(here: by a build over fresh arrays, as a pod would), so a row a tile
-changes but does not write would make the merged mesh differ; the digests
-below compare every array of the two meshes. Also: retried jobs, missing
-tiles, tiles of another input, damaged files, the command line.
+The merge reads each block's rows from a file written by another process
+(here: by a build over fresh arrays, as a pod would), with the job's own
+node numbers, so a row a block changes but does not write, or a node id
+the merge does not renumber, would make the merged mesh differ; the
+digests below compare every array of the two meshes. Also: retried jobs,
+missing blocks, tiles of another input, damaged files, the command line.
 """
 
 from __future__ import annotations
@@ -18,7 +19,7 @@ import pytest
 import caveclod
 from caveclod.builder.builtin import range_scan, rough_terrain
 from caveclod.builder.hierarchy import build_static_mesh, build_tile_job
-from caveclod.builder.tilestore import TileStore, parse_job
+from caveclod.builder.tilestore import TileStore, block_level, block_of, parse_job
 from caveclod.errors import InputError
 
 from test_cli import assert_refused, run
@@ -37,40 +38,54 @@ def jobs(make, path, count, tiles=4) -> list[dict]:
 def test_jobs_then_merge_give_the_mesh_of_one_process(name, tmp_path):
     make = SOURCES[name]
     single = build_static_mesh(make(), tiles=4, workers=2)
-    reports = jobs(make, tmp_path, 3)
-    written = sum(r["tiles_written"] for r in reports)
-    assert written == len(TileStore(tmp_path).present()) > 8
-    assert not [f for f in os.listdir(tmp_path) if f.endswith(".tmp")]
-    merged = build_static_mesh(make(), tiles=4, workers=2, store=TileStore(tmp_path))
-    assert merged.info["tiles_read"] == written and merged.info["tiles_made"] == 0
-    assert digest(merged) == digest(single)
-    # A tile whose job never finished: the merge makes it itself, to the same mesh.
-    os.remove(TileStore(tmp_path).file(TileStore(tmp_path).present()[1]))
-    merged = build_static_mesh(make(), tiles=4, workers=1, store=TileStore(tmp_path))
-    assert (merged.info["tiles_read"], merged.info["tiles_made"]) == (written - 1, 1)
-    assert digest(merged) == digest(single)
+    # 3 jobs share 4 blocks of 2 x 2 tiles (two levels each); 5 jobs the 16 first-level tiles.
+    for count, level, blocks in ((3, 1, 4), (5, 0, 16)):
+        where = tmp_path / str(count)
+        reports = jobs(make, where, count)
+        assert {r["block_level"] for r in reports} == {level}
+        assert sum(r["blocks_written"] for r in reports) == len(TileStore(where).present()) == blocks
+        assert not [f for f in os.listdir(where) if f.endswith(".tmp")]
+        merged = build_static_mesh(make(), tiles=4, workers=2, store=TileStore(where))
+        assert merged.info["blocks_read"] == blocks
+        assert digest(merged) == digest(single), count
 
 
-def test_a_retried_job_keeps_the_tiles_it_wrote(tmp_path):
+def test_a_retried_job_keeps_the_blocks_it_wrote(tmp_path):
     make = SOURCES["rough"]
-    first = build_tile_job(make(), TileStore(tmp_path, job=(1, 2)), tiles=4)
+    first = build_tile_job(make(), TileStore(tmp_path, job=(1, 5)), tiles=4)
     mine = TileStore(tmp_path).present()
-    assert first["tiles_written"] == len(mine) and all(t % 2 == 1 for t in mine)
-    stamps = {t: os.stat(TileStore(tmp_path).file(t)).st_mtime_ns for t in mine}
-    os.remove(TileStore(tmp_path).file(mine[0]))                 # the try that died before this one
-    again = build_tile_job(make(), TileStore(tmp_path, job=(1, 2)), tiles=4)
-    assert (again["tiles_written"], again["tiles_found"]) == (1, len(mine) - 1)
-    assert all(os.stat(TileStore(tmp_path).file(t)).st_mtime_ns == stamps[t] for t in mine[1:])
+    assert first["blocks_written"] == len(mine) == 3 and all(b % 5 == 1 for _, b in mine)
+    stamps = {b: os.stat(TileStore(tmp_path).file(b, lv)).st_mtime_ns for lv, b in mine}
+    os.remove(TileStore(tmp_path).file(mine[0][1], mine[0][0]))        # the try that died before this one
+    again = build_tile_job(make(), TileStore(tmp_path, job=(1, 5)), tiles=4)
+    assert (again["blocks_written"], again["blocks_found"]) == (1, 2)
+    assert all(os.stat(TileStore(tmp_path).file(b, lv)).st_mtime_ns == stamps[b] for lv, b in mine[1:])
+
+
+def test_a_missing_block_names_its_job(tmp_path):
+    make = SOURCES["rough"]
+    jobs(make, tmp_path, 5)
+    level, block = TileStore(tmp_path).present()[7]
+    os.remove(TileStore(tmp_path).file(block, level))
+    with pytest.raises(InputError, match=f"jobs {block % 5}/5"):
+        build_static_mesh(make(), tiles=4, store=TileStore(tmp_path))
 
 
 def test_tiles_of_another_input_or_damaged_are_refused(tmp_path):
-    jobs(SOURCES["rough"], tmp_path, 1)
+    jobs(SOURCES["rough"], tmp_path, 2)
     with pytest.raises(InputError, match="another input"):
         build_static_mesh(SOURCES["rough"](seed=8), tiles=4, store=TileStore(tmp_path))
     with pytest.raises(InputError, match="another input"):          # the same input, another grid
         build_static_mesh(SOURCES["rough"](), tiles=2, store=TileStore(tmp_path))
+    with pytest.raises(InputError, match="different numbers of jobs"):
+        jobs(SOURCES["rough"], tmp_path, 5)
+        build_static_mesh(SOURCES["rough"](), tiles=4, store=TileStore(tmp_path))
+    for level, block in TileStore(tmp_path).present():
+        if level == 0:
+            os.remove(TileStore(tmp_path).file(block, level))
     store = TileStore(tmp_path)
-    path = store.file(store.present()[0])
+    level, block = store.present()[0]
+    path = store.file(block, level)
     path.write_bytes(path.read_bytes()[:1000])                       # cut short
     with pytest.raises(InputError, match="cannot be read"):
         build_static_mesh(SOURCES["rough"](), tiles=4, store=TileStore(tmp_path))
@@ -82,9 +97,19 @@ def test_tiles_of_another_input_or_damaged_are_refused(tmp_path):
 def test_a_mesh_of_one_tile_leaves_it_all_to_the_merge(tmp_path):
     make = SOURCES["scan"]
     (report,) = jobs(make, tmp_path, 1, tiles=1)
-    assert report["tiles_written"] == 0 and report["tiles_per_side"] == 1
+    assert report["blocks_written"] == 0 and report["block_level"] is None
     merged = build_static_mesh(make(), tiles=1, store=TileStore(tmp_path))
     assert digest(merged) == digest(build_static_mesh(make(), tiles=1))
+
+
+def test_block_levels():
+    from caveclod.builder.tiles import TileGrid
+    grid = TileGrid(8, np.zeros((0, 2), np.int32))                  # 8 x 8 tiles, levels 0 .. 3
+    assert [block_level(grid, n) for n in (1, 4, 5, 16, 17, 64, 1000)] == [2, 2, 1, 1, 0, 0, 0]
+    assert block_level(TileGrid(1, np.zeros((0, 2), np.int32)), 4) is None
+    # Tile (row 5, column 6) of 8 x 8 lies in block (2, 3) of 4 x 4 and (1, 1) of 2 x 2.
+    assert block_of(np.array([5 * 8 + 6]), 8, 1).tolist() == [2 * 4 + 3]
+    assert block_of(np.array([5 * 8 + 6]), 8, 2).tolist() == [1 * 2 + 1]
 
 
 def test_job_numbers():
@@ -100,11 +125,11 @@ def test_command_line_jobs_and_merge(tmp_path):
     for i in range(2):
         proc = run("build", *common, "--tiles-dir", tiles, "--tile-job", f"{i}/2")
         assert proc.returncode == 0, proc.stderr
-        assert json.loads(proc.stdout)["tiles_written"] == 2
+        assert json.loads(proc.stdout)["blocks_written"] == 2
     proc = run("build", *common, "--tiles-dir", tiles, "-o", tmp_path / "merged.cvc")
     assert proc.returncode == 0, proc.stderr
     merged = json.loads(proc.stdout)
-    assert merged["tiles_read"] == 4
+    assert merged["blocks_read"] == 4
     one = caveclod.build("rough", size=120, tiles=2)
     assert merged["content_hash"] == one.content_hash
     assert_refused(run("build", *common, "--tile-job", "0/2"), "--tiles-dir")

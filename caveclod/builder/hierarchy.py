@@ -28,7 +28,7 @@ from .source import SourceMesh
 from ..staticmesh import StaticMesh
 from .surfaces import RIGID, corner_vertices, layout_surfaces
 from .tiles import positions_left_to_merge, tile_grid, tiles_per_side
-from .tilestore import TileStore, apply_rows, fingerprint, tile_rows
+from .tilestore import TileStore, block_level, block_of, block_rows, fingerprint, read_blocks
 from .topology import Topology, count_components, face_neighbours
 
 PASS_FRACTION = 0.5   # share of ranked collapses a pass may make (shallower tree)
@@ -43,8 +43,8 @@ def build_static_mesh(source: SourceMesh, crease_angle: float | None = None, pro
     None takes the source's own default (``SourceMesh.crease_angle``).
     ``tiles`` (per side, a power of two; None chooses by size) and
     ``workers`` (threads; None: the cores) are :func:`collapse_all`'s; the
-    file does not depend on ``workers``. ``store``: first-level tiles made
-    by tile jobs (:func:`build_tile_job`) are read from it.
+    file does not depend on ``workers``. ``store``: blocks of tiles made
+    by tile jobs (:func:`build_tile_job`) are read from it and merged.
     """
     t0 = time.perf_counter()
     source, face_pos, topo, lay = _prepare(source, crease_angle, progress)
@@ -61,8 +61,7 @@ def build_static_mesh(source: SourceMesh, crease_angle: float | None = None, pro
         "notes": list(source.notes),
     }
     if store is not None:
-        mesh.info["tiles_read"] = len(store.loaded)
-        mesh.info["tiles_made"] = len(store.made)
+        mesh.info["blocks_read"] = len(store.loaded)
     if mesh.info["base_mesh"]["large"]:
         mesh.info["notes"].append(mesh.info["base_mesh"]["why"])
     return mesh
@@ -70,15 +69,17 @@ def build_static_mesh(source: SourceMesh, crease_angle: float | None = None, pro
 
 def build_tile_job(source: SourceMesh, store: TileStore, crease_angle: float | None = None, progress: bool = False,
                    tiles: int | None = None, workers: int | None = None) -> dict:
-    """Make and write this job's first-level tiles (``store.job``); see
-    :mod:`caveclod.builder.tilestore`. Returns a report: tiles written, tiles
-    found already written (a retried job), the grid and the seconds."""
+    """Make and write this job's blocks of tiles (``store.job``); see
+    :mod:`caveclod.builder.tilestore`. Returns a report: blocks written,
+    blocks found already written (a retried job), the level of the blocks
+    (None: a grid of one tile, left to the merge), the grid and the seconds."""
     t0 = time.perf_counter()
     source, face_pos, topo, lay = _prepare(source, crease_angle, progress)
     collapse_all(source.positions, face_pos, topo, lay, progress, tiles=tiles, workers=workers, store=store)
-    return {"tiles_dir": str(store.path), "job": list(store.job), "tiles_written": len(store.made),
-            "tiles_found": len(store.loaded), "tiles_per_side": tiles_per_side(len(face_pos), tiles),
-            "input_triangles": len(face_pos), "seconds": round(time.perf_counter() - t0, 3)}
+    return {"tiles_dir": str(store.path), "job": list(store.job), "blocks_written": len(store.made),
+            "blocks_found": len(store.loaded), "block_level": store.level,
+            "tiles_per_side": tiles_per_side(len(face_pos), tiles), "input_triangles": len(face_pos),
+            "seconds": round(time.perf_counter() - t0, 3)}
 
 
 def _prepare(source: SourceMesh, crease_angle, progress) -> tuple:
@@ -144,9 +145,10 @@ def collapse_all(positions: np.ndarray, face_pos: np.ndarray, topo: Topology, la
     tile (the last, or the only one of a small mesh) ranks on every thread,
     each over its own share of the positions, and collapses on one.
 
-    ``store`` (:mod:`caveclod.builder.tilestore`): first-level tiles found
-    there are read instead of made; for a tile job (``store.job``), only
-    that job's first-level tiles are made and written, and None returned.
+    ``store`` (:mod:`caveclod.builder.tilestore`): the blocks of tiles
+    tile jobs wrote there are read instead of made; for a tile job
+    (``store.job``), only that job's blocks are made and written, and None
+    returned.
     """
     e, p = len(positions), len(face_pos)
     P = np.ascontiguousarray(positions, dtype=np.float64)
@@ -178,25 +180,29 @@ def collapse_all(positions: np.ndarray, face_pos: np.ndarray, topo: Topology, la
 
     bar = Progress("collapsing", total=max(int(np.count_nonzero((st.cls != RIGID) & ~topo.nonmanifold)), 1),
                    enabled=progress)
-    m, passes = 0, 0
+    start, m, passes = 0, 0, 0
+    if store is not None and store.job is None:
+        start, m, passes = read_blocks(store, st, grid, e)      # (0, 0, 0) if the directory holds no tiles
+        bar.update(m)
     with ThreadPoolExecutor(workers) as pool:
-        for level in range(grid.levels):
+        if store is not None and store.job is not None:
+            _make_blocks(st, grid, store, topo.nonmanifold, scratch, pool, bar)
+            bar.close()
+            return None
+        for level in range(start, grid.levels):
             regions, border = grid.regions(level, face_pos, vface >= 0)
-            if store is not None and store.job is not None and (level > 0 or len(regions) < 2):
-                bar.close()
-                return None      # a tile job makes first-level tiles only: the merge does the rest
             if not regions:
                 continue                      # every live position on a border: the next level frees some
             st.fixed = topo.nonmanifold | border if level < grid.levels - 1 else topo.nonmanifold
             st.lock.fill(-1)
             bases = m + np.concatenate([[0], np.cumsum([len(r) for r in regions])])
-            if len(regions) == 1:
+            if grid.tiles_at(level) == 1:
                 made, level_passes = _collapse_region(st, regions[0], int(bases[0]), scratch, pool, workers)
                 m += made
                 bar.update(m)
             else:
-                level_store = store if level == 0 else None
-                made, level_passes = _collapse_tiles(st, grid, regions, bases, scratch, pool, level_store, bar, m)
+                made, tile_passes = _collapse_tiles(st, regions, bases, scratch, pool, bar, m)
+                level_passes = int(tile_passes.max())
                 m = _number_nodes(st, e, m, bases[:-1], made)
             passes += level_passes
     bar.close()
@@ -207,40 +213,56 @@ def collapse_all(positions: np.ndarray, face_pos: np.ndarray, topo: Topology, la
                      tiles=grid.per_side)
 
 
-def _collapse_tiles(st: _CollapseState, grid, regions, bases, scratch, pool, store, bar, m):
-    """Simplify a level's tiles at once, each keeping what the merge needs;
-    returns (nodes made (t,) int64, passes). With ``store``, tiles found there
-    are read, and a tile job makes and writes only its own."""
-    e = len(st.P)
-    todo, made, passes = [], np.zeros(len(regions), np.int64), np.zeros(len(regions), np.int64)
-    if store is not None:
-        face_tile = grid.face_tiles(0)
-        numbers = face_tile[st.vface[[r[0] for r in regions]]]     # an inside position's face is in its tile
-    for i, b in enumerate(bases[:-1]):
-        if store is not None and not store.mine(int(numbers[i])):
-            continue                          # another tile job's
-        rows = store.read(int(numbers[i]), int(b)) if store is not None else None
-        if rows is not None:                  # read, not made (for a tile job: made by an earlier try)
-            made[i], passes[i] = apply_rows(st, rows, int(b), e)
-            store.loaded.append(int(numbers[i]))
-        else:
-            todo.append(i)
-    if store is not None and store.job is not None and todo:
-        by_tile = np.argsort(face_tile, kind="stable").astype(np.int32)     # faces tile by tile, ascending
-        starts = np.searchsorted(face_tile[by_tile], np.arange(grid.per_side ** 2 + 1))
-    jobs = {i: pool.submit(_collapse_region, st, regions[i], int(bases[i]), scratch,
-                           keep=positions_left_to_merge(len(regions[i]))) for i in todo}
-    for i in todo:
-        made[i], passes[i] = jobs[i].result()
+def _collapse_tiles(st: _CollapseState, regions, bases, scratch, pool, bar, m) -> tuple[np.ndarray, np.ndarray]:
+    """Simplify a level's tiles (``regions``, their nodes numbered from
+    ``bases``) at once, each stopping where the merge takes over; returns
+    (nodes made, passes), both (t,) int64."""
+    jobs = [pool.submit(_collapse_region, st, r, int(b), scratch, keep=positions_left_to_merge(len(r)))
+            for r, b in zip(regions, bases)]
+    made, passes = np.zeros(len(regions), np.int64), np.zeros(len(regions), np.int64)
+    for i, job in enumerate(jobs):
+        made[i], passes[i] = job.result()
         bar.update(m + int(made.sum()))
-        if store is not None:
-            number = int(numbers[i])
-            store.made.append(number)
-            if store.job is not None:
-                faces = by_tile[starts[number]:starts[number + 1]]
-                store.write(number, int(bases[i]), tile_rows(st, faces, face_tile, number, regions[i], int(bases[i]),
-                                                             int(made[i]), int(passes[i]), e))
-    return made, int(passes.max(initial=0))
+    return made, passes
+
+
+def _make_blocks(st: _CollapseState, grid, store: TileStore, nonmanifold, scratch, pool, bar) -> None:
+    """A tile job: simplify this job's blocks (tiles of the level
+    :func:`block_level` picks) through every level up to theirs, and write
+    each block's rows. Nodes are numbered as if the job's blocks were the
+    whole mesh; the merge shifts them (:func:`read_blocks`)."""
+    e = len(st.P)
+    k = block_level(grid, store.job[1])
+    if k is None:
+        return                                # one tile: the merge builds it all
+    mine = [b for b in np.unique(grid.face_tiles(k)).tolist() if store.mine(b)]
+    store.loaded.extend(b for b in mine if store.finished(b, k))          # written by an earlier try
+    blocks = [b for b in mine if b not in store.loaded]
+    store.level = k
+    todo = np.zeros(grid.tiles_at(k) ** 2, bool)
+    todo[blocks] = True
+    segments: dict[int, list] = {b: [] for b in blocks}
+    m = 0
+    for level in range(k + 1):
+        regions, border = grid.regions(level, st.face_pos, st.vface >= 0)
+        tiles = grid.face_tiles(level)[st.vface[[r[0] for r in regions]]] if regions else np.zeros(0, np.int32)
+        owner = block_of(tiles, grid.tiles_at(level), k - level)
+        mine = [i for i in range(len(regions)) if todo[owner[i]]]
+        if not mine:
+            continue
+        st.fixed = nonmanifold | border
+        st.lock.fill(-1)
+        regions = [regions[i] for i in mine]
+        bases = m + np.concatenate([[0], np.cumsum([len(r) for r in regions])])
+        made, passes = _collapse_tiles(st, regions, bases, scratch, pool, bar, m)
+        starts = m + np.concatenate([[0], np.cumsum(made)[:-1]])
+        for j, i in enumerate(mine):
+            segments[int(owner[i])].append((level, int(tiles[i]), int(starts[j]), int(made[j]), int(passes[j])))
+        m = _number_nodes(st, e, m, bases[:-1], made)
+    faces, positions = grid.members(k, st.face_pos)
+    for b in blocks:
+        store.write_block(b, k, block_rows(st, grid, k, b, faces[b], positions[b], segments[b]))
+        store.made.append(b)
 
 
 @dataclass

@@ -129,6 +129,30 @@ class TileGrid:
         return [r for r in np.split(inside, cuts) if len(r)], border
 
 
+    def members(self, level: int, face_pos: np.ndarray) -> tuple[dict, dict]:
+        """Each tile's faces and inside positions at ``level``, whether still in the mesh or not.
+
+        Returns ``(faces, positions)``: tile number -> ascending int32 ids,
+        for the tiles that have faces (positions: those whose every face is
+        in the tile).
+        """
+        e = int(face_pos.max(initial=-1)) + 1
+        lo = np.full(e, np.iinfo(np.int32).max, np.int32)
+        hi = np.full(e, -1, np.int32)
+        _tile_range(self.face_cell, np.ascontiguousarray(face_pos, np.int32), level, self.tiles_at(level), lo, hi)
+        face_tile = self.face_tiles(level)
+        inside = np.flatnonzero((lo == hi) & (hi >= 0)).astype(np.int32)
+        return _group(face_tile, np.arange(len(face_tile), dtype=np.int32)), _group(lo[inside], inside)
+
+
+def _group(keys: np.ndarray, ids: np.ndarray) -> dict:
+    """key -> ascending ``ids`` with that key (``ids`` ascending)."""
+    order = np.argsort(keys, kind="stable")
+    keys, ids = keys[order], ids[order]
+    cuts = np.flatnonzero(np.diff(keys)) + 1
+    return {int(g[0]): i for g, i in zip(np.split(keys, cuts), np.split(ids, cuts)) if len(g)}
+
+
 @nb.njit(cache=True, nogil=True)
 def _tile_range(face_cell, face_pos, level, side, lo, hi):
     """Lowest and highest tile (``lo``, ``hi`` (e,) int32, updated in place) of the faces

@@ -1,47 +1,49 @@
-"""First-level tiles of a build, kept as files, so that separate processes or machines can make them.
+"""Blocks of a tiled build made by separate processes or machines, kept as files, then merged.
 
-A tiled build's first level (:mod:`caveclod.builder.tiles`) simplifies
-every tile on its own, its border fixed. This module lets each of those
-tiles be made by another process, for instance one pod each of a
-Kubernetes Indexed Job writing to a shared volume (``deploy/k8s/build-*``),
-and the rest of the build (the merges, the file) be made by one last
-process that reads them::
+A tiled build (:mod:`caveclod.builder.tiles`) simplifies every tile of a
+level on its own, its border fixed, then merges tiles 2 x 2. A *block* is
+a tile of some level with every finer tile inside it: everything a block
+needs up to its own level lies inside it. This module lets separate
+processes, for instance the pods of a Kubernetes Indexed Job writing to a
+shared volume (``deploy/k8s/build-*``), each make some blocks through every
+level up to theirs, and one last process (the merge) read them all and
+make the levels above::
 
     caveclod build INPUT --tiles-dir DIR --tile-job I/N     # N jobs, I = 0 .. N-1, anywhere
-    caveclod build INPUT --tiles-dir DIR -o OUT.cvc           # the merge: reads DIR's tiles
+    caveclod build INPUT --tiles-dir DIR -o OUT.cvc           # the merge: reads DIR's blocks
 
-The merge writes the same mesh as ``caveclod build INPUT -o OUT.cvc``
-would (every array equal, so the same content hash; only the build report
-in the header differs: ``tests/test_tilestore.py``). A tile is written by
-one job; a job retried after a failure keeps the tiles it finished; tiles
-the merge cannot find, it makes itself.
+The blocks are the tiles of the coarsest level that has at least N of
+them, below the last level (:func:`block_level`); job I makes blocks I,
+I + N, ... (numbered row-major). The merge writes the same mesh as
+``caveclod build INPUT -o OUT.cvc`` would, whatever N (every array equal,
+so the same content hash; only the build report in the header differs:
+``tests/test_tilestore.py``). A job retried after a failure keeps the
+blocks it finished; a merge missing a block names the job to run again.
 
-**What a tile writes.** A first-level tile changes only rows it owns
-(docs/tiled-build.md, "Why it is safe to run tiles at once"): of its own
-faces, the corners, neighbours, life, creator, rotation and carried-point
-list; of its inside positions, their face, quadric, current node,
-carried-point row and leaf parent; of border positions, the face kept at
-them where that face is one of its own (only the tile owning it may
-replace it); and the node rows it made, numbered from its own base. The
-file holds those rows and where they go; the merge scatters them back and
-numbers the nodes as an in-process build does (``_number_nodes``).
+**What a block writes.** A tile changes only rows it owns
+(docs/tiled-build.md, "Why it is safe to run tiles at once"), and a
+block's tiles only rows of the block: of its faces, the corners,
+neighbours, life, creator, rotation and carried-point list; of its inside
+positions, their face, quadric, current node, carried-point row and leaf
+parent; of border positions, the face kept at them where that face is one
+of its own (only the block owning it may replace it); and the rows of the
+nodes it made. A job numbers nodes as one process would if its own blocks
+were the whole mesh (level after level, tile after tile), and the file
+says where each tile's nodes start (``segments``); the merge, which knows
+every tile's count, moves each tile's nodes to where one process would
+have put them, renumbering every node id in the rows with them.
 
 **What it does not change.** Every job still loads the whole input and
 prepares it (normals, topology, surface groups): a job needs the memory of
-the whole build (``caveclod.builder.memory``), not of its tile. What the
-jobs share out is the first level's work only: on the 4.2M-triangle
-default terrain (8 x 8 tiles, two cores a process) a third of the build
-(two jobs of 10 s; the merge then took 16.9 s against 24.7 s for the whole
-build in one process). The merge levels run in the last process. Jobs
-that go on merging their own tiles (node ids then need numbering the merge
-can shift) and tiles made from their own window of the input (out of
-core) are the steps this layout leaves room for.
+the whole build (``caveclod.builder.memory``), not of its blocks. Jobs
+that read only their block's window of the input (out of core) are the
+step this layout leaves room for.
 
-**Matching.** Each file records a fingerprint of everything the first
-level reads (the positions, faces and surface groups after preparation,
-the grid) and of the code that simplifies (the kernels' and the build's
-source): a tile made from another input, other options or another version
-is refused by name, with what to do.
+**Matching.** Each file records a fingerprint of everything the blocks
+read (the positions, faces and surface groups after preparation, the
+grid) and of the code that simplifies (the kernels' and the build's
+source): a block made from another input, other options or another
+version is refused by name, with what to do.
 """
 
 from __future__ import annotations
@@ -67,7 +69,7 @@ _CODE = ("kernels/simplify.py", "kernels/carried.py", "kernels/surfacegap.py", "
          "builder/tilestore.py")
 """Sources whose change may change a tile (they go into the fingerprint)."""
 
-_NAME = re.compile(r"^tile-(\d+)\.npz$")
+_NAME = re.compile(r"^tile-L(\d+)-(\d+)\.npz$")
 
 
 def parse_job(text: str) -> tuple[int, int]:
@@ -80,7 +82,7 @@ def parse_job(text: str) -> tuple[int, int]:
 
 
 def fingerprint(arrays, per_side: int) -> str:
-    """Hex digest of ``arrays`` (what the first level reads), the grid and the simplifying code."""
+    """Hex digest of ``arrays`` (what the blocks read), the grid and the simplifying code."""
     h = hashlib.blake2b(digest_size=16)
     h.update(f"caveclod tiles {FORMAT} {per_side}".encode())
     root = Path(__file__).resolve().parent.parent
@@ -94,18 +96,37 @@ def fingerprint(arrays, per_side: int) -> str:
     return h.hexdigest()
 
 
+def block_level(grid, jobs: int) -> int | None:
+    """The level whose tiles (*blocks*) the jobs share out: the coarsest
+    with at least ``jobs`` tiles, below the last (one tile, the merge's);
+    None for a grid of one tile."""
+    if grid.levels < 2:
+        return None
+    k = 0
+    while k + 1 < grid.levels - 1 and grid.tiles_at(k + 1) ** 2 >= jobs:
+        k += 1
+    return k
+
+
+def block_of(tiles: np.ndarray, side: int, up: int) -> np.ndarray:
+    """The tiles ``up`` levels above ``tiles`` (numbered row-major over ``side`` per side) that hold them."""
+    tiles = np.asarray(tiles, np.int64)
+    return ((tiles // side) >> up) * (side >> up) + ((tiles % side) >> up)
+
+
 @dataclass
 class TileStore:
-    """A directory of first-level tiles for one input.
+    """A directory of tile jobs' blocks for one input.
 
     Attributes:
         path: the directory.
         key: :func:`fingerprint` of the input the tiles belong to.
         job: (index, count) when this process is one of ``count`` tile
-            jobs (it makes the tiles whose number modulo ``count`` is
-            ``index``, then stops), None for the merge (which makes what it
-            cannot read).
-        loaded, made: tile numbers read from files and made here.
+            jobs (it makes the blocks whose number modulo ``count`` is
+            ``index``, then stops), None for the merge.
+        loaded, made: block numbers read from files (for a job: written by
+            an earlier try) and made here.
+        level: the blocks' level, once a job has chosen it.
     """
 
     path: Path
@@ -113,54 +134,71 @@ class TileStore:
     job: tuple[int, int] | None = None
     loaded: list = field(default_factory=list)
     made: list = field(default_factory=list)
+    level: int | None = None
 
-    def mine(self, tile: int) -> bool:
-        """Whether this process makes ``tile`` (when not in the directory already)."""
-        return self.job is None or tile % self.job[1] == self.job[0]
+    def mine(self, block: int) -> bool:
+        """Whether this process makes ``block``."""
+        return self.job is None or block % self.job[1] == self.job[0]
 
-    def file(self, tile: int) -> Path:
-        return self.path / f"tile-{tile:05d}.npz"
+    def file(self, block: int, level: int) -> Path:
+        return self.path / f"tile-L{level}-{block:05d}.npz"
 
-    def read(self, tile: int, base: int) -> dict | None:
-        """Tile ``tile``'s rows (its nodes numbered from ``base``), or None if it has no file.
+    def present(self) -> list[tuple[int, int]]:
+        """(level, block) of each tile file in the directory (not checked)."""
+        if not self.path.is_dir():
+            return []
+        return sorted((int(m.group(1)), int(m.group(2))) for m in map(_NAME.match, os.listdir(self.path)) if m)
 
-        A file of another input, grid or code, or a damaged one, is an
-        :class:`InputError` naming it.
-        """
-        path = self.file(tile)
-        try:
-            with np.load(path, allow_pickle=False) as z:
-                rows = {k: z[k] for k in z.files}
-        except FileNotFoundError:
-            return None
-        except (OSError, ValueError, EOFError, zipfile.BadZipFile) as exc:
-            raise InputError(f"tile file {path} cannot be read ({exc}); delete it and run its tile job again "
-                             "(or run the merge without it: it makes missing tiles itself)") from None
-        try:
-            meta = json.loads(str(rows.pop("meta")))
-        except (KeyError, ValueError):
-            raise InputError(f"{path} is not a caveclod tile file; delete it or point --tiles-dir elsewhere") from None
+    def finished(self, block: int, level: int) -> bool:
+        """Whether ``block``'s file is there, from this input (a retried job keeps it)."""
+        if not self.file(block, level).exists():
+            return False
+        self.meta(block, level)
+        return True
+
+    def meta(self, block: int, level: int) -> dict:
+        """A block file's header, checked against this input: an
+        :class:`InputError` naming the file if it is damaged, not a tile file
+        or made from another input, options, grid or code."""
+        path = self.file(block, level)
+        with self._open(path) as z:
+            try:
+                meta = json.loads(str(z["meta"]))
+            except (KeyError, ValueError):
+                raise InputError(f"{path} is not a caveclod tile file; delete it or point --tiles-dir "
+                                 "elsewhere") from None
+            meta["segments"] = z["segments"] if "segments" in z.files else None
         if meta.get("format") != FORMAT or meta.get("key") != self.key:
             raise InputError(f"tile file {path} was made from another input, other build options or another "
                              "caveclod version; run the tile jobs again with the same input, options and image as "
-                             "the merge (or empty the directory: the merge then makes every tile itself)")
-        if meta.get("tile") != tile or meta.get("base") != base:
-            raise InputError(f"tile file {path} holds tile {meta.get('tile')} from node {meta.get('base')}, not "
-                             f"tile {tile} from node {base}; delete it and run its tile job again")
-        rows["made"] = np.int64(meta["made"])
-        rows["passes"] = np.int64(meta["passes"])
-        return rows
+                             "the merge (after emptying the directory)")
+        if meta.get("block") != block or meta.get("level") != level or meta["segments"] is None:
+            raise InputError(f"tile file {path} does not hold block {block} of level {level}; delete it and run "
+                             "its tile job again")
+        return meta
 
-    def write(self, tile: int, base: int, rows: dict) -> Path:
-        """Write tile ``tile``'s rows (from :func:`tile_rows`) atomically: a
-        job killed mid-write leaves no file a merge could take for whole."""
+    def rows(self, block: int, level: int) -> dict:
+        """A block file's rows (checked by :meth:`meta` first)."""
+        with self._open(self.file(block, level)) as z:
+            return {k: z[k] for k in z.files if k != "meta"}
+
+    @staticmethod
+    def _open(path: Path):
+        try:
+            return np.load(path, allow_pickle=False)
+        except (OSError, ValueError, EOFError, zipfile.BadZipFile) as exc:
+            raise InputError(f"tile file {path} cannot be read ({exc}); delete it and run its tile job "
+                             "again") from None
+
+    def write_block(self, block: int, level: int, rows: dict) -> Path:
+        """Write a block's rows (:func:`block_rows`) atomically: a job killed
+        mid-write leaves no file a merge could take for whole."""
         self.path.mkdir(parents=True, exist_ok=True)
-        meta = {"format": FORMAT, "key": self.key, "tile": int(tile), "base": int(base),
-                "made": int(rows["made"]), "passes": int(rows["passes"])}
-        body = {k: v for k, v in rows.items() if k not in ("made", "passes")}
+        meta = {"format": FORMAT, "key": self.key, "block": int(block), "level": int(level),
+                "jobs": int(self.job[1]) if self.job else 1}
         buf = io.BytesIO()
-        np.savez(buf, meta=np.array(json.dumps(meta)), **body)
-        path = self.file(tile)
+        np.savez(buf, meta=np.array(json.dumps(meta)), **rows)
+        path = self.file(block, level)
         tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
         try:
             tmp.write_bytes(buf.getbuffer())
@@ -171,64 +209,122 @@ class TileStore:
                              "directory with room (tiles take about 140 bytes per input triangle)") from None
         return path
 
-    def present(self) -> list[int]:
-        """Tile numbers with a file in the directory (not checked)."""
-        if not self.path.is_dir():
-            return []
-        return sorted(int(m.group(1)) for m in map(_NAME.match, os.listdir(self.path)) if m)
+
+SEGMENT = ("level", "tile", "start", "made", "passes")
+"""Columns of a block's ``segments`` (s, 5) int64: one row per tile of the
+block that made nodes at a level, with the first of the job's own node
+numbers it used (its nodes come in that order in the file's node rows)."""
 
 
-def tile_rows(st, faces: np.ndarray, face_tile: np.ndarray, tile: int, region: np.ndarray, base: int, made: int,
-              passes: int, e: int) -> dict:
-    """What first-level tile ``tile`` changed in the build's arrays ``st`` (a
-    ``_CollapseState``): its faces' rows (``faces`` (f,) int32; ``face_tile``
-    (p,) the tile of every face), its inside positions' (``region`` (k,)
-    int32), the kept faces of border positions that are its own, and its
-    node rows ``base .. base + made``."""
+def block_rows(st, grid, level: int, block: int, faces: np.ndarray, positions: np.ndarray, segments: list) -> dict:
+    """What block ``block`` of ``level`` changed in the build's arrays
+    ``st`` (a ``_CollapseState``) through every level up to its own: its
+    faces' rows (``faces`` (f,) int32), its inside positions' (``positions``
+    (k,) int32), the kept faces of border positions that are its own, and
+    its nodes' rows, segment by segment (``segments``: tuples of
+    :data:`SEGMENT`)."""
     corners = np.unique(st.face_pos[faces])
-    kept = corners[(st.vface[corners] >= 0) & (face_tile[np.maximum(st.vface[corners], 0)] == tile)]
+    face_tile = grid.face_tiles(level)
+    kept = corners[(st.vface[corners] >= 0) & (face_tile[np.maximum(st.vface[corners], 0)] == block)]
     pt_head, pt = st.pt
-    nodes = slice(base, base + made)
+    seg = np.array(segments, np.int64).reshape(-1, len(SEGMENT))
+    e = len(st.P)
+    nodes = np.concatenate([np.arange(s, s + n) for s, n in zip(seg[:, 2], seg[:, 3])] or [np.zeros(0, np.int64)])
     return {
+        "segments": seg,
         "faces": faces, "F": st.F[faces], "N": st.N[faces], "alive": st.alive[faces], "creator": st.creator[faces],
         "rotation": st.rotation[faces], "pt_head": pt_head[faces],
-        "positions": region, "Q": st.Q[region], "cur_node": st.cur_node[region], "pt": pt[region],
-        "leaf_parent": st.parent[region],
-        "kept": kept, "vface_kept": st.vface[kept], "vface": st.vface[region],
+        "positions": positions, "Q": st.Q[positions], "cur_node": st.cur_node[positions], "pt": pt[positions],
+        "leaf_parent": st.parent[positions], "vface": st.vface[positions],
+        "kept": kept, "vface_kept": st.vface[kept],
         "child": st.child[nodes], "npos": st.npos[nodes], "nfaces": st.nfaces[nodes], "nfn": st.nfn[nodes],
-        "sphere": st.sphere[nodes], "err": st.err[nodes],
-        "node_parent": st.parent[e + base:e + base + made], "cone": st.cone[e + base:e + base + made],
-        "made": np.int64(made), "passes": np.int64(passes),
+        "sphere": st.sphere[nodes], "err": st.err[nodes], "node_parent": st.parent[e + nodes],
+        "cone": st.cone[e + nodes],
     }
 
 
-def apply_rows(st, rows: dict, base: int, e: int) -> tuple[int, int]:
-    """Scatter a tile's rows (:func:`tile_rows`, or read from its file) into
-    ``st``; returns (nodes made, passes)."""
-    faces, region, kept = rows["faces"], rows["positions"], rows["kept"]
-    made = int(rows["made"])
-    n_faces, n_pos = len(st.alive), len(st.vface)
-    if (len(faces) and (faces.min() < 0 or faces.max() >= n_faces)) or \
-            (len(region) and (region.min() < 0 or region.max() >= n_pos)) or \
-            (len(kept) and (kept.min() < 0 or kept.max() >= n_pos)) or not 0 <= base + made <= n_pos:
-        raise InputError("a tile file's rows do not fit this input; delete the tiles and run the tile jobs again")
-    try:
-        _scatter(st, rows, faces, region, kept, base, made, e)
-    except (ValueError, IndexError, KeyError) as exc:
-        raise InputError(f"a tile file's rows do not fit this input ({exc}); delete the tiles and run the tile jobs "
-                         "again") from None
-    return made, int(rows["passes"])
+def read_blocks(store: TileStore, st, grid, e: int) -> tuple[int, int, int]:
+    """The merge: scatter every block of the directory into ``st``, nodes
+    renumbered as one process numbers them; returns (the next level to
+    build, nodes made, passes made), (0, 0, 0) if the directory has no tiles.
+
+    One process numbers a level's nodes tile after tile, levels one after
+    another; a job numbered only its own blocks' tiles so. Each tile's
+    nodes move to where one process would have put them, every node id in
+    the rows with them.
+    """
+    files = store.present()
+    if not files:
+        return 0, 0, 0
+    levels = {lv for lv, _ in files}
+    if len(levels) > 1:
+        raise InputError(f"{store.path} holds tiles of jobs run with different numbers of jobs (blocks of levels "
+                         f"{sorted(levels)}); empty it and run the tile jobs again")
+    (level,) = levels
+    have = {b for _, b in files}
+    metas = {b: store.meta(b, level) for b in sorted(have)}            # each from this input and grid
+    expected = set(np.unique(grid.face_tiles(level)).tolist()) if level < grid.levels - 1 else set()
+    if have - expected:
+        raise InputError(f"{store.path} holds blocks this grid does not have; empty it and run the tile jobs again")
+    missing = sorted(expected - have)
+    if missing:
+        jobs = next(iter(metas.values()))["jobs"]
+        who = sorted({b % jobs for b in missing})
+        raise InputError(f"{len(missing)} of {len(expected)} blocks are missing from {store.path} (made by tile jobs "
+                         f"{', '.join(f'{j}/{jobs}' for j in who[:10])}{' ...' if len(who) > 10 else ''}); run those "
+                         "jobs again: the merge needs every job's tiles")
+    # Global numbering: levels in order, tiles in order within a level.
+    seg = np.concatenate([np.c_[m["segments"], np.full(len(m["segments"]), b)] for b, m in metas.items()])
+    order = np.lexsort((seg[:, 1], seg[:, 0]))
+    starts = np.zeros(len(seg), np.int64)
+    starts[order] = np.concatenate([[0], np.cumsum(seg[order, 3])[:-1]])
+    m = int(seg[:, 3].sum())
+    passes = sum(int(seg[seg[:, 0] == lv, 4].max(initial=0)) for lv in range(level + 1))
+    for b in metas:
+        mine = seg[:, 5] == b
+        try:
+            _scatter(st, store.rows(b, level), seg[mine], starts[mine], e)
+        except (ValueError, IndexError, KeyError) as exc:
+            raise InputError(f"tile file {store.file(b, level)} does not fit this input ({exc}); delete the tiles "
+                             "and run the tile jobs again") from None
+        store.loaded.append(b)
+    return level + 1, m, passes
 
 
-def _scatter(st, rows, faces, region, kept, base, made, e) -> None:
+def _renumber(ids: np.ndarray, local: np.ndarray, made: np.ndarray, start: np.ndarray, e: int) -> np.ndarray:
+    """Node ids ``ids`` from a job's numbering to the merge's: a node x >= e
+    of the job's segment j (``local[j] <= x - e < local[j] + made[j]``)
+    becomes ``e + start[j] + (x - e - local[j])``; leaves and -1 stay."""
+    out = np.array(ids, np.int64)
+    node = out >= e
+    x = out[node] - e
+    j = np.searchsorted(local, x, side="right") - 1
+    if len(x) and (j.min() < 0 or (x >= local[j] + made[j]).any()):
+        raise ValueError("a node id outside the block's segments")
+    out[node] = e + start[j] + (x - local[j])
+    return out.astype(ids.dtype)
+
+
+def _scatter(st, rows: dict, seg: np.ndarray, start: np.ndarray, e: int) -> None:
+    """Put a block's rows into ``st``; ``seg`` (s, 6) its segments (and
+    block), ``start`` (s,) each segment's first node in the merge's numbering."""
+    by_local = np.argsort(seg[:, 2])
+    local, made, first = seg[by_local, 2], seg[by_local, 3], start[by_local]
+    renumber = lambda ids: _renumber(ids, local, made, first, e)       # noqa: E731
+    faces, positions, kept = rows["faces"], rows["positions"], rows["kept"]
     pt_head, pt = st.pt
     st.F[faces], st.N[faces], st.alive[faces] = rows["F"], rows["N"], rows["alive"]
-    st.creator[faces], st.rotation[faces], pt_head[faces] = rows["creator"], rows["rotation"], rows["pt_head"]
-    st.Q[region], st.cur_node[region], pt[region] = rows["Q"], rows["cur_node"], rows["pt"]
-    st.parent[region], st.vface[region] = rows["leaf_parent"], rows["vface"]
+    st.creator[faces], st.rotation[faces], pt_head[faces] = renumber(rows["creator"]), rows["rotation"], rows["pt_head"]
+    st.Q[positions], st.cur_node[positions], pt[positions] = rows["Q"], renumber(rows["cur_node"]), rows["pt"]
+    st.parent[positions], st.vface[positions] = renumber(rows["leaf_parent"]), rows["vface"]
     st.vface[kept] = rows["vface_kept"]
-    nodes = slice(base, base + made)
-    st.child[nodes], st.npos[nodes], st.nfaces[nodes], st.nfn[nodes] = \
-        rows["child"], rows["npos"], rows["nfaces"], rows["nfn"]
-    st.sphere[nodes], st.err[nodes] = rows["sphere"], rows["err"]
-    st.parent[e + base:e + base + made], st.cone[e + base:e + base + made] = rows["node_parent"], rows["cone"]
+    at = 0                                    # node rows come in the file's segment order
+    for n, s in zip(seg[:, 3].tolist(), start.tolist()):
+        rows_in, rows_out = slice(at, at + n), slice(s, s + n)
+        st.child[rows_out] = renumber(rows["child"][rows_in])
+        st.npos[rows_out], st.nfaces[rows_out], st.nfn[rows_out] = \
+            rows["npos"][rows_in], rows["nfaces"][rows_in], rows["nfn"][rows_in]
+        st.sphere[rows_out], st.err[rows_out] = rows["sphere"][rows_in], rows["err"][rows_in]
+        st.parent[e + s:e + s + n] = renumber(rows["node_parent"][rows_in])
+        st.cone[e + s:e + s + n] = rows["cone"][rows_in]
+        at += n
