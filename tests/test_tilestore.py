@@ -50,6 +50,22 @@ def test_jobs_then_merge_give_the_mesh_of_one_process(name, tmp_path):
         assert digest(merged) == digest(single), count
 
 
+def test_blocks_of_border_positions_only(tmp_path):
+    """An icosphere in 8 x 8 tiles given to 64 jobs: 18 of its 60 first-level tiles have faces but no
+    position inside (every corner touches another tile); their blocks hold faces and no positions."""
+    import trimesh
+    from caveclod.builder.meshfile import source_from_trimesh
+
+    def make():
+        src = source_from_trimesh(trimesh.creation.icosphere(subdivisions=3))
+        src.vertex_normal = None
+        return src
+    reports = jobs(make, tmp_path, 64, tiles=8)
+    assert sum(r["blocks_written"] for r in reports) == 60
+    merged = build_static_mesh(make(), tiles=8, store=TileStore(tmp_path))
+    assert digest(merged) == digest(build_static_mesh(make(), tiles=8))
+
+
 def test_a_retried_job_keeps_the_blocks_it_wrote(tmp_path):
     make = SOURCES["rough"]
     first = build_tile_job(make(), TileStore(tmp_path, job=(1, 5)), tiles=4)

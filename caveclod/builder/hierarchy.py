@@ -261,7 +261,8 @@ def _make_blocks(st: _CollapseState, grid, store: TileStore, nonmanifold, scratc
         m = _number_nodes(st, e, m, bases[:-1], made)
     faces, positions = grid.members(k, st.face_pos)
     for b in blocks:
-        store.write_block(b, k, block_rows(st, grid, k, b, faces[b], positions[b], segments[b]))
+        inside = positions.get(b, np.zeros(0, np.int32))    # none: a block of border positions only
+        store.write_block(b, k, block_rows(st, grid, k, b, faces[b], inside, segments[b]))
         store.made.append(b)
 
 
