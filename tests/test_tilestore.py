@@ -88,6 +88,8 @@ def test_a_missing_block_names_its_job(tmp_path):
 
 
 def test_tiles_of_another_input_or_damaged_are_refused(tmp_path):
+    with pytest.raises(InputError, match="holds no blocks"):          # the jobs have not run (or wrote elsewhere)
+        build_static_mesh(SOURCES["rough"](), tiles=4, store=TileStore(tmp_path / "nowhere"))
     jobs(SOURCES["rough"], tmp_path, 2)
     with pytest.raises(InputError, match="another input"):
         build_static_mesh(SOURCES["rough"](seed=8), tiles=4, store=TileStore(tmp_path))

@@ -182,7 +182,7 @@ def collapse_all(positions: np.ndarray, face_pos: np.ndarray, topo: Topology, la
                    enabled=progress)
     start, m, passes = 0, 0, 0
     if store is not None and store.job is None:
-        start, m, passes = read_blocks(store, st, grid, e)      # (0, 0, 0) if the directory holds no tiles
+        start, m, passes = read_blocks(store, st, grid, e)      # (0, 0, 0) for a grid of one tile
         bar.update(m)
     with ThreadPoolExecutor(workers) as pool:
         if store is not None and store.job is not None:

@@ -249,7 +249,8 @@ def block_rows(st, grid, level: int, block: int, faces: np.ndarray, positions: n
 def read_blocks(store: TileStore, st, grid, e: int) -> tuple[int, int, int]:
     """The merge: scatter every block of the directory into ``st``, nodes
     renumbered as one process numbers them; returns (the next level to
-    build, nodes made, passes made), (0, 0, 0) if the directory has no tiles.
+    build, nodes made, passes made); (0, 0, 0) for a grid of one tile, whose
+    jobs write nothing.
 
     One process numbers a level's nodes tile after tile, levels one after
     another; a job numbered only its own blocks' tiles so. Each tile's
@@ -258,7 +259,10 @@ def read_blocks(store: TileStore, st, grid, e: int) -> tuple[int, int, int]:
     """
     files = store.present()
     if not files:
-        return 0, 0, 0
+        if block_level(grid, 1) is None:
+            return 0, 0, 0                    # one tile: the jobs left it all to the merge
+        raise InputError(f"{store.path} holds no blocks of tiles: run the tile jobs (--tile-job I/N, --tiles-dir "
+                         f"{store.path}) with the same input and options first, or build without --tiles-dir")
     levels = {lv for lv, _ in files}
     if len(levels) > 1:
         raise InputError(f"{store.path} holds tiles of jobs run with different numbers of jobs (blocks of levels "
@@ -311,10 +315,19 @@ def _renumber(ids: np.ndarray, local: np.ndarray, made: np.ndarray, start: np.nd
 def _scatter(st, rows: dict, seg: np.ndarray, start: np.ndarray, e: int) -> None:
     """Put a block's rows into ``st``; ``seg`` (s, 6) its segments (and
     block), ``start`` (s,) each segment's first node in the merge's numbering."""
-    by_local = np.argsort(seg[:, 2])
+    # Tiles that made no node start where the next one does: leave them out
+    # of the lookup, which would otherwise find them for the next one's nodes.
+    some = np.flatnonzero(seg[:, 3] > 0)
+    by_local = some[np.argsort(seg[some, 2], kind="stable")]
     local, made, first = seg[by_local, 2], seg[by_local, 3], start[by_local]
     renumber = lambda ids: _renumber(ids, local, made, first, e)       # noqa: E731
     faces, positions, kept = rows["faces"], rows["positions"], rows["kept"]
+    for ids, n, what in ((faces, len(st.alive), "face"), (positions, len(st.vface), "position"),
+                         (kept, len(st.vface), "position")):
+        if len(ids) and (ids.min() < 0 or ids.max() >= n):
+            raise ValueError(f"a {what} id outside the input")
+    if len(start) and int((start + seg[:, 3]).max()) > len(st.child):
+        raise ValueError("more nodes than the input has positions")
     pt_head, pt = st.pt
     st.F[faces], st.N[faces], st.alive[faces] = rows["F"], rows["N"], rows["alive"]
     st.creator[faces], st.rotation[faces], pt_head[faces] = renumber(rows["creator"]), rows["rotation"], rows["pt_head"]
