@@ -128,7 +128,6 @@ class TileGrid:
         cuts = np.flatnonzero(np.diff(tile)) + 1
         return [r for r in np.split(inside, cuts) if len(r)], border
 
-
     def members(self, level: int, face_pos: np.ndarray) -> tuple[dict, dict]:
         """Each tile's faces and inside positions at ``level``, whether still in the mesh or not.
 
