@@ -239,6 +239,9 @@ def _make_blocks(st: _CollapseState, grid, store: TileStore, nonmanifold, scratc
     store.loaded.extend(b for b in mine if store.finished(b, k))          # written by an earlier try
     blocks = [b for b in mine if b not in store.loaded]
     store.level = k
+    faces, positions = grid.members(k, st.face_pos)
+    bar.label = f"collapsing blocks of tile job {store.job[0]}/{store.job[1]}"
+    bar.total = max(sum(len(positions.get(b, ())) for b in blocks), 1)     # each collapse removes one of them
     todo = np.zeros(grid.tiles_at(k) ** 2, bool)
     todo[blocks] = True
     segments: dict[int, list] = {b: [] for b in blocks}
@@ -259,7 +262,6 @@ def _make_blocks(st: _CollapseState, grid, store: TileStore, nonmanifold, scratc
         for j, i in enumerate(mine):
             segments[int(owner[i])].append((level, int(tiles[i]), int(starts[j]), int(made[j]), int(passes[j])))
         m = _number_nodes(st, e, m, bases[:-1], made)
-    faces, positions = grid.members(k, st.face_pos)
     for b in blocks:
         inside = positions.get(b, np.zeros(0, np.int32))    # none: a block of border positions only
         store.write_block(b, k, block_rows(st, grid, k, b, faces[b], inside, segments[b]))
