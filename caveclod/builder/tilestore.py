@@ -176,10 +176,10 @@ class TileStore:
                              "its tile job again")
         return meta
 
-    def rows(self, block: int, level: int) -> dict:
-        """A block file's rows (checked by :meth:`meta` first)."""
-        with self._open(self.file(block, level)) as z:
-            return {k: z[k] for k in z.files if k != "meta"}
+    def rows(self, block: int, level: int):
+        """A block file's rows, read one array at a time when asked for
+        (``rows[name]``; checked by :meth:`meta` first): a context manager."""
+        return self._open(self.file(block, level))
 
     @staticmethod
     def _open(path: Path):
@@ -290,8 +290,9 @@ def read_blocks(store: TileStore, st, grid, e: int) -> tuple[int, int, int]:
     for b in metas:
         mine = seg[:, 5] == b
         try:
-            _scatter(st, store.rows(b, level), seg[mine], starts[mine], e)
-        except (ValueError, IndexError, KeyError) as exc:
+            with store.rows(b, level) as rows:
+                _scatter(st, rows, seg[mine], starts[mine], e)
+        except (ValueError, IndexError, KeyError, OSError, EOFError, zipfile.BadZipFile) as exc:
             raise InputError(f"tile file {store.file(b, level)} does not fit this input ({exc}); delete the tiles "
                              "and run the tile jobs again") from None
         store.loaded.append(b)
@@ -313,8 +314,9 @@ def _renumber(ids: np.ndarray, local: np.ndarray, made: np.ndarray, start: np.nd
 
 
 def _scatter(st, rows: dict, seg: np.ndarray, start: np.ndarray, e: int) -> None:
-    """Put a block's rows into ``st``; ``seg`` (s, 6) its segments (and
-    block), ``start`` (s,) each segment's first node in the merge's numbering."""
+    """Put a block's rows (``rows[name]``: an array) into ``st``; ``seg`` (s, 6)
+    its segments (and block), ``start`` (s,) each segment's first node in the
+    merge's numbering."""
     # Tiles that made no node start where the next one does: leave them out
     # of the lookup, which would otherwise find them for the next one's nodes.
     some = np.flatnonzero(seg[:, 3] > 0)
@@ -329,18 +331,25 @@ def _scatter(st, rows: dict, seg: np.ndarray, start: np.ndarray, e: int) -> None
     if len(start) and int((start + seg[:, 3]).max()) > len(st.child):
         raise ValueError("more nodes than the input has positions")
     pt_head, pt = st.pt
-    st.F[faces], st.N[faces], st.alive[faces] = rows["F"], rows["N"], rows["alive"]
-    st.creator[faces], st.rotation[faces], pt_head[faces] = renumber(rows["creator"]), rows["rotation"], rows["pt_head"]
-    st.Q[positions], st.cur_node[positions], pt[positions] = rows["Q"], renumber(rows["cur_node"]), rows["pt"]
-    st.parent[positions], st.vface[positions] = renumber(rows["leaf_parent"]), rows["vface"]
-    st.vface[kept] = rows["vface_kept"]
-    at = 0                                    # node rows come in the file's segment order
-    for n, s in zip(seg[:, 3].tolist(), start.tolist()):
-        rows_in, rows_out = slice(at, at + n), slice(s, s + n)
-        st.child[rows_out] = renumber(rows["child"][rows_in])
-        st.npos[rows_out], st.nfaces[rows_out], st.nfn[rows_out] = \
-            rows["npos"][rows_in], rows["nfaces"][rows_in], rows["nfn"][rows_in]
-        st.sphere[rows_out], st.err[rows_out] = rows["sphere"][rows_in], rows["err"][rows_in]
-        st.parent[e + s:e + s + n] = renumber(rows["node_parent"][rows_in])
-        st.cone[e + s:e + s + n] = rows["cone"][rows_in]
-        at += n
+    # One array read at a time (``rows`` reads from the file when indexed):
+    # the merge holds the build's arrays and one row array of a block.
+    for target, ids, name, ours in ((st.F, faces, "F", False), (st.N, faces, "N", False),
+                                    (st.alive, faces, "alive", False), (st.creator, faces, "creator", True),
+                                    (st.rotation, faces, "rotation", False), (pt_head, faces, "pt_head", False),
+                                    (st.Q, positions, "Q", False), (st.cur_node, positions, "cur_node", True),
+                                    (pt, positions, "pt", False), (st.parent, positions, "leaf_parent", True),
+                                    (st.vface, positions, "vface", False), (st.vface, kept, "vface_kept", False)):
+        target[ids] = renumber(rows[name]) if ours else rows[name]
+    # Node rows come in the file's segment order; each segment moves to its start.
+    ends = np.cumsum(seg[:, 3])
+    for target, offset, name, ours in ((st.child, 0, "child", True), (st.npos, 0, "npos", False),
+                                       (st.nfaces, 0, "nfaces", False), (st.nfn, 0, "nfn", False),
+                                       (st.sphere, 0, "sphere", False), (st.err, 0, "err", False),
+                                       (st.parent, e, "node_parent", True), (st.cone, e, "cone", False)):
+        values = rows[name]
+        if len(values) != (ends[-1] if len(ends) else 0):
+            raise ValueError(f"{name}: {len(values)} rows for {ends[-1] if len(ends) else 0} nodes")
+        if ours:
+            values = renumber(values)
+        for n, s, end in zip(seg[:, 3].tolist(), start.tolist(), ends.tolist()):
+            target[offset + s:offset + s + n] = values[end - n:end]
