@@ -178,6 +178,24 @@ def test_a_dropped_websocket_leaves_the_session_resumable(make_server):
     assert p.info.resumed and p.token == token and client.status.code == 0 and p.divergences == 0
 
 
+def test_a_websocket_closed_as_its_page_unloads_ends_the_session(make_server):
+    """Close code 1001 (going away: what a browser sends for a page it unloads) ends the session
+    even when the page's Close message was lost with the page; the resumable drop above sent 1000."""
+    server = make_server(web_port=0, resume_ttl=30)
+    p = SessionProtocol("terrain", 1, OPTIONS, frame_encoding="raw")
+
+    async def leave():
+        async with aiohttp.ClientSession() as http:
+            ws = await http.ws_connect(_url(server), protocols=[web.SUBPROTOCOL])
+            client = WsClient(ws, p)
+            await client.send(p.open_message())
+            while not p.ready:
+                await client.receive()
+            await ws.close(code=web.GOING_AWAY)
+    _run(leave())
+    assert wait_until(lambda: not server.sessions.sessions, timeout=10), "left resumable for the TTL"
+
+
 def test_websocket_and_grpc_sessions_share_the_limit(make_server):
     from service import Driver
     server = make_server(web_port=0, max_sessions=1)

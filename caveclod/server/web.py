@@ -68,6 +68,15 @@ def _reason(message: str) -> str:
     return data.decode(errors="ignore")
 
 
+GOING_AWAY = 1001
+"""The close code a browser sends for a page's WebSockets when the page
+unloads (the HTML standard): the page, and the session token it held in
+memory, are gone, so its session ends instead of waiting to be resumed.
+The page sends a Close first on ``pagehide``, but a message sent while
+the page unloads may be dropped with the page. A dropped connection
+(no close frame) or any other code leaves the session resumable."""
+
+
 class WebSocketCall:
     """One WebSocket session as :class:`.service.LodService` sees a grpc.aio call.
 
@@ -75,7 +84,8 @@ class WebSocketCall:
     that do not parse, or a text message); when the connection ends it runs
     the done callbacks first, so that the session reads the end as a broken
     stream (resumable), not a half-close: a browser says goodbye with a
-    Close message (the page does on unload).
+    Close message (the page does on unload), or closes with
+    :data:`GOING_AWAY` as it unloads the page.
     """
 
     def __init__(self, ws: web.WebSocketResponse, peer: str, metrics):
@@ -147,6 +157,8 @@ class WebSocketCall:
         except Exception:
             self.mark_done()                  # the connection broke under the read
             raise
+        if self.ws.close_code == GOING_AWAY:
+            return                            # the page unloaded: a goodbye (a half-close), as a Close is
         self.mark_done()                      # the connection closed: a broken stream, not a half-close
 
 
