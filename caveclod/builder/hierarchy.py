@@ -262,9 +262,10 @@ def _make_blocks(st: _CollapseState, grid, store: TileStore, nonmanifold, scratc
         for j, i in enumerate(mine):
             segments[int(owner[i])].append((level, int(tiles[i]), int(starts[j]), int(made[j]), int(passes[j])))
         m = _number_nodes(st, e, m, bases[:-1], made)
+    face_block = grid.face_tiles(k)
     for b in blocks:
         inside = positions.get(b, np.zeros(0, np.int32))    # none: a block of border positions only
-        store.write_block(b, k, block_rows(st, grid, k, b, faces[b], inside, segments[b]))
+        store.write_block(b, k, block_rows(st, face_block, b, faces[b], inside, segments[b]))
         store.made.append(b)
 
 

@@ -117,9 +117,7 @@ class TileGrid:
         if self.tiles_at(level) == 1:         # one tile: every live position is inside, none on a border
             inside = np.flatnonzero(live).astype(np.int32)
             return ([inside] if len(inside) else []), np.zeros(e, bool)
-        lo = np.full(e, np.iinfo(np.int32).max, np.int32)
-        hi = np.full(e, -1, np.int32)
-        _tile_range(self.face_cell, np.ascontiguousarray(face_pos, np.int32), level, self.tiles_at(level), lo, hi)
+        lo, hi = self._tile_range(level, face_pos, e)
         border = (hi >= 0) & (lo != hi)
         inside = np.flatnonzero((lo == hi) & live).astype(np.int32)
         tile = lo[inside]
@@ -135,13 +133,19 @@ class TileGrid:
         for the tiles that have faces (positions: those whose every face is
         in the tile).
         """
-        e = int(face_pos.max(initial=-1)) + 1
-        lo = np.full(e, np.iinfo(np.int32).max, np.int32)
-        hi = np.full(e, -1, np.int32)
-        _tile_range(self.face_cell, np.ascontiguousarray(face_pos, np.int32), level, self.tiles_at(level), lo, hi)
+        lo, hi = self._tile_range(level, face_pos, int(face_pos.max(initial=-1)) + 1)
         face_tile = self.face_tiles(level)
         inside = np.flatnonzero((lo == hi) & (hi >= 0)).astype(np.int32)
         return _group(face_tile, np.arange(len(face_tile), dtype=np.int32)), _group(lo[inside], inside)
+
+
+    def _tile_range(self, level: int, face_pos: np.ndarray, e: int) -> tuple[np.ndarray, np.ndarray]:
+        """(lo, hi) (e,) int32: the lowest and highest tile at ``level`` of
+        the faces around each position (hi -1: no face)."""
+        lo = np.full(e, np.iinfo(np.int32).max, np.int32)
+        hi = np.full(e, -1, np.int32)
+        _tile_range(self.face_cell, np.ascontiguousarray(face_pos, np.int32), level, self.tiles_at(level), lo, hi)
+        return lo, hi
 
 
 def _group(keys: np.ndarray, ids: np.ndarray) -> dict:

@@ -218,31 +218,42 @@ block that made nodes at a level, with the first of the job's own node
 numbers it used (its nodes come in that order in the file's node rows)."""
 
 
-def block_rows(st, grid, level: int, block: int, faces: np.ndarray, positions: np.ndarray, segments: list) -> dict:
-    """What block ``block`` of ``level`` changed in the build's arrays
-    ``st`` (a ``_CollapseState``) through every level up to its own, as
-    name -> a function that gathers the rows (made while writing): its
-    faces' rows (``faces`` (f,) int32), its inside positions' (``positions``
-    (k,) int32), the kept faces of border positions that are its own, and
-    its nodes' rows, segment by segment (``segments``: tuples of
-    :data:`SEGMENT`)."""
-    corners = np.unique(st.face_pos[faces])
-    face_tile = grid.face_tiles(level)
-    kept = corners[(st.vface[corners] >= 0) & (face_tile[np.maximum(st.vface[corners], 0)] == block)]
+def _row_arrays(st) -> tuple:
+    """(name, array, rows by, holds node ids) of every array a block writes
+    and the merge scatters: one table for both, so the two cannot drift.
+    ``rows by``: "faces", "positions" (inside ones), "kept" (border
+    positions whose kept face is the block's) or "nodes" (internal nodes;
+    the arrays indexed by node id are viewed from row e)."""
     pt_head, pt = st.pt
-    seg = np.array(segments, np.int64).reshape(-1, len(SEGMENT))
     e = len(st.P)
+    return (("F", st.F, "faces", False), ("N", st.N, "faces", False), ("alive", st.alive, "faces", False),
+            ("creator", st.creator, "faces", True), ("rotation", st.rotation, "faces", False),
+            ("pt_head", pt_head, "faces", False),
+            ("Q", st.Q, "positions", False), ("cur_node", st.cur_node, "positions", True),
+            ("pt", pt, "positions", False), ("leaf_parent", st.parent, "positions", True),
+            ("vface", st.vface, "positions", False), ("vface_kept", st.vface, "kept", False),
+            ("child", st.child, "nodes", True), ("npos", st.npos, "nodes", False),
+            ("nfaces", st.nfaces, "nodes", False), ("nfn", st.nfn, "nodes", False),
+            ("sphere", st.sphere, "nodes", False), ("err", st.err, "nodes", False),
+            ("node_parent", st.parent[e:], "nodes", True), ("cone", st.cone[e:], "nodes", False))
+
+
+def block_rows(st, face_tile: np.ndarray, block: int, faces: np.ndarray, positions: np.ndarray,
+               segments: list) -> dict:
+    """What block ``block`` changed in the build's arrays ``st`` (a
+    ``_CollapseState``) through every level up to its own, as name -> a
+    function that gathers the rows (made while writing): its faces' rows
+    (``faces`` (f,) int32; ``face_tile`` (p,) every face's block), its
+    inside positions' (``positions`` (k,) int32), the kept faces of border
+    positions that are its own, and its nodes' rows, segment by segment
+    (``segments``: tuples of :data:`SEGMENT`)."""
+    corners = np.unique(st.face_pos[faces])
+    kept = corners[(st.vface[corners] >= 0) & (face_tile[np.maximum(st.vface[corners], 0)] == block)]
+    seg = np.array(segments, np.int64).reshape(-1, len(SEGMENT))
     nodes = np.concatenate([np.arange(s, s + n) for s, n in zip(seg[:, 2], seg[:, 3])] or [np.zeros(0, np.int64)])
-    by_face = {"F": st.F, "N": st.N, "alive": st.alive, "creator": st.creator, "rotation": st.rotation,
-               "pt_head": pt_head}
-    by_position = {"Q": st.Q, "cur_node": st.cur_node, "pt": pt, "leaf_parent": st.parent, "vface": st.vface}
-    by_node = {"child": st.child, "npos": st.npos, "nfaces": st.nfaces, "nfn": st.nfn, "sphere": st.sphere,
-               "err": st.err}
-    rows = {"segments": lambda: seg, "faces": lambda: faces, "positions": lambda: positions, "kept": lambda: kept,
-            "vface_kept": lambda: st.vface[kept], "node_parent": lambda: st.parent[e + nodes],
-            "cone": lambda: st.cone[e + nodes]}
-    for table, ids in ((by_face, faces), (by_position, positions), (by_node, nodes)):
-        rows.update({name: (lambda a=a, ids=ids: a[ids]) for name, a in table.items()})
+    ids = {"faces": faces, "positions": positions, "kept": kept, "nodes": nodes}
+    rows = {"segments": lambda: seg, **{by: (lambda i=i: i) for by, i in ids.items() if by != "nodes"}}
+    rows.update({name: (lambda a=a, i=ids[by]: a[i]) for name, a, by, _ in _row_arrays(st)})
     return rows
 
 
@@ -323,33 +334,23 @@ def _scatter(st, rows: dict, seg: np.ndarray, start: np.ndarray, e: int) -> None
     by_local = some[np.argsort(seg[some, 2], kind="stable")]
     local, made, first = seg[by_local, 2], seg[by_local, 3], start[by_local]
     renumber = lambda ids: _renumber(ids, local, made, first, e)       # noqa: E731
-    faces, positions, kept = rows["faces"], rows["positions"], rows["kept"]
-    for ids, n, what in ((faces, len(st.alive), "face"), (positions, len(st.vface), "position"),
-                         (kept, len(st.vface), "position")):
-        if len(ids) and (ids.min() < 0 or ids.max() >= n):
-            raise ValueError(f"a {what} id outside the input")
+    ids = {by: rows[by] for by in ("faces", "positions", "kept")}
+    for by, n in (("faces", len(st.alive)), ("positions", len(st.vface)), ("kept", len(st.vface))):
+        if len(ids[by]) and (ids[by].min() < 0 or ids[by].max() >= n):
+            raise ValueError(f"{by}: an id outside the input")
     if len(start) and int((start + seg[:, 3]).max()) > len(st.child):
         raise ValueError("more nodes than the input has positions")
-    pt_head, pt = st.pt
+    total = int(seg[:, 3].sum())
+    ends = np.cumsum(seg[:, 3])
     # One array read at a time (``rows`` reads from the file when indexed):
     # the merge holds the build's arrays and one row array of a block.
-    for target, ids, name, ours in ((st.F, faces, "F", False), (st.N, faces, "N", False),
-                                    (st.alive, faces, "alive", False), (st.creator, faces, "creator", True),
-                                    (st.rotation, faces, "rotation", False), (pt_head, faces, "pt_head", False),
-                                    (st.Q, positions, "Q", False), (st.cur_node, positions, "cur_node", True),
-                                    (pt, positions, "pt", False), (st.parent, positions, "leaf_parent", True),
-                                    (st.vface, positions, "vface", False), (st.vface, kept, "vface_kept", False)):
-        target[ids] = renumber(rows[name]) if ours else rows[name]
-    # Node rows come in the file's segment order; each segment moves to its start.
-    ends = np.cumsum(seg[:, 3])
-    for target, offset, name, ours in ((st.child, 0, "child", True), (st.npos, 0, "npos", False),
-                                       (st.nfaces, 0, "nfaces", False), (st.nfn, 0, "nfn", False),
-                                       (st.sphere, 0, "sphere", False), (st.err, 0, "err", False),
-                                       (st.parent, e, "node_parent", True), (st.cone, e, "cone", False)):
-        values = rows[name]
-        if len(values) != (ends[-1] if len(ends) else 0):
-            raise ValueError(f"{name}: {len(values)} rows for {ends[-1] if len(ends) else 0} nodes")
-        if ours:
-            values = renumber(values)
+    for name, target, by, holds_nodes in _row_arrays(st):
+        values = renumber(rows[name]) if holds_nodes else rows[name]
+        if by != "nodes":
+            target[ids[by]] = values
+            continue
+        if len(values) != total:
+            raise ValueError(f"{name}: {len(values)} rows for {total} nodes")
+        # Node rows come in the file's segment order; each segment moves to its start.
         for n, s, end in zip(seg[:, 3].tolist(), start.tolist(), ends.tolist()):
-            target[offset + s:offset + s + n] = values[end - n:end]
+            target[s:s + n] = values[end - n:end]
