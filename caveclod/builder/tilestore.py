@@ -64,7 +64,7 @@ FORMAT = 1
 """Version of the tile files' layout."""
 
 _CODE = ("kernels/simplify.py", "kernels/carried.py", "kernels/surfacegap.py", "kernels/bounds.py",
-         "kernels/distance.py", "kernels/fans.py", "builder/hierarchy.py", "builder/tiles.py",
+         "kernels/distance.py", "kernels/fans.py", "kernels/borrow.py", "builder/hierarchy.py", "builder/tiles.py",
          "builder/tilestore.py")
 """Sources whose change may change a tile (they go into the fingerprint)."""
 

@@ -57,6 +57,7 @@ import math
 import numba as nb
 import numpy as np
 
+from .borrow import borrow
 from .bounds import cone_add_cone, quadric_add_plane, quadric_eval, sphere_add_sphere
 from .carried import remeasure
 from .fans import collect_fan, corner_of, replace_in_row
@@ -377,11 +378,21 @@ def rank_collapses(P, F, N, vface, fgroup, pclass, fixed, pg_start, pg_groups, Q
     something nearby. Reads the mesh only, so two threads may rank disjoint
     regions at once, each with its own ``mark`` and ``counter``.
     """
-    fan_u = np.empty(4096, np.int32)
-    fan_t = np.empty(4096, np.int32)
-    ring = np.empty(4096, np.int32)
-    cand_t = np.empty(4096, np.int32)
-    cand_c = np.empty(4096)
+    _rank_collapses(P, F, N, vface, fgroup, pclass, fixed, pg_start, pg_groups, Q, lock, mark, best_t, best_c, pass_id,
+                    region, counter, np.empty(4096, np.int32), np.empty(4096, np.int32), np.empty(4096, np.int32),
+                    np.empty(4096, np.int32), np.empty(4096))
+
+
+@nb.njit(cache=True, nogil=True)
+def _rank_collapses(P, F, N, vface, fgroup, pclass, fixed, pg_start, pg_groups, Q, lock, mark,
+                    best_t, best_c, pass_id, region, counter, fan_u, fan_t, ring, cand_t, cand_c):
+    """:func:`rank_collapses` with its scratch ((4096,) each), every array
+    borrowed (:mod:`caveclod.kernels.borrow`)."""
+    P, F, N, vface, fgroup, pclass, fixed, pg_start, pg_groups, Q, lock, mark = (
+        borrow(P), borrow(F), borrow(N), borrow(vface), borrow(fgroup), borrow(pclass), borrow(fixed),
+        borrow(pg_start), borrow(pg_groups), borrow(Q), borrow(lock), borrow(mark))
+    best_t, best_c, region, counter = borrow(best_t), borrow(best_c), borrow(region), borrow(counter)
+    fan_u, fan_t, ring, cand_t, cand_c = borrow(fan_u), borrow(fan_t), borrow(ring), borrow(cand_t), borrow(cand_c)
     for r in range(region.shape[0]):
         u = region[r]
         if vface[u] == -1 or pclass[u] == RIGID or fixed[u]:
@@ -465,11 +476,33 @@ def perform_collapses(P, F, N, vface, alive, fgroup, pclass, fixed, pg_start, pg
     At most ``fraction`` of the ranked ones (the cheapest) are tried unless
     none of those could be made. Each is checked again on the current mesh.
     """
-    e = P.shape[0]
-    fan_u = np.empty(4096, np.int32)
-    fan_t = np.empty(4096, np.int32)
-    heads = np.empty(4096, np.int32)
     pieces, ends = edge_stack()
+    return _perform_collapses(P, F, N, vface, alive, fgroup, pclass, fixed, pg_start, pg_groups, Q, cur_node, parent,
+                              child, npos, nfaces, nfn, sphere, cone, err, creator, rotation, pt_head, pt, face_pos,
+                              face_nbrs, star_start, star_faces, m, lock, mark, pass_id, fraction, cost, target, src,
+                              nc, counter, np.empty(4096, np.int32), np.empty(4096, np.int32),
+                              np.empty(4096, np.int32), pieces, ends)
+
+
+@nb.njit(cache=True, nogil=True)
+def _perform_collapses(P, F, N, vface, alive, fgroup, pclass, fixed, pg_start, pg_groups, Q,
+                       cur_node, parent, child, npos, nfaces, nfn, sphere, cone, err, creator, rotation,
+                       pt_head, pt, face_pos, face_nbrs, star_start, star_faces, m, lock, mark, pass_id, fraction,
+                       cost, target, src, nc, counter, fan_u, fan_t, heads, pieces, ends):
+    """:func:`perform_collapses` with its scratch (``fan_u``, ``fan_t``,
+    ``heads`` (4096,) int32, ``pieces``, ``ends`` from :func:`edge_stack`),
+    every array borrowed (:mod:`caveclod.kernels.borrow`)."""
+    P, F, N, vface, alive, fgroup, pclass, fixed, pg_start, pg_groups, Q = (
+        borrow(P), borrow(F), borrow(N), borrow(vface), borrow(alive), borrow(fgroup), borrow(pclass), borrow(fixed),
+        borrow(pg_start), borrow(pg_groups), borrow(Q))
+    cur_node, parent, child, npos, nfaces, nfn, sphere, cone, err, creator, rotation = (
+        borrow(cur_node), borrow(parent), borrow(child), borrow(npos), borrow(nfaces), borrow(nfn), borrow(sphere),
+        borrow(cone), borrow(err), borrow(creator), borrow(rotation))
+    pt_head, pt, face_pos, face_nbrs, star_start, star_faces, lock, mark, cost, target, src, counter = (
+        borrow(pt_head), borrow(pt), borrow(face_pos), borrow(face_nbrs), borrow(star_start), borrow(star_faces),
+        borrow(lock), borrow(mark), borrow(cost), borrow(target), borrow(src), borrow(counter))
+    fan_u, fan_t, heads, pieces, ends = borrow(fan_u), borrow(fan_t), borrow(heads), borrow(pieces), borrow(ends)
+    e = P.shape[0]
     if nc == 0:
         return m
     # The cheapest ``fraction`` of the ranked collapses are made first (the
