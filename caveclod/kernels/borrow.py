@@ -3,12 +3,11 @@
 numba counts the references to every array a jitted function binds: a call
 with array arguments, or an inlined helper's parameters, adds one to each
 array's count on the way in and takes it off on the way out, each an atomic
-instruction on a count that every thread using the array shares. In the
-build's inner loops (a carried point re-measured, a step of a walk over the
-original surface) those pairs took about a quarter of the CPU (``perf`` on
-the rough 1M terrain: two instructions, ``lock incq`` and ``lock decq``,
-held 24 % of the samples in every thread), and threads working on the same
-arrays contend for the cache line that holds the count.
+instruction (``lock incq``, ``lock decq``). In the build's inner loops (a
+carried point re-measured, a step of a walk over the original surface)
+those pairs took about a quarter of the CPU: ``perf`` on the rough 1M
+terrain found 24-27 % of the samples, in every thread, on those two
+instructions.
 
 :func:`borrow` gives the same array (data, shape, strides) without its
 meminfo, and numba does not count an array that has none. The rule that
