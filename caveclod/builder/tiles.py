@@ -117,7 +117,7 @@ class TileGrid:
         if self.tiles_at(level) == 1:         # one tile: every live position is inside, none on a border
             inside = np.flatnonzero(live).astype(np.int32)
             return ([inside] if len(inside) else []), np.zeros(e, bool)
-        lo, hi = self._tile_range(level, face_pos, e)
+        lo, hi = self._tiles_around(level, face_pos, e)
         border = (hi >= 0) & (lo != hi)
         inside = np.flatnonzero((lo == hi) & live).astype(np.int32)
         tile = lo[inside]
@@ -133,13 +133,12 @@ class TileGrid:
         for the tiles that have faces (positions: those whose every face is
         in the tile).
         """
-        lo, hi = self._tile_range(level, face_pos, int(face_pos.max(initial=-1)) + 1)
+        lo, hi = self._tiles_around(level, face_pos, int(face_pos.max(initial=-1)) + 1)
         face_tile = self.face_tiles(level)
         inside = np.flatnonzero((lo == hi) & (hi >= 0)).astype(np.int32)
         return _group(face_tile, np.arange(len(face_tile), dtype=np.int32)), _group(lo[inside], inside)
 
-
-    def _tile_range(self, level: int, face_pos: np.ndarray, e: int) -> tuple[np.ndarray, np.ndarray]:
+    def _tiles_around(self, level: int, face_pos: np.ndarray, e: int) -> tuple[np.ndarray, np.ndarray]:
         """(lo, hi) (e,) int32: the lowest and highest tile at ``level`` of
         the faces around each position (hi -1: no face)."""
         lo = np.full(e, np.iinfo(np.int32).max, np.int32)
