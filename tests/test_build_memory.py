@@ -94,3 +94,42 @@ def test_meshes_and_built_ins_are_checked_too(monkeypatch):
     with pytest.raises(InputError, match=r"the mesh: 20,480 triangles"):
         caveclod.build(box, packed=False)
     assert caveclod.build(box, packed=False, check_memory=False).info["input_triangles"] == 20_480
+
+
+def test_the_build_drops_its_input_once_it_has_made_its_own_arrays(monkeypatch):
+    """caveclod.build keeps no name on the loaded input: a heightfield's mesh before normals
+    (its vertices, faces and UVs, about 20 bytes a triangle) is gone before the collapses start,
+    whose arrays are the build's peak."""
+    import weakref
+    from caveclod import api
+    from caveclod.builder import hierarchy
+    loaded, seen = [], []
+    real_source, real_collapse = api.to_source, hierarchy.collapse_all
+
+    def to_source(*a, **k):
+        src = real_source(*a, **k)
+        loaded.append((weakref.ref(src), weakref.ref(src.faces)))
+        return src
+
+    def collapse_all(*a, **k):
+        seen.append([r() is None for r in loaded[0]])
+        return real_collapse(*a, **k)
+
+    monkeypatch.setattr(api, "to_source", to_source)
+    monkeypatch.setattr(hierarchy, "collapse_all", collapse_all)
+    mesh = caveclod.build("rough", size=48, packed=False)
+    assert mesh.info["input_triangles"] > 0
+    assert seen == [[True, True]], "the loaded input (and its faces) outlived the preparation"
+
+
+def test_giving_back_freed_memory_is_harmless_without_glibc(monkeypatch):
+    import ctypes
+
+    def no_glibc(name, *a, **k):
+        raise OSError(f"{name}: cannot open shared object file")
+
+    memory.give_back_freed_memory()                          # glibc here, or nothing to do
+    monkeypatch.setattr(memory, "_malloc_trim", None)
+    monkeypatch.setattr(ctypes, "CDLL", no_glibc)
+    memory.give_back_freed_memory()                          # musl, macOS: a no-op, no error
+    assert memory._malloc_trim is False

@@ -95,6 +95,21 @@ def test_bounds_are_monotone_up_the_tree(built):
     ok = lp >= 0
     dl = np.linalg.norm(mesh.positions[leaf[ok]] - sph[lp[ok] - e, :3], axis=1)
     assert (dl <= sph[lp[ok] - e, 3] + tol).all()
+    # A leaf's normal cone (made when its collapse needs it, never stored) is its original faces':
+    # every such normal lies inside the cone of the leaf's parent.
+    from caveclod.refine.measure import original_triangles
+    tri = original_triangles(mesh)
+    V = np.asarray(mesh.vertex_positions, np.float64)
+    n = np.cross(V[tri[:, 1]] - V[tri[:, 0]], V[tri[:, 2]] - V[tri[:, 0]])
+    ln = np.linalg.norm(n, axis=1)
+    face, corner = np.nonzero(np.broadcast_to((ln > 1e-9 * scale * scale)[:, None], tri.shape))
+    owner = parent[np.asarray(mesh.vertex_position_ids)[tri[face, corner]]]
+    face, owner = face[owner >= 0], owner[owner >= 0] - e
+    unit = n[face] / ln[face, None]
+    angle = np.arctan2(np.linalg.norm(np.cross(cone[owner, :3], unit), axis=1),
+                       np.einsum("ij,ij->i", cone[owner, :3], unit))
+    assert len(face) and ((cone[owner, 3] >= np.pi - 1e-6) | (angle <= cone[owner, 3] + 1e-4)).all(), \
+        "a leaf's original faces lie inside its parent's normal cone"
 
 
 def test_base_mesh_is_small_for_terrain():

@@ -22,6 +22,7 @@ from ..kernels.bounds import empty_cones, empty_spheres
 from ..kernels.carried import new_store
 from ..kernels.simplify import gather_candidates, init_leaves, perform_collapses, rank_collapses
 from ..kernels.surfacegap import star_lists
+from .memory import give_back_freed_memory
 from .normals import add_crease_normals
 from ..progress import Progress, stage
 from .source import SourceMesh
@@ -48,7 +49,9 @@ def build_static_mesh(source: SourceMesh, crease_angle: float | None = None, pro
     """
     t0 = time.perf_counter()
     source, face_pos, topo, lay = _prepare(source, crease_angle, progress)
+    give_back_freed_memory()                  # after each phase: module doc of .memory
     hier = collapse_all(source.positions, face_pos, topo, lay, progress, tiles=tiles, workers=workers, store=store)
+    give_back_freed_memory()
     mesh = StaticMesh(arrays=static_arrays(source, face_pos, lay, hier), materials=list(source.materials))
     mesh.info = {
         "build_seconds": round(time.perf_counter() - t0, 3),
@@ -64,6 +67,8 @@ def build_static_mesh(source: SourceMesh, crease_angle: float | None = None, pro
         mesh.info["blocks_read"] = len(store.loaded)
     if mesh.info["base_mesh"]["large"]:
         mesh.info["notes"].append(mesh.info["base_mesh"]["why"])
+    del hier, topo, lay, face_pos
+    give_back_freed_memory()
     return mesh
 
 
@@ -75,6 +80,7 @@ def build_tile_job(source: SourceMesh, store: TileStore, crease_angle: float | N
     (None: a grid of one tile, left to the merge), the grid and the seconds."""
     t0 = time.perf_counter()
     source, face_pos, topo, lay = _prepare(source, crease_angle, progress)
+    give_back_freed_memory()
     collapse_all(source.positions, face_pos, topo, lay, progress, tiles=tiles, workers=workers, store=store)
     return {"tiles_dir": str(store.path), "job": list(store.job), "blocks_written": len(store.made),
             "blocks_found": len(store.loaded), "block_level": store.level,
@@ -104,9 +110,9 @@ class Hierarchy:
     Attributes:
         m: collapses made (internal nodes). passes: passes run.
         parent: (2e,) int32; child, nfaces: (e, 2); nfn: (e, 4); npos: (e,).
-        sphere: (e, 4) float64 and err: (e,) float64, internal nodes only (node
-            e + i at row i: a leaf's sphere is its position, its error 0);
-            cone: (2e, 4) float64 (leaves first).
+        sphere, cone: (e, 4) float64 and err: (e,) float64, internal nodes
+            only (node e + i at row i: a leaf's sphere is its position, its
+            error 0 and its cone that of its original faces).
         creator: (p,) int32 node whose split makes each face, -1 for base.
         rotation: (p,) uint8 corner of each such face that its split's first
             node (t for fl, u for fr) takes, as in the source face.
@@ -156,9 +162,9 @@ def collapse_all(positions: np.ndarray, face_pos: np.ndarray, topo: Topology, la
     N = topo.nbrs.copy()
     vface = np.empty(e, np.int32)
     Q = np.zeros((e, 10))
-    sphere, cone = empty_spheres(e), empty_cones(2 * e)       # no spheres or errors of leaves: points, 0
+    sphere, cone = empty_spheres(e), empty_cones(e)       # internal nodes only (a leaf's are made when needed)
     err = np.zeros(e)
-    init_leaves(P, F, N, lay.face_group, vface, Q, cone)
+    init_leaves(P, F, N, lay.face_group, vface, Q)
     star_start, star_faces = star_lists(face_pos, e)       # the original surface, for the other direction
 
     st = _CollapseState(
@@ -367,10 +373,9 @@ def _number_nodes(st: _CollapseState, e: int, m: int, bases: np.ndarray, made: n
         _renumber_level(ids.reshape(-1), e, m, bases, made, starts)
     for b, k, s in zip(bases.tolist(), made.tolist(), starts.tolist()):
         if k and b != s:                             # s < b: rows move down, never onto rows still to move
-            for a in (st.child, st.npos, st.nfaces, st.nfn, st.sphere, st.err):
+            for a in (st.child, st.npos, st.nfaces, st.nfn, st.sphere, st.cone, st.err):
                 a[s:s + k] = a[b:b + k]
-            for a in (st.parent, st.cone):
-                a[e + s:e + s + k] = a[e + b:e + b + k]
+            st.parent[e + s:e + s + k] = st.parent[e + b:e + b + k]
     st.parent[e + m + total: e + m + span] = -1      # rows left behind: no stale parents for later nodes
     return m + total
 
@@ -416,7 +421,7 @@ def static_arrays(source: SourceMesh, face_pos: np.ndarray, lay, hier: Hierarchy
         "node_links": np.c_[hier.child[:m], hier.nfaces[:m], hier.nfn[:m]].astype(np.int32),
         "node_position": hier.npos[:m].copy(),
         "node_bound": np.c_[_round_spheres(hier.sphere[:m], P), _round_up(hier.err[:m])],
-        "node_cone": _round_cones(hier.cone[e:n]),
+        "node_cone": _round_cones(hier.cone[:m]),
         "base_faces": hier.base,
         "base_face_nodes": hier.base_nodes,
         "base_face_nbrs": hier.base_nbrs,

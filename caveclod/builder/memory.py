@@ -18,6 +18,7 @@ Where neither can be read (not Linux) nothing is checked.
 
 from __future__ import annotations
 
+import ctypes
 import os
 from pathlib import Path
 
@@ -80,3 +81,26 @@ def check_build_memory(triangles: int, what: str, available: int | None = None) 
         f"{PEAK_BYTES_PER_TRIANGLE} bytes a triangle at the build's peak) and {available / gib:.1f} GiB are "
         "available here; build on a machine (or in a container) with more memory, cut the input into "
         "smaller pieces, or for a heightfield take every second sample; --no-memory-check builds anyway")
+
+
+def give_back_freed_memory() -> None:
+    """Give the C heap's free pages back to the system (glibc's ``malloc_trim``).
+
+    Each phase of the build frees arrays of a few megabytes that glibc keeps
+    for later allocations, but the next phase's arrays come in other sizes
+    and it grows the heap instead: after a 1M-triangle build 180 MB were free
+    and still resident, and packing the vertex downloads then raised the
+    peak from 300 to 360 bytes a triangle. A no-op where the C library is not
+    glibc.
+    """
+    global _malloc_trim
+    if _malloc_trim is None:
+        try:
+            _malloc_trim = ctypes.CDLL("libc.so.6").malloc_trim
+        except (OSError, AttributeError):
+            _malloc_trim = False
+    if _malloc_trim:
+        _malloc_trim(0)
+
+
+_malloc_trim = None

@@ -235,7 +235,7 @@ def _row_arrays(st) -> tuple:
             ("child", st.child, "nodes", True), ("npos", st.npos, "nodes", False),
             ("nfaces", st.nfaces, "nodes", False), ("nfn", st.nfn, "nodes", False),
             ("sphere", st.sphere, "nodes", False), ("err", st.err, "nodes", False),
-            ("node_parent", st.parent[e:], "nodes", True), ("cone", st.cone[e:], "nodes", False))
+            ("node_parent", st.parent[e:], "nodes", True), ("cone", st.cone, "nodes", False))
 
 
 def block_rows(st, face_tile: np.ndarray, block: int, faces: np.ndarray, positions: np.ndarray,

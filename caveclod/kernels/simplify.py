@@ -69,15 +69,16 @@ BUCKETS = 32             # cost slices of a pass, each made in position order
 
 
 @nb.njit(cache=True, nogil=True)
-def init_leaves(P, F, N, fgroup, vface, Q, cone):
-    """Per-position quadrics and normal cones of leaves (a leaf's sphere is its
-    point, so none is stored: see :func:`do_collapse`).
+def init_leaves(P, F, N, fgroup, vface, Q):
+    """Per-position quadrics of leaves. A leaf's sphere is its point and its
+    normal cone is made when its collapse needs it (:func:`leaf_cone`), so
+    neither is stored: see :func:`do_collapse`.
 
     Args:
         P: (e, 3) float64 positions. F: (p, 3) int32 faces over positions.
         N: (p, 3) int32 neighbours. fgroup: (p,) int32 surface groups.
         vface: (e,) int32 out: one face at each position (-1 if none).
-        Q: (e, 10) float64 out. cone: (>= e, 4) float64 out.
+        Q: (e, 10) float64 out.
     """
     e = P.shape[0]
     for x in range(e):
@@ -102,10 +103,6 @@ def init_leaves(P, F, N, fgroup, vface, Q, cone):
         for k in range(3):
             x = F[f, k]
             quadric_add_plane(Q[x], n0, n1, n2, d, w)
-            # Normals already inside the cone need no trigonometry.
-            c = cone[x]
-            if c[3] < 0.0 or c[3] < math.pi and c[0] * n0 + c[1] * n1 + c[2] * n2 < math.cos(c[3]) - 1e-12:
-                cone_add_cone(c, n0, n1, n2, 0.0)
             h = N[f, k]
             if h >= 0 and fgroup[h] == fgroup[f]:
                 continue
@@ -122,6 +119,34 @@ def init_leaves(P, F, N, fgroup, vface, Q, cone):
             wb = BOUNDARY_WEIGHT * (ex * ex + ey * ey + ez * ez)
             quadric_add_plane(Q[xa], m0, m1, m2, md, wb)
             quadric_add_plane(Q[xb], m0, m1, m2, md, wb)
+
+
+@nb.njit(cache=True, nogil=True, inline="always")
+def leaf_cone(x, P, face_pos, star_start, star_faces, c):
+    """Write into ``c`` (4,) the normal cone of position ``x``'s faces in the
+    original mesh (``face_pos`` (p, 3) int32, ``star_start`` and
+    ``star_faces`` its CSR lists: :func:`caveclod.kernels.surfacegap.star_lists`).
+
+    Made when the leaf's collapse needs it rather than kept for every
+    position (16 bytes a triangle at the build's peak); the faces come in
+    id order, so the cone is the one a pass over all faces would make.
+    """
+    c[0], c[1], c[2], c[3] = 0.0, 0.0, 1.0, -1.0
+    for i in range(star_start[x], star_start[x + 1]):
+        f = star_faces[i]
+        a, b, d = face_pos[f, 0], face_pos[f, 1], face_pos[f, 2]
+        e10, e11, e12 = P[b, 0] - P[a, 0], P[b, 1] - P[a, 1], P[b, 2] - P[a, 2]
+        e20, e21, e22 = P[d, 0] - P[a, 0], P[d, 1] - P[a, 1], P[d, 2] - P[a, 2]
+        n0 = e11 * e22 - e12 * e21
+        n1 = e12 * e20 - e10 * e22
+        n2 = e10 * e21 - e11 * e20
+        ln = math.sqrt(n0 * n0 + n1 * n1 + n2 * n2)
+        if ln == 0.0:
+            continue
+        n0, n1, n2 = n0 / ln, n1 / ln, n2 / ln
+        # Normals already inside the cone need no trigonometry.
+        if c[3] < 0.0 or c[3] < math.pi and c[0] * n0 + c[1] * n1 + c[2] * n2 < math.cos(c[3]) - 1e-12:
+            cone_add_cone(c, n0, n1, n2, 0.0)
 
 
 @nb.njit(cache=True, nogil=True, inline="always")
@@ -248,11 +273,14 @@ def _node_err(err, x, e):
 
 @nb.njit(cache=True, nogil=True)
 def do_collapse(u, t, fl, fr, P, F, N, vface, alive, Q, cur_node, parent, child, npos,
-                nfaces, nfn, sphere, cone, err, creator, rotation, m, e, fan_u, nu, fan_t):
+                nfaces, nfn, sphere, cone, err, creator, rotation, m, e, fan_u, nu, fan_t,
+                face_pos, star_start, star_faces, leaf):
     """Perform a legal collapse and record node ``e + m``.
 
-    ``sphere`` (e, 4) and ``err`` (e,) hold internal nodes only (node
-    ``e + m`` at row m): a leaf's sphere is its position and its error 0.
+    ``sphere`` (e, 4), ``cone`` (e, 4) and ``err`` (e,) hold internal nodes
+    only (node ``e + m`` at row m): a leaf's sphere is its position, its
+    error 0 and its cone that of its original faces (made in ``leaf`` (4,)
+    from ``face_pos``, ``star_start``, ``star_faces``: :func:`leaf_cone`).
     ``fan_u[:nu]`` are u's faces, as :func:`check_collapse` left them.
     Fills ``fan_t`` with t's new fan and ``rotation`` (p,) uint8 with the
     corner at which fl's (fr's) source face holds t (u): a split makes the
@@ -330,12 +358,17 @@ def do_collapse(u, t, fl, fr, P, F, N, vface, alive, Q, cur_node, parent, child,
             sphere_add_sphere(sp, P[c, 0], P[c, 1], P[c, 2], 0.0)
         else:
             sphere_add_sphere(sp, sphere[c - e, 0], sphere[c - e, 1], sphere[c - e, 2], sphere[c - e, 3])
-    cone[s, 3] = -1.0
-    cone_add_cone(cone[s], cone[tn, 0], cone[tn, 1], cone[tn, 2], cone[tn, 3])
-    cone_add_cone(cone[s], cone[un, 0], cone[un, 1], cone[un, 2], cone[un, 3])
+    cn = cone[m]
+    cn[3] = -1.0
+    for c in (tn, un):
+        if c < e:
+            leaf_cone(c, P, face_pos, star_start, star_faces, leaf)
+            cone_add_cone(cn, leaf[0], leaf[1], leaf[2], leaf[3])
+        else:
+            cone_add_cone(cn, cone[c - e, 0], cone[c - e, 1], cone[c - e, 2], cone[c - e, 3])
     nt, open_fan = collect_fan(F, N, vface[t], t, fan_t)
     sphere_add_sphere(sp, P[t, 0], P[t, 1], P[t, 2], 0.0)
-    cos_cone = math.cos(cone[s, 3]) if cone[s, 3] < math.pi else -2.0
+    cos_cone = math.cos(cn[3]) if cn[3] < math.pi else -2.0
     for i in range(nt):
         f = fan_t[i]
         k = corner_of(F, f, t)
@@ -351,10 +384,10 @@ def do_collapse(u, t, fl, fr, P, F, N, vface, alive, Q, cur_node, parent, child,
         if ln == 0.0:
             continue
         n0, n1, n2 = n[0] / ln, n[1] / ln, n[2] / ln
-        if cone[s, 0] * n0 + cone[s, 1] * n1 + cone[s, 2] * n2 >= cos_cone + 1e-12:
+        if cn[0] * n0 + cn[1] * n1 + cn[2] * n2 >= cos_cone + 1e-12:
             continue                      # already inside: skip the trigonometry
-        cone_add_cone(cone[s], n0, n1, n2, 0.0)
-        cos_cone = math.cos(cone[s, 3]) if cone[s, 3] < math.pi else -2.0
+        cone_add_cone(cn, n0, n1, n2, 0.0)
+        cos_cone = math.cos(cn[3]) if cn[3] < math.pi else -2.0
     # The error s has anyway: its children's (monotone up the tree) and its
     # new neighbours' (saturation, module doc).
     inherited = max(_node_err(err, tn, e), _node_err(err, un, e))
@@ -481,17 +514,18 @@ def perform_collapses(P, F, N, vface, alive, fgroup, pclass, fixed, pg_start, pg
                               child, npos, nfaces, nfn, sphere, cone, err, creator, rotation, pt_head, pt, face_pos,
                               face_nbrs, star_start, star_faces, m, lock, mark, pass_id, fraction, cost, target, src,
                               nc, counter, np.empty(4096, np.int32), np.empty(4096, np.int32),
-                              np.empty(4096, np.int32), pieces, ends)
+                              np.empty(4096, np.int32), pieces, ends, np.empty(4))
 
 
 @nb.njit(cache=True, nogil=True)
 def _perform_collapses(P, F, N, vface, alive, fgroup, pclass, fixed, pg_start, pg_groups, Q,
                        cur_node, parent, child, npos, nfaces, nfn, sphere, cone, err, creator, rotation,
                        pt_head, pt, face_pos, face_nbrs, star_start, star_faces, m, lock, mark, pass_id, fraction,
-                       cost, target, src, nc, counter, fan_u, fan_t, heads, pieces, ends):
+                       cost, target, src, nc, counter, fan_u, fan_t, heads, pieces, ends, leaf):
     """:func:`perform_collapses` with its scratch (``fan_u``, ``fan_t``,
-    ``heads`` (4096,) int32, ``pieces``, ``ends`` from :func:`edge_stack`),
-    every array borrowed (:mod:`caveclod.kernels.borrow`)."""
+    ``heads`` (4096,) int32, ``pieces``, ``ends`` from :func:`edge_stack`,
+    ``leaf`` (4,) a leaf's cone), every array borrowed
+    (:mod:`caveclod.kernels.borrow`)."""
     P, F, N, vface, alive, fgroup, pclass, fixed, pg_start, pg_groups, Q = (
         borrow(P), borrow(F), borrow(N), borrow(vface), borrow(alive), borrow(fgroup), borrow(pclass), borrow(fixed),
         borrow(pg_start), borrow(pg_groups), borrow(Q))
@@ -501,7 +535,8 @@ def _perform_collapses(P, F, N, vface, alive, fgroup, pclass, fixed, pg_start, p
     pt_head, pt, face_pos, face_nbrs, star_start, star_faces, lock, mark, cost, target, src, counter = (
         borrow(pt_head), borrow(pt), borrow(face_pos), borrow(face_nbrs), borrow(star_start), borrow(star_faces),
         borrow(lock), borrow(mark), borrow(cost), borrow(target), borrow(src), borrow(counter))
-    fan_u, fan_t, heads, pieces, ends = borrow(fan_u), borrow(fan_t), borrow(heads), borrow(pieces), borrow(ends)
+    fan_u, fan_t, heads, pieces, ends, leaf = (
+        borrow(fan_u), borrow(fan_t), borrow(heads), borrow(pieces), borrow(ends), borrow(leaf))
     e = P.shape[0]
     if nc == 0:
         return m
@@ -542,7 +577,7 @@ def _perform_collapses(P, F, N, vface, alive, fgroup, pclass, fixed, pg_start, p
                 u_group = fgroup[fl] if fl != -1 else fgroup[fr]
             s, nt, inherited, vl, vr = do_collapse(u, t, fl, fr, P, F, N, vface, alive, Q, cur_node, parent,
                                                    child, npos, nfaces, nfn, sphere, cone, err, creator, rotation,
-                                                   m, e, fan_u, nu, fan_t)
+                                                   m, e, fan_u, nu, fan_t, face_pos, star_start, star_faces, leaf)
             dev = remeasure(u, u_group, fl, fr, fan_u, nu, fan_t, nt, P, F, N, fgroup, alive, pt_head, pt,
                             heads, inherited)
             # Both directions: the original positions to the coarse faces
