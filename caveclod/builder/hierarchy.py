@@ -2,8 +2,8 @@
 
 The pipeline, each step a module of its own::
 
-    normals (crease angle) -> topology -> surface groups & vertex buffer
-        -> leaf bounds -> passes of collapses -> static arrays
+    normals (crease angle) -> topology -> surface groups -> the file's vertex
+        arrays -> leaf bounds -> passes of collapses -> the file's node arrays
 """
 
 from __future__ import annotations
@@ -12,7 +12,7 @@ import os
 import queue
 import time
 from concurrent.futures import ThreadPoolExecutor
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numba as nb
 import numpy as np
@@ -27,7 +27,7 @@ from .normals import add_crease_normals
 from ..progress import Progress, stage
 from .source import SourceMesh
 from ..staticmesh import StaticMesh
-from .surfaces import RIGID, corner_vertices, layout_surfaces
+from .surfaces import RIGID, SurfaceLayout, corner_vertices, layout_surfaces
 from .tiles import positions_left_to_merge, tile_grid, tiles_per_side
 from .tilestore import TileStore, block_level, block_of, block_rows, fingerprint, read_blocks
 from .topology import Topology, count_components, face_neighbours
@@ -49,10 +49,18 @@ def build_static_mesh(source: SourceMesh, crease_angle: float | None = None, pro
     """
     t0 = time.perf_counter()
     source, face_pos, topo, lay = _prepare(source, crease_angle, progress)
-    give_back_freed_memory()                  # after each phase: module doc of .memory
-    hier = collapse_all(source.positions, face_pos, topo, lay, progress, tiles=tiles, workers=workers, store=store)
+    # The file's vertex buffer and face attributes do not depend on the hierarchy: made first, so that the
+    # source's vertex arrays and the layout's ids (40 bytes a triangle) are gone before the collapses, whose
+    # arrays are the build's peak; what replaces them is the file's compact form (22 bytes).
+    arrays = vertex_arrays(source, face_pos, lay)
+    positions, materials, notes = source.positions, list(source.materials), list(source.notes)
+    del source
+    lay = _for_collapses(lay)
+    give_back_freed_memory()                  # after each phase: .memory.give_back_freed_memory
+    hier = collapse_all(positions, face_pos, topo, lay, progress, tiles=tiles, workers=workers, store=store)
     give_back_freed_memory()
-    mesh = StaticMesh(arrays=static_arrays(source, face_pos, lay, hier), materials=list(source.materials))
+    mesh = StaticMesh(arrays={**arrays, **node_arrays(positions, hier)}, materials=materials)
+    del arrays
     mesh.info = {
         "build_seconds": round(time.perf_counter() - t0, 3),
         "input_triangles": len(face_pos),
@@ -60,8 +68,8 @@ def build_static_mesh(source: SourceMesh, crease_angle: float | None = None, pro
         "tiles": hier.tiles,
         "surface_groups": lay.n_groups,
         "classes": mesh.class_tally(),
-        "base_mesh": _base_mesh_reasons(hier, face_pos, topo, lay, source.face_material),
-        "notes": list(source.notes),
+        "base_mesh": _base_mesh_reasons(hier, face_pos, topo, lay, mesh.face_material),
+        "notes": notes,
     }
     if store is not None:
         mesh.info["blocks_read"] = len(store.loaded)
@@ -80,8 +88,11 @@ def build_tile_job(source: SourceMesh, store: TileStore, crease_angle: float | N
     (None: a grid of one tile, left to the merge), the grid and the seconds."""
     t0 = time.perf_counter()
     source, face_pos, topo, lay = _prepare(source, crease_angle, progress)
+    positions = source.positions              # a job writes no vertex buffer: the rest of the source can go
+    del source
+    lay = _for_collapses(lay)
     give_back_freed_memory()
-    collapse_all(source.positions, face_pos, topo, lay, progress, tiles=tiles, workers=workers, store=store)
+    collapse_all(positions, face_pos, topo, lay, progress, tiles=tiles, workers=workers, store=store)
     return {"tiles_dir": str(store.path), "job": list(store.job), "blocks_written": len(store.made),
             "blocks_found": len(store.loaded), "block_level": store.level,
             "tiles_per_side": tiles_per_side(len(face_pos), tiles), "input_triangles": len(face_pos),
@@ -392,10 +403,17 @@ def _renumber_level(ids, e, m, bases, made, starts):
                 ids[i] = e + starts[j] + (x - bases[j])
 
 
-def static_arrays(source: SourceMesh, face_pos: np.ndarray, lay, hier: Hierarchy) -> dict:
-    """The arrays of the ``.cvc`` file (see :data:`caveclod.staticmesh.ARRAYS`)."""
-    e, m = len(source.positions), hier.m
-    n = e + m
+def _for_collapses(lay: SurfaceLayout) -> SurfaceLayout:
+    """``lay`` without what only the vertex buffer needs (``face_sgid``,
+    ``vertex_source``, ``vertex_sgid``: None); the collapses read the rest."""
+    return replace(lay, face_sgid=None, vertex_source=None, vertex_sgid=None)
+
+
+def vertex_arrays(source: SourceMesh, face_pos: np.ndarray, lay: SurfaceLayout) -> dict:
+    """The ``.cvc`` file's arrays that do not depend on the hierarchy (see
+    :data:`caveclod.staticmesh.ARRAYS`): the vertex buffer, its surface
+    group ids and materials, the positions' vertex lists and classes, and
+    the faces' materials and surface group ids."""
     vsrc = lay.vertex_source
     d = len(vsrc)
     uv = source.vertex_uv[vsrc] if source.vertex_uv is not None else np.zeros((d, 2), np.float32)
@@ -415,6 +433,17 @@ def static_arrays(source: SourceMesh, face_pos: np.ndarray, lay, hier: Hierarchy
         "position_class": lay.position_class,
         "face_material": source.face_material.astype(np.uint16),
         "face_sgid": lay.face_sgid.astype(np.uint16),
+    }
+
+
+def node_arrays(positions: np.ndarray, hier: Hierarchy) -> dict:
+    """The ``.cvc`` file's arrays of the hierarchy (see
+    :data:`caveclod.staticmesh.ARRAYS`): the faces' creators and rotations,
+    the nodes' rows and the base mesh. ``positions`` (e, 3) float64."""
+    e, m = len(positions), hier.m
+    n = e + m
+    P = np.asarray(positions, dtype=np.float64)
+    return {
         "face_creator": hier.creator,
         "face_rotation": hier.rotation,
         "node_parent": hier.parent[:n].copy(),
@@ -439,6 +468,7 @@ def _base_mesh_reasons(hier: Hierarchy, face_pos: np.ndarray, topo: Topology, la
     corner on a border between two materials: what a material map costs.
     """
     p, e = len(face_pos), len(topo.nonmanifold)
+    face_material = np.asarray(face_material, np.int32)
     base = len(hier.base)
     components = int(count_components(topo.nbrs))
     pinned = int(np.count_nonzero(topo.nonmanifold))
