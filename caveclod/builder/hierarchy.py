@@ -183,7 +183,7 @@ def collapse_all(positions: np.ndarray, face_pos: np.ndarray, topo: Topology, la
         alive=np.ones(p, bool), cur_node=np.arange(e, dtype=np.int32), parent=np.full(2 * e, -1, np.int32),
         child=np.full((e, 2), -1, np.int32), npos=np.full(e, -1, np.int32), nfaces=np.full((e, 2), -1, np.int32),
         nfn=np.full((e, 4), -1, np.int32), creator=np.full(p, -1, np.int32), rotation=np.zeros(p, np.uint8),
-        pt=new_store(p, e), lock=np.full(e, -1, np.int64), best_t=np.full(e, -1, np.int32), best_c=np.zeros(e),
+        pt=new_store(p, e), lock=np.full(e, -1, np.int32), best_t=np.full(e, -1, np.int32), best_c=np.zeros(e),
         group=lay.face_group, cls=lay.position_class, pg_start=lay.pos_vstart, pg_groups=lay.vertex_group,
         fixed=topo.nonmanifold, face_pos=face_pos, face_nbrs=topo.nbrs, star_start=star_start, star_faces=star_faces)
     workers = max(1, min(os.cpu_count() or 1, 8)) if workers is None else max(1, int(workers))

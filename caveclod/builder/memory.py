@@ -1,12 +1,15 @@
 """Will a build fit in memory? Checked before the work starts, not found out by the OOM killer.
 
-The build holds its arrays in memory: about 315-340 bytes per input
+The build holds its arrays in memory: about 270-300 bytes per input
 triangle at its peak on the built-in terrains, input included (README,
 "Performance", the build table; ``benchmarks/build.py`` measures it). An
 input that needs more than the machine (or the container) has would run
 for minutes and then be killed without a word, perhaps taking other
 processes with it. So :func:`check_build_memory` compares the estimate
-with what is available and refuses with the figures and what to do.
+with what is available and refuses with the figures and what to do. The
+build gives the C heap's free pages back between its phases
+(:func:`give_back_freed_memory`), so that the peak is its arrays', not
+what the allocator kept.
 
 What is available is the kernel's ``MemAvailable`` (free memory plus what
 the page cache can give back), and within a container the cgroup's limit
@@ -24,8 +27,8 @@ from pathlib import Path
 
 from ..errors import InputError
 
-PEAK_BYTES_PER_TRIANGLE = 340
-"""The build's peak per input triangle, rounded up from the 315-338 B measured."""
+PEAK_BYTES_PER_TRIANGLE = 300
+"""The build's peak per input triangle, rounded up from the 270-300 B measured."""
 
 _UNLIMITED = 1 << 60          # cgroup v1 writes "no limit" as a huge number
 
