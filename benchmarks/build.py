@@ -94,7 +94,7 @@ tiles = None if tiles == "auto" else int(tiles)
 t0 = time.perf_counter()
 made = [BUILTINS[terrain](size)]
 t1 = time.perf_counter()
-mesh = build_static_mesh(made.pop(), tiles=tiles)      # its only reference, as in caveclod.build: freed once prepared
+mesh = build_static_mesh(made.pop, tiles=tiles)      # the build holds the only reference, as in caveclod.build
 seconds = time.perf_counter() - t0
 build_seconds = time.perf_counter() - t1
 peak = (rss_kb("VmHWM:") - base) * 1024

@@ -65,11 +65,12 @@ def build(source, *, cell_size: float = 1.0, z_scale: float = 1.0, materials=Non
     from .builder.hierarchy import build_static_mesh
     from .builder.tilestore import TileStore
     store = None if tiles_dir is None else TileStore(Path(tiles_dir))
-    # No name here holds the prepared input: the build drops it once it has made its own arrays from it
-    # (a heightfield's vertices, faces and UVs before normals: about 20 bytes a triangle at the build's peak).
-    mesh = build_static_mesh(_prepared_source(source, cell_size=cell_size, z_scale=z_scale, materials=materials,
-                                              crease_angle=crease_angle, size=size, seed=seed, nodata=nodata, weld=weld,
-                                              tiles=tiles, workers=workers, check_memory=check_memory),
+    # The build makes the input itself (a function, not the mesh), so that it holds the only reference and drops
+    # it once it has made its own arrays (a heightfield's vertices, faces and UVs: 20 bytes a triangle at the peak).
+    mesh = build_static_mesh(lambda: _prepared_source(source, cell_size=cell_size, z_scale=z_scale, materials=materials,
+                                                      crease_angle=crease_angle, size=size, seed=seed, nodata=nodata,
+                                                      weld=weld, tiles=tiles, workers=workers,
+                                                      check_memory=check_memory),
                              crease_angle=crease_angle, progress=progress, tiles=tiles, workers=workers, store=store)
     if packed:
         from .vertexpack import attach_packed
@@ -98,9 +99,9 @@ def build_tiles(source, tiles_dir: str | os.PathLike, job: str | tuple[int, int]
     from .builder.tilestore import TileStore, parse_job
     job = parse_job(f"{job[0]}/{job[1]}" if isinstance(job, tuple) else job)
     store = TileStore(Path(tiles_dir), job=job)
-    return build_tile_job(_prepared_source(source, cell_size=cell_size, z_scale=z_scale, materials=materials,
-                                           crease_angle=crease_angle, size=size, seed=seed, nodata=nodata, weld=weld,
-                                           tiles=tiles, workers=workers, check_memory=check_memory),
+    return build_tile_job(lambda: _prepared_source(source, cell_size=cell_size, z_scale=z_scale, materials=materials,
+                                                   crease_angle=crease_angle, size=size, seed=seed, nodata=nodata,
+                                                   weld=weld, tiles=tiles, workers=workers, check_memory=check_memory),
                           store, crease_angle=crease_angle, progress=progress, tiles=tiles, workers=workers)
 
 

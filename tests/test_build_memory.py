@@ -57,7 +57,7 @@ def test_a_build_that_does_not_fit_is_refused_with_the_figures():
     with pytest.raises(InputError) as info:
         check_build_memory(200_000_000, "dem.npy", available=24 << 30)
     text = str(info.value)
-    assert "dem.npy: 200,000,000 triangles need about 55.9 GiB" in text
+    assert "dem.npy: 200,000,000 triangles need about 59.6 GiB" in text
     assert "24.0 GiB are available" in text and "--no-memory-check" in text
 
 

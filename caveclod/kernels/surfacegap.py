@@ -80,11 +80,11 @@ def star_lists(face_pos: np.ndarray, n_positions: int) -> tuple[np.ndarray, np.n
     """The original faces around each position, as CSR lists.
 
     ``face_pos`` (p, 3) int32 faces over positions. Returns ``(start, faces)``:
-    (e + 1,) int32 offsets (3p fits: face ids are int32 throughout) and
-    (3p,) int32 face ids, the faces around position ``x`` being
+    (e + 1,) int32 offsets (int64 from 715M faces on, where 3p passes
+    int32) and (3p,) int32 face ids, the faces around position ``x`` being
     ``faces[start[x]:start[x + 1]]``.
     """
-    start = np.zeros(n_positions + 1, np.int32)
+    start = np.zeros(n_positions + 1, np.int32 if face_pos.size < 2 ** 31 else np.int64)
     faces = np.empty(face_pos.size, np.int32)
     _fill_stars(np.ascontiguousarray(face_pos, dtype=np.int32), start, faces)
     return start, faces
