@@ -134,12 +134,7 @@ def leaf_cone(x, P, face_pos, star_start, star_faces, c):
     c[0], c[1], c[2], c[3] = 0.0, 0.0, 1.0, -1.0
     for i in range(star_start[x], star_start[x + 1]):
         f = star_faces[i]
-        a, b, d = face_pos[f, 0], face_pos[f, 1], face_pos[f, 2]
-        e10, e11, e12 = P[b, 0] - P[a, 0], P[b, 1] - P[a, 1], P[b, 2] - P[a, 2]
-        e20, e21, e22 = P[d, 0] - P[a, 0], P[d, 1] - P[a, 1], P[d, 2] - P[a, 2]
-        n0 = e11 * e22 - e12 * e21
-        n1 = e12 * e20 - e10 * e22
-        n2 = e10 * e21 - e11 * e20
+        n0, n1, n2 = _normal(P, face_pos[f, 0], face_pos[f, 1], face_pos[f, 2])
         ln = math.sqrt(n0 * n0 + n1 * n1 + n2 * n2)
         if ln == 0.0:
             continue
