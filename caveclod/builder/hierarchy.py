@@ -51,8 +51,10 @@ def build_static_mesh(source: SourceMesh | Callable[[], SourceMesh], crease_angl
     file does not depend on ``workers``. ``store``: blocks of tiles made
     by tile jobs (:func:`build_tile_job`) are read from it and merged.
     """
-    t0 = time.perf_counter()
-    source, face_pos, topo, lay = _prepare(source() if callable(source) else source, crease_angle, progress)
+    if callable(source):
+        source = source()
+    t0 = time.perf_counter()                  # the build's seconds, not the input's loading
+    source, face_pos, topo, lay = _prepare(source, crease_angle, progress)
     # The file's vertex buffer and face attributes do not depend on the hierarchy: made first, so that the
     # source's vertex arrays and the layout's ids (40 bytes a triangle) are gone before the collapses, whose
     # arrays are the build's peak; what replaces them is the file's compact form (22 bytes).
@@ -92,8 +94,10 @@ def build_tile_job(source: SourceMesh | Callable[[], SourceMesh], store: TileSto
     :func:`build_static_mesh`. Returns a report: blocks written,
     blocks found already written (a retried job), the level of the blocks
     (None: a grid of one tile, left to the merge), the grid and the seconds."""
+    if callable(source):
+        source = source()
     t0 = time.perf_counter()
-    source, face_pos, topo, lay = _prepare(source() if callable(source) else source, crease_angle, progress)
+    source, face_pos, topo, lay = _prepare(source, crease_angle, progress)
     positions = source.positions              # a job writes no vertex buffer: the rest of the source can go
     del source
     lay = _for_collapses(lay)
