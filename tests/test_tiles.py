@@ -44,6 +44,28 @@ def test_the_same_file_for_one_and_three_workers(rough):
     assert one.info["tiles"] == 4
 
 
+def test_stamps_that_run_out_mid_build_change_nothing(rough, monkeypatch):
+    """Each thread's stamps are int32 (kernels/simplify.next_stamp): a thread whose counter starts
+    a few stamps short of the limit clears its marks and starts again within the first checks,
+    and the file is the same. Without the reset, stamps past int32 would match no mark."""
+    from caveclod.builder import hierarchy
+    from caveclod.kernels.simplify import STAMP_LIMIT
+    plain = build_static_mesh(rough, tiles=4, workers=2)
+    real = hierarchy._thread_scratch
+    started = []
+
+    def near_the_limit(e):
+        mark, counter = real(e)
+        counter[0] = STAMP_LIMIT - 5
+        started.append(counter)
+        return mark, counter
+
+    monkeypatch.setattr(hierarchy, "_thread_scratch", near_the_limit)
+    again = build_static_mesh(rough, tiles=4, workers=2)
+    assert len(started) == 2 and all(c[0] < STAMP_LIMIT - 5 for c in started), "every thread's stamps started again"
+    assert digest(again) == digest(plain)
+
+
 def test_tiled_build_is_legal_and_complete(rough):
     mesh = build_static_mesh(rough, tiles=4, workers=2)
     assert find_problem(mesh) is None

@@ -203,7 +203,7 @@ def collapse_all(positions: np.ndarray, face_pos: np.ndarray, topo: Topology, la
                                  topo.nonmanifold), grid.per_side)
     scratch: queue.SimpleQueue = queue.SimpleQueue()      # (mark, stamp counter) per thread at work
     for _ in range(workers):
-        scratch.put((np.full(e, -1, np.int64), np.zeros(1, np.int64)))
+        scratch.put(_thread_scratch(e))
 
     bar = Progress("collapsing", total=max(int(np.count_nonzero((st.cls != RIGID) & ~topo.nonmanifold)), 1),
                    enabled=progress)
@@ -238,6 +238,12 @@ def collapse_all(positions: np.ndarray, face_pos: np.ndarray, topo: Topology, la
                      nfn=st.nfn, sphere=sphere, cone=cone, err=err, creator=st.creator, rotation=st.rotation,
                      base=base, base_nodes=st.cur_node[F[base]].astype(np.int32), base_nbrs=N[base].astype(np.int32),
                      tiles=grid.per_side)
+
+
+def _thread_scratch(e: int) -> tuple[np.ndarray, np.ndarray]:
+    """A thread's (mark (e,) int32, stamp counter (1,) int64): see
+    :func:`caveclod.kernels.simplify.next_stamp`."""
+    return np.full(e, -1, np.int32), np.zeros(1, np.int64)
 
 
 def _collapse_tiles(st: _CollapseState, regions, bases, scratch, pool, bar, m) -> tuple[np.ndarray, np.ndarray]:

@@ -152,6 +152,23 @@ def _has_group(pg_start, pg_groups, x, g):
     return False
 
 
+STAMP_LIMIT = 2 ** 31 - 1
+
+
+@nb.njit(cache=True, nogil=True, inline="always")
+def next_stamp(mark, counter):
+    """A stamp that no entry of ``mark`` (e,) int32 holds: ``counter`` (1,)
+    int64, a thread's for the whole build, plus one. Stamps are int32, 4
+    bytes a position for each thread at work where int64 took 8: when they
+    run out, ``mark`` is cleared and they start again, which is safe since
+    a stamp is compared only within the check that drew it."""
+    if counter[0] >= STAMP_LIMIT:
+        mark[:] = -1
+        counter[0] = 0
+    counter[0] += 1
+    return counter[0]
+
+
 @nb.njit(cache=True, nogil=True, inline="always")
 def _normal(P, a, b, c):
     e10, e11, e12 = P[b, 0] - P[a, 0], P[b, 1] - P[a, 1], P[b, 2] - P[a, 2]
@@ -164,8 +181,8 @@ def check_collapse(u, t, P, F, N, vface, fgroup, pclass, fixed, pg_start, pg_gro
                    fan_u, fan_t, mark, stamp):
     """Whether collapsing position ``u`` into ``t`` is legal (see module doc).
 
-    ``mark`` (e,) int64 and ``stamp`` (never used before) find shared neighbours;
-    callers draw stamps from a counter kept for the whole build.
+    ``mark`` (e,) int32 and ``stamp`` (never used before) find shared neighbours;
+    callers draw stamps with :func:`next_stamp`.
     Returns (legal, fl, fr, nu): ``fan_u[:nu]`` then holds u's faces.
     """
     if pclass[u] == RIGID or fixed[u] or fixed[t]:
@@ -462,9 +479,8 @@ def _rank_collapses(P, F, N, vface, fgroup, pclass, fixed, pg_start, pg_groups, 
                 if cand_c[j] == np.inf:
                     break
                 w = cand_t[j]
-                counter[0] += 1
                 ok, _, _, _ = check_collapse(u, w, P, F, N, vface, fgroup, pclass, fixed,
-                                          pg_start, pg_groups, fan_u, fan_t, mark, counter[0])
+                                          pg_start, pg_groups, fan_u, fan_t, mark, next_stamp(mark, counter))
                 if ok:
                     best_t[u] = w
                     best_c[u] = cand_c[j]
@@ -556,9 +572,8 @@ def _perform_collapses(P, F, N, vface, alive, fgroup, pclass, fixed, pg_start, p
             u, t = src[i], target[i]
             if lock[u] == pass_id or lock[t] == pass_id:
                 continue
-            counter[0] += 1
             ok, fl, fr, nu = check_collapse(u, t, P, F, N, vface, fgroup, pclass, fixed,
-                                        pg_start, pg_groups, fan_u, fan_t, mark, counter[0])
+                                        pg_start, pg_groups, fan_u, fan_t, mark, next_stamp(mark, counter))
             if not ok:
                 continue
             # Lock both ends: a position moves at most once a pass and nothing
@@ -577,9 +592,9 @@ def _perform_collapses(P, F, N, vface, alive, fgroup, pclass, fixed, pg_start, p
                             heads, inherited)
             # Both directions: the original positions to the coarse faces
             # (dev) and the reshaped coarse faces to the original surface.
-            counter[0] += 1
+            stamp = next_stamp(mark, counter)
             err[s - e] = reshaped_gap(t, fan_u, nu, fl, fr, vl, vr, F, P, pt_head, pt, face_pos, face_nbrs,
-                                      star_start, star_faces, mark, counter[0], dev, pieces, ends)
+                                      star_start, star_faces, mark, stamp, dev, pieces, ends)
             # Each point lies within dev of a fan face, and the fan lies in
             # the sphere: growing it by dev makes it hold every point charged
             # to s.

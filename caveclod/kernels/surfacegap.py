@@ -322,7 +322,7 @@ def reshaped_gap(t, fan_u, nu, fl, fr, vl, vr, F, P, pt_head, pt, face_pos, face
     measured with, by the collapse that made it, whose node is a child of
     this one or the current node of a position of the new ring (both feed
     this node's error: children's errors and saturation). ``mark`` (e,)
-    int64 with ``stamp`` (never used before) lists each ring position once.
+    int32 with ``stamp`` (never used before) lists each ring position once.
     ``pieces``, ``faces``: :func:`edge_gap2`'s stack (:func:`edge_stack`).
     """
     worst = floor * floor
