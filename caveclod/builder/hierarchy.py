@@ -65,8 +65,8 @@ def build_static_mesh(source: SourceMesh | Callable[[], SourceMesh], crease_angl
     give_back_freed_memory()                  # after each phase: .memory.give_back_freed_memory
     hier = collapse_all(positions, face_pos, topo, lay, progress, tiles=tiles, workers=workers, store=store)
     give_back_freed_memory()
-    mesh = StaticMesh(arrays={**arrays, **node_arrays(positions, hier)}, materials=materials)
-    del arrays
+    arrays.update(node_arrays(positions, hier))
+    mesh = StaticMesh(arrays=arrays, materials=materials)
     mesh.info = {
         "build_seconds": round(time.perf_counter() - t0, 3),
         "input_triangles": len(face_pos),

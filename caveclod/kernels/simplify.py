@@ -363,20 +363,15 @@ def do_collapse(u, t, fl, fr, P, F, N, vface, alive, Q, cur_node, parent, child,
     cur_node[t] = s
     cur_node[u] = -1
     # Node bounds: children's, plus the coarse faces around s.
-    sp = sphere[m]
-    sp[3] = -1.0
+    sp, cn = sphere[m], cone[m]
+    sp[3] = cn[3] = -1.0
     for c in (tn, un):
-        if c < e:                         # a leaf: its position
+        if c < e:                         # a leaf: its position, its original faces' cone
             sphere_add_sphere(sp, P[c, 0], P[c, 1], P[c, 2], 0.0)
-        else:
-            sphere_add_sphere(sp, sphere[c - e, 0], sphere[c - e, 1], sphere[c - e, 2], sphere[c - e, 3])
-    cn = cone[m]
-    cn[3] = -1.0
-    for c in (tn, un):
-        if c < e:
             leaf_cone(c, P, face_pos, star_start, star_faces, leaf)
             cone_add_cone(cn, leaf[0], leaf[1], leaf[2], leaf[3])
         else:
+            sphere_add_sphere(sp, sphere[c - e, 0], sphere[c - e, 1], sphere[c - e, 2], sphere[c - e, 3])
             cone_add_cone(cn, cone[c - e, 0], cone[c - e, 1], cone[c - e, 2], cone[c - e, 3])
     nt, open_fan = collect_fan(F, N, vface[t], t, fan_t)
     sphere_add_sphere(sp, P[t, 0], P[t, 1], P[t, 2], 0.0)
