@@ -200,6 +200,8 @@ def _lengths(a: dict) -> str | None:
         "node_parent": (e + m,), "node_links": (m, 8), "node_bound": (m, 5), "node_cone": (m, 4),
         "base_face_nodes": (k, 3), "base_face_nbrs": (k, 3),
     }
+    if "node_ring" in a:                          # optional (staticmesh.OPTIONAL_ARRAYS)
+        want["node_ring"] = (m, 2)
     for name, shape in want.items():
         if a[name].shape != shape:
             return f"{name} has shape {a[name].shape}, the other arrays ask for {shape}"
@@ -363,7 +365,13 @@ def _floats(a: dict, mesh) -> str | None:
     least, most = column_ranges(a["node_bound"])          # centre xyz, radius, error bound
     ok = (least[:3] >= lo - reach).all() and (most[:3] <= hi + reach).all() and \
         (least[3:] >= 0.0).all() and (most[3:] <= reach).all()         # NaN compares False
-    return None if ok else "node_bound holds a sphere or error bound far beyond the positions (or NaN)"
+    if not ok:
+        return "node_bound holds a sphere or error bound far beyond the positions (or NaN)"
+    if "node_ring" in a:
+        least, most = column_ranges(a["node_ring"])       # reach, error
+        if not ((least >= 0.0).all() and (most <= reach).all()):
+            return "node_ring holds a reach or error bound below zero or far beyond the positions (or NaN)"
+    return None
 
 
 def column_ranges(x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

@@ -16,6 +16,9 @@ Attachments are named byte strings with JSON metadata that the build
 derives from the arrays so that a server need not at start (the packed
 vertex downloads, :func:`caveclod.vertexpack.attach_packed`). A reader
 ignores names it does not know, so files with or without them load alike.
+Arrays of :data:`OPTIONAL_ARRAYS` may be absent likewise: a file from before
+one loads without what it adds (no ``node_ring``: the refinement's ring test
+is off), and a reader that does not know one ignores it.
 
 Loading reads only the header; arrays are ``np.memmap`` views, so a server
 can open a multi-gigabyte mesh at once and share its pages between processes.
@@ -62,6 +65,10 @@ ARRAYS = {
     "base_face_nodes": ("<i4", (3,)),    # (k, 3) their nodes
     "base_face_nbrs": ("<i4", (3,)),     # (k, 3) their neighbour faces
 }
+OPTIONAL_ARRAYS = {
+    "node_ring": ("<f4", (2,)),          # (m, 2) ring bound: reach, error (files from before it have none)
+}
+DECLARED = {**ARRAYS, **OPTIONAL_ARRAYS}
 VERTEX_BUFFER = ("vertex_positions", "vertex_normals", "vertex_uvs", "vertex_colors")
 COUNT_BLOCK = 1 << 20        # faces per pass of material_face_counts
 
@@ -310,9 +317,9 @@ class StaticMesh:
         """Write the versioned ``.cvc`` file (atomically: temp file + rename)."""
         path = Path(path)
         table, offset = {}, 0
-        for name in ARRAYS:
+        for name in _present(self.arrays):
             a = self.arrays[name]
-            table[name] = {"dtype": ARRAYS[name][0], "shape": list(a.shape), "offset": offset,
+            table[name] = {"dtype": DECLARED[name][0], "shape": list(a.shape), "offset": offset,
                            "nbytes": int(a.nbytes)}
             offset += _aligned(a.nbytes)
         attached = {}
@@ -328,7 +335,7 @@ class StaticMesh:
         with open(tmp, "wb") as fh:
             fh.write(MAGIC + struct.pack("<II", VERSION, len(blob)) + blob)
             fh.write(b"\0" * (data_start - fh.tell()))
-            for name in ARRAYS:
+            for name in table:
                 a = _as_declared(name, self.arrays[name])
                 fh.write(a.tobytes())
                 fh.write(b"\0" * (_aligned(a.nbytes) - a.nbytes))
@@ -367,7 +374,7 @@ def load(path: str | os.PathLike, check: bool = True) -> StaticMesh:
     attached = _attachment_table(path, header.get("attachments", {}), data_start, size)
     _check_overlaps(path, [(start, start + nbytes, f"array {name}") for name, (_, start, nbytes) in table.items()]
                     + [(start, start + nbytes, f"attachment {name}") for name, (_, start, nbytes) in attached.items()])
-    arrays = {name: _mapped(path, f"array {name}", dtype, *table[name]) for name, (dtype, _) in ARRAYS.items()}
+    arrays = {name: _mapped(path, f"array {name}", DECLARED[name][0], *table[name]) for name in table}
     attachments = {name: Attachment(meta, _mapped(path, f"attachment {name}", np.uint8, (nbytes,), start, nbytes))
                    for name, (meta, start, nbytes) in attached.items()}
     mesh = StaticMesh(arrays=arrays, materials=header["materials"], info=header["info"], path=str(path),
@@ -473,8 +480,10 @@ def _array_table(path: Path, table: dict, data_start: int, size: int) -> dict:
     two arrays may overlap.
     """
     out = {}
-    for name, (dtype, trailing) in ARRAYS.items():
+    for name, (dtype, trailing) in DECLARED.items():
         t = table.get(name)
+        if t is None and name in OPTIONAL_ARRAYS:
+            continue
         if not isinstance(t, dict):
             raise damaged_error(path, f"array {name} is missing from the header")
         shape, offset, nbytes = t.get("shape"), t.get("offset"), t.get("nbytes")
@@ -540,7 +549,7 @@ def _is_count(v) -> bool:
 
 def _as_declared(name: str, a: np.ndarray) -> np.ndarray:
     """``a`` in its declared dtype; refuses values that would not fit."""
-    dtype = np.dtype(ARRAYS[name][0])
+    dtype = np.dtype(DECLARED[name][0])
     if dtype.kind in "iu" and a.size and a.dtype != dtype:
         info = np.iinfo(dtype)
         if a.min() < info.min or a.max() > info.max:
@@ -552,11 +561,16 @@ def _aligned(n: int) -> int:
     return (n + ALIGN - 1) // ALIGN * ALIGN
 
 
+def _present(arrays: dict) -> list:
+    """Names of :data:`ARRAYS`, then of the :data:`OPTIONAL_ARRAYS` ``arrays`` has, in file order."""
+    return [name for name in DECLARED if name in arrays]
+
+
 def _hashes(arrays: dict) -> tuple[str, str]:
     """(content hash of every array, hash of the vertex buffer alone)."""
     content, vb = hashlib.blake2b(digest_size=16), hashlib.blake2b(digest_size=16)
-    for name in ARRAYS:
-        a = np.ascontiguousarray(arrays[name], dtype=ARRAYS[name][0])
+    for name in _present(arrays):
+        a = np.ascontiguousarray(arrays[name], dtype=DECLARED[name][0])
         tag = f"{name}{a.shape}".encode()
         content.update(tag)
         raw = a.reshape(-1).view(np.uint8)   # the bytes, without a copy

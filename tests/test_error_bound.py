@@ -178,6 +178,62 @@ def test_errors_grow_up_every_path(meshes):
     assert (err[parent[child]] >= err[child]).all()
 
 
+@pytest.mark.parametrize("name,tiles", [("rough", 1), ("scan", 1), ("rough_tiles4", 4)])
+def test_ring_bounds_hold_the_nodes_beside_each_collapse(name, tiles):
+    """Replaying the collapses in node order from the full mesh (the order the build made
+    them, tile after tile within a level), the nodes beside each new node are its ring:
+    their spheres lie in its sphere grown by the ring's reach, and their errors are at
+    most the ring's error, which is at most the node's own (saturation), in the file's
+    float32 numbers."""
+    from caveclod.refine.reference import ACTIVE, ReferenceCamera
+    source = (rough_terrain(20) if name.startswith("rough") else range_scan(16))
+    mesh = build_static_mesh(source, tiles=tiles)
+    e, m = mesh.n_positions, mesh.n_internal
+    sphere = np.asarray(mesh.node_sphere, np.float64)
+    err = np.asarray(mesh.node_error, np.float64)
+    ring = np.asarray(mesh.node_ring, np.float64)
+    assert (ring >= 0).all() and (ring[:, 1] <= err * (1 + 2e-6)).all()
+    ref = ReferenceCamera(mesh)
+    lo, hi = mesh.bounds()
+    ref.update(caveclod.View(eye=tuple(hi + (hi - lo)), target=tuple(0.5 * (lo + hi)), tolerance_px=0.0, cull=False))
+    assert ref.n_faces() == mesh.n_faces
+    scale = float(np.abs(np.asarray(mesh.positions)).max())
+    internal_rings = 0
+    for j in range(m):
+        s = e + j
+        assert ref.collapse_legal(s), f"node {s} cannot be collapsed in node order"
+        ref.collapse(s)
+        p = ref.position(s)
+        beside = {q for f in ref.faces_at[p] for q in ref.faces[f]["pos"]} - {p}
+        nodes = [x for x, state in ref.state.items() if state == ACTIVE and ref.position(x) in beside]
+        assert len(nodes) == len(beside)
+        inner = np.array([x - e for x in nodes if x >= e], np.int64)
+        if len(inner) == 0:
+            continue
+        internal_rings += 1
+        assert ring[j, 1] >= err[inner].max()
+        assert ring[j, 1] <= err[inner].max() * (1 + 2e-6)
+        d = np.linalg.norm(sphere[inner, :3] - sphere[j, :3], axis=1) + sphere[inner, 3]
+        assert (d <= sphere[j, 3] + ring[j, 0] + 1e-12 * scale).all(), f"node {s}: a ring sphere sticks out"
+    assert internal_rings > m // 4, "too few collapses beside internal nodes: the test would see nothing"
+
+
+def test_ring_test_keeps_coarse_nodes_from_mixing_with_finer_neighbours():
+    """The rough terrain at 256 cells and 0.5 px: without the ring test a node kept coarse
+    beside a neighbour its view split (a mesh the build never measured) put an original
+    position 1.25 t from the drawn surface; with it every position stays within t."""
+    from caveclod.staticmesh import StaticMesh
+    mesh = build_static_mesh(rough_terrain(256))
+    without = StaticMesh(arrays={k: v for k, v in mesh.arrays.items() if k != "node_ring"}, materials=mesh.materials)
+    tolerance = 0.5
+    worst = {}
+    for label, m in (("with", mesh), ("without", without)):
+        px = np.concatenate([pixel_errors(m, converged(m, view).triangles(), view) for view in views_of(m, tolerance)])
+        worst[label] = px.max() / tolerance
+    assert worst["without"] > 1.1, f"no mix of ages here to catch ({worst}): the test would not see the ring test"
+    assert worst["with"] <= 1.0 + 1e-3, worst
+
+
 # ---------------------------------------------------------------- distance kernels
 
 coord = st.floats(-10, 10, allow_nan=False, width=64)

@@ -182,6 +182,31 @@ def test_save_load_roundtrip_is_memory_mapped(tmp_path):
     assert back.summary()["nodes"] == mesh.n_nodes
 
 
+def test_files_from_before_ring_bounds_load_and_refine_without_the_ring_test(tmp_path):
+    """A file without the optional node_ring (written before it) loads with its own content hash, and a
+    camera on it draws what a camera with the ring test off draws; one with it draws at least as much."""
+    from caveclod.staticmesh import StaticMesh
+    mesh = caveclod.build("rough", size=64)
+    assert "node_ring" in mesh.arrays
+    old = StaticMesh(arrays={k: v for k, v in mesh.arrays.items() if k != "node_ring"}, materials=mesh.materials)
+    assert old.content_hash != mesh.content_hash
+    old.save(tmp_path / "old.cvc")
+    back = caveclod.load(tmp_path / "old.cvc")
+    assert "node_ring" not in back.arrays and back.content_hash == old.content_hash
+    back.verify()
+    lo, hi = mesh.bounds()
+    view = caveclod.View(eye=(lo[0], lo[1], hi[2] + 0.3 * (hi[0] - lo[0])), target=tuple(0.5 * (lo + hi)),
+                         tolerance_px=0.5)
+    faces = {}
+    for label, m in (("back", back), ("old", old), ("new", mesh)):
+        cam = m.new_camera()
+        for _ in range(8):
+            if cam.update(view).operations == 0:
+                break
+        faces[label] = cam.n_faces
+    assert faces["back"] == faces["old"] <= faces["new"], faces
+
+
 def test_same_input_same_hash():
     a = caveclod.build("default", size=16)
     b = caveclod.build("default", size=16)

@@ -301,6 +301,14 @@ def _huge_radius(a):
     a["node_bound"][-1, 3] = 1e38         # finite, but a cache-mode camera's view from outside it was not
 
 
+def _ring_nan(a):
+    a["node_ring"][0, 1] = np.nan
+
+
+def _ring_rows(a):
+    a["node_ring"] = a["node_ring"][1:]
+
+
 def _colors(a):
     a["vertex_colors"] = np.zeros((3, 4), np.uint8)
 
@@ -324,6 +332,8 @@ EDITS = {
     "a position beyond the last": (_position, "node_position"),
     "a NaN bounding sphere": (_nan, "node_bound holds a sphere"),
     "a radius of 1e38": (_huge_radius, "far beyond the positions"),
+    "a NaN ring bound": (_ring_nan, "node_ring holds a reach"),
+    "a ring bound short of a row": (_ring_rows, "node_ring has shape"),
     "colours for 3 vertices": (_colors, "vertex_colors has shape"),
     "material 4 of 4 names": (_material, "beyond the 4 names"),
 }

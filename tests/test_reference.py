@@ -274,7 +274,11 @@ def test_shared_state_baseline_agrees():
 def kernel_need_refine(mesh, j, vp) -> bool:
     """The compiled criterion for internal node index ``j``, whatever its array layout."""
     a = mesh.arrays
-    if "bound" in inspect.signature(K.need_refine.py_func).parameters:
+    params = inspect.signature(K.need_refine.py_func).parameters
+    if "ring" in params:
+        args = (np.asarray(a["node_bound"]), np.asarray(a["node_cone"]),
+                np.asarray(a.get("node_ring", np.zeros((0, 2), np.float32))))
+    elif "bound" in params:
         args = (np.asarray(a["node_bound"]), np.asarray(a["node_cone"]))
     else:
         args = (np.asarray(a["node_sphere"]), np.asarray(a["node_error"]), np.asarray(a["node_cone"]))

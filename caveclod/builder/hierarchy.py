@@ -133,7 +133,9 @@ class Hierarchy:
         parent: (2e,) int32; child, nfaces: (e, 2); nfn: (e, 4); npos: (e,).
         sphere, cone: (e, 4) float64 and err: (e,) float64, internal nodes
             only (node e + i at row i: a leaf's sphere is its position, its
-            error 0 and its cone that of its original faces).
+            error 0 and its cone that of its original faces); ring: (e, 2)
+            float32 their ring bounds (reach, error:
+            :func:`caveclod.kernels.simplify.ring_bound`).
         creator: (p,) int32 node whose split makes each face, -1 for base.
         rotation: (p,) uint8 corner of each such face that its split's first
             node (t for fl, u for fr) takes, as in the source face.
@@ -151,6 +153,7 @@ class Hierarchy:
     sphere: np.ndarray
     cone: np.ndarray
     err: np.ndarray
+    ring: np.ndarray
     creator: np.ndarray
     rotation: np.ndarray
     base: np.ndarray
@@ -185,11 +188,12 @@ def collapse_all(positions: np.ndarray, face_pos: np.ndarray, topo: Topology, la
     Q = np.zeros((e, 10))
     sphere, cone = empty_spheres(e), empty_cones(e)       # internal nodes only (a leaf's are made when needed)
     err = np.zeros(e)
+    ring = np.zeros((e, 2), np.float32)
     init_leaves(P, F, N, lay.face_group, vface, Q)
     star_start, star_faces = star_lists(face_pos, e)       # the original surface, for the other direction
 
     st = _CollapseState(
-        P=P, F=F, N=N, vface=vface, Q=Q, sphere=sphere, cone=cone, err=err,
+        P=P, F=F, N=N, vface=vface, Q=Q, sphere=sphere, cone=cone, err=err, ring=ring,
         alive=np.ones(p, bool), cur_node=np.arange(e, dtype=np.int32), parent=np.full(2 * e, -1, np.int32),
         child=np.full((e, 2), -1, np.int32), npos=np.full(e, -1, np.int32), nfaces=np.full((e, 2), -1, np.int32),
         nfn=np.full((e, 4), -1, np.int32), creator=np.full(p, -1, np.int32), rotation=np.zeros(p, np.uint8),
@@ -235,7 +239,8 @@ def collapse_all(positions: np.ndarray, face_pos: np.ndarray, topo: Topology, la
     bar.close()
     base = np.flatnonzero(st.alive).astype(np.int32)
     return Hierarchy(m=m, passes=passes, parent=st.parent, child=st.child, npos=st.npos, nfaces=st.nfaces,
-                     nfn=st.nfn, sphere=sphere, cone=cone, err=err, creator=st.creator, rotation=st.rotation,
+                     nfn=st.nfn, sphere=sphere, cone=cone, err=err, ring=ring, creator=st.creator,
+                     rotation=st.rotation,
                      base=base, base_nodes=st.cur_node[F[base]].astype(np.int32), base_nbrs=N[base].astype(np.int32),
                      tiles=grid.per_side)
 
@@ -314,6 +319,7 @@ class _CollapseState:
     sphere: np.ndarray
     cone: np.ndarray
     err: np.ndarray
+    ring: np.ndarray
     alive: np.ndarray
     cur_node: np.ndarray
     parent: np.ndarray
@@ -370,7 +376,7 @@ def _collapse_region(st: _CollapseState, region: np.ndarray, base: int, scratch:
             mark, counter = held[0]
             m = perform_collapses(st.P, st.F, st.N, st.vface, st.alive, st.group, st.cls, st.fixed, st.pg_start,
                                   st.pg_groups, st.Q, st.cur_node, st.parent, st.child, st.npos, st.nfaces, st.nfn,
-                                  st.sphere, st.cone, st.err, st.creator, st.rotation, pt_head, pt,
+                                  st.sphere, st.cone, st.err, st.ring, st.creator, st.rotation, pt_head, pt,
                                   st.face_pos, st.face_nbrs, st.star_start, st.star_faces, m, st.lock, mark, pass_id,
                                   PASS_FRACTION, cost, target, src, nc, counter)
             pass_id += 1
@@ -400,7 +406,7 @@ def _number_nodes(st: _CollapseState, e: int, m: int, bases: np.ndarray, made: n
         _renumber_level(ids.reshape(-1), e, m, bases, made, starts)
     for b, k, s in zip(bases.tolist(), made.tolist(), starts.tolist()):
         if k and b != s:                             # s < b: rows move down, never onto rows still to move
-            for a in (st.child, st.npos, st.nfaces, st.nfn, st.sphere, st.cone, st.err):
+            for a in (st.child, st.npos, st.nfaces, st.nfn, st.sphere, st.cone, st.err, st.ring):
                 a[s:s + k] = a[b:b + k]
             st.parent[e + s:e + s + k] = st.parent[e + b:e + b + k]
     st.parent[e + m + total: e + m + span] = -1      # rows left behind: no stale parents for later nodes
@@ -467,6 +473,7 @@ def node_arrays(positions: np.ndarray, hier: Hierarchy) -> dict:
         "node_position": hier.npos[:m].copy(),
         "node_bound": np.c_[_round_spheres(hier.sphere[:m], P), _round_up(hier.err[:m])],
         "node_cone": _round_cones(hier.cone[:m]),
+        "node_ring": _round_rings(hier.ring[:m], hier.sphere[:m], P),
         "base_faces": hier.base,
         "base_face_nodes": hier.base_nodes,
         "base_face_nbrs": hier.base_nbrs,
@@ -578,12 +585,25 @@ def _round_up(x: np.ndarray) -> np.ndarray:
     return y
 
 
+def _centre_pad(P: np.ndarray) -> float:
+    """More than a float32 centre's rounding moves it, for positions ``P`` (e, 3)."""
+    return 4.0 * float(np.finfo(np.float32).eps) * float(np.abs(P).max(initial=1.0))
+
+
 def _round_spheres(s: np.ndarray, P: np.ndarray) -> np.ndarray:
     """float32 spheres, radii padded by the rounding of float32 centres."""
     out = s.astype(np.float32)
-    scale = float(np.abs(P).max(initial=1.0))
-    pad = 4.0 * np.finfo(np.float32).eps * scale
-    out[:, 3] = _round_up(s[:, 3] + pad)
+    out[:, 3] = _round_up(s[:, 3] + _centre_pad(P))
+    return out
+
+
+def _round_rings(ring: np.ndarray, s: np.ndarray, P: np.ndarray) -> np.ndarray:
+    """float32 ring bounds (reach, error) for the float32 spheres: the reach
+    padded by the rounding of both centres and of the ring node's radius
+    (at most the node's radius plus its reach)."""
+    out = ring.copy()
+    reach = ring[:, 0].astype(np.float64)
+    out[:, 0] = _round_up(reach + 2.0 * _centre_pad(P) + 1e-6 * (s[:, 3] + reach))
     return out
 
 

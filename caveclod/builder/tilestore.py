@@ -234,7 +234,7 @@ def _row_arrays(st) -> tuple:
             ("vface", st.vface, "positions", False), ("vface_kept", st.vface, "kept", False),
             ("child", st.child, "nodes", True), ("npos", st.npos, "nodes", False),
             ("nfaces", st.nfaces, "nodes", False), ("nfn", st.nfn, "nodes", False),
-            ("sphere", st.sphere, "nodes", False), ("err", st.err, "nodes", False),
+            ("sphere", st.sphere, "nodes", False), ("err", st.err, "nodes", False), ("ring", st.ring, "nodes", False),
             ("node_parent", st.parent[e:], "nodes", True), ("cone", st.cone, "nodes", False))
 
 

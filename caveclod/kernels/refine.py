@@ -169,12 +169,17 @@ def sphere_planes(cx, cy, cz, r, vp):
 
 
 @nb.njit(cache=True, nogil=True)
-def test_node(j, bound, cone, vp):
+def test_node(j, bound, cone, ring, vp):
     """Whether internal node ``j`` (index into node arrays) needs detail,
     and for how long the answer holds: returns (need, tmargin, rmargin, dist).
 
     ``bound[j]`` is (centre xyz, radius, error bound), one row so that the
-    test touches one cache line. The answer holds while the eye travels less
+    test touches one cache line. ``ring[j]`` (reach, error), when ``ring``
+    has rows (files from before it have none), is the node's ring bound
+    (:func:`caveclod.kernels.simplify.ring_bound`): the node needs detail
+    too when that error, at the sphere grown by the reach, is above the
+    tolerance, which is when a node beside it may need detail by its own
+    test. The answer holds while the eye travels less
     than ``tmargin`` and, for ``rmargin``, while ``dT + dA (dist + dT) <
     rmargin`` (module doc). Margins of 0 say the answer must be re-checked.
     """
@@ -200,13 +205,19 @@ def test_node(j, bound, cone, vp):
     s = bound[j, 4] * vp[P_KAPPA] / vp[P_TOL] - dist
     if dist <= 0.0 or s > 0.0:
         return True, max(s, 0.0), inside, length
+    # The ring bound, read only when the node's own test says no.
+    if ring.shape[0] and ring[j, 1] > 0.0:
+        # Each term falls by at most what the eye travels, so their larger does too (the margins).
+        s = max(s, ring[j, 1] * vp[P_KAPPA] / vp[P_TOL] - (dist - ring[j, 0]))
+        if s > 0.0:
+            return True, s, inside, length
     return False, -s, 0.0, length
 
 
 @nb.njit(cache=True, nogil=True, inline="always")
-def need_refine(j, bound, cone, vp):
+def need_refine(j, bound, cone, ring, vp):
     """Whether internal node ``j`` needs detail for the view ``vp``."""
-    need, _, _, _ = test_node(j, bound, cone, vp)
+    need, _, _, _ = test_node(j, bound, cone, ring, vp)
     return need
 
 
@@ -621,8 +632,8 @@ def _skip_run(active, texp, aexp, state, changed, odo, i, w, n, expire, clean):
 
 
 @nb.njit(cache=True, nogil=True)
-def adapt(e, parent, links, npos, bound, cone, face_creator, rotation, mat, fsgid, pos_vstart, vertex_sgid, vpos,
-          state, face_map, off, cnt, cap, rec_tri, rec_nbr, rec_face, dirty,
+def adapt(e, parent, links, npos, bound, cone, ring, face_creator, rotation, mat, fsgid, pos_vstart, vertex_sgid,
+          vpos, state, face_map, off, cnt, cap, rec_tri, rec_nbr, rec_face, dirty,
           active, texp, aexp, n_active, queue, changed, vp, odo, max_ops, max_faces, counts, resume, mode, expire):
     """One pass of incremental selective refinement over the active nodes.
 
@@ -666,8 +677,8 @@ def adapt(e, parent, links, npos, bound, cone, face_creator, rotation, mat, fsgi
         resume[2] = 0
         # Candidates left when room ran out go first, as they would have.
         q, n, n_faces, status = _collapse_candidates(
-            e, parent, links, npos, bound, cone, face_creator, rotation, mat, fsgid, pos_vstart, vertex_sgid,
-            vpos, state, face_map, off, cnt, rec_tri, rec_nbr, rec_face, dirty, active, texp, aexp, n, vp,
+            e, parent, links, npos, bound, cone, ring, face_creator, rotation, mat, fsgid, pos_vstart,
+            vertex_sgid, vpos, state, face_map, off, cnt, rec_tri, rec_nbr, rec_face, dirty, active, texp, aexp, n, vp,
             max_ops, counts, queue, changed, q, n_faces)
         if status == DAMAGED:
             need_mat = queue[q]                  # the candidate it was collapsing
@@ -697,7 +708,7 @@ def adapt(e, parent, links, npos, bound, cone, face_creator, rotation, mat, fsgi
             w += 1
             continue
         if x >= e and mode != COLLAPSES_ONLY:
-            need, tm, rm, dist = test_node(x - e, bound, cone, vp)
+            need, tm, rm, dist = test_node(x - e, bound, cone, ring, vp)
             if need:
                 # Force the split of x: Hoppe's stack of unmet preconditions.
                 stack[0] = x
@@ -774,7 +785,7 @@ def adapt(e, parent, links, npos, bound, cone, face_creator, rotation, mat, fsgi
         # in the collapse's legality, pushes the parent as a candidate.
         if mode != SPLITS_ONLY and p >= 0 and links[p - e, 0] == x and \
                 (ns_get(state, links[p - e, 1]) & STATE_MASK) == ACTIVE:
-            need, tm, rm, dist = test_node(p - e, bound, cone, vp)
+            need, tm, rm, dist = test_node(p - e, bound, cone, ring, vp)
             if not need:
                 if collapse_legal(p, e, links, rotation, state, face_map, rec_nbr):
                     if (ns_get(state, p) & IN_LIST) == 0 and n + 1 > active.shape[0]:
@@ -796,7 +807,7 @@ def adapt(e, parent, links, npos, bound, cone, face_creator, rotation, mat, fsgi
                     cs_note(changed, state, links[p - e, 1])     # x's entry is dropped; its sibling's not
                     q = _push_after_collapse(p, e, parent, links, face_creator, state, queue, q)
                     q, n, n_faces, status = _collapse_candidates(
-                        e, parent, links, npos, bound, cone, face_creator, rotation, mat, fsgid, pos_vstart,
+                        e, parent, links, npos, bound, cone, ring, face_creator, rotation, mat, fsgid, pos_vstart,
                         vertex_sgid, vpos, state, face_map, off, cnt, rec_tri, rec_nbr, rec_face, dirty, active,
                         texp, aexp, n, vp, max_ops, counts, queue, changed, q, n_faces)
                     if status == DAMAGED:
@@ -829,9 +840,9 @@ def adapt(e, parent, links, npos, bound, cone, face_creator, rotation, mat, fsgi
 
 
 @nb.njit(cache=True, nogil=True)
-def _collapse_candidates(e, parent, links, npos, bound, cone, face_creator, rotation, mat, fsgid, pos_vstart,
-                         vertex_sgid, vpos, state, face_map, off, cnt, rec_tri, rec_nbr, rec_face, dirty, active,
-                         texp, aexp, n, vp, max_ops, counts, queue, changed, q, n_faces):
+def _collapse_candidates(e, parent, links, npos, bound, cone, ring, face_creator, rotation, mat, fsgid,
+                         pos_vstart, vertex_sgid, vpos, state, face_map, off, cnt, rec_tri, rec_nbr, rec_face, dirty,
+                         active, texp, aexp, n, vp, max_ops, counts, queue, changed, q, n_faces):
     """Try the pushed candidates, last pushed first, until none is left.
 
     Returns (q, n, n_faces, status): NEED_LIST / NEED_QUEUE when a collapse
@@ -850,7 +861,7 @@ def _collapse_candidates(e, parent, links, npos, bound, cone, face_creator, rota
             q -= 1
             ns_update(state, c, QUEUED, 0)
             continue
-        if need_refine(j, bound, cone, vp):
+        if need_refine(j, bound, cone, ring, vp):
             # The view keeps c split; its stationary child's entry may hold no
             # expiry for this test (module doc): have it evaluated next pass.
             ns_update(state, t, 0, RECHECK)

@@ -283,6 +283,38 @@ def _node_err(err, x, e):
     return err[x - e] if x >= e else 0.0
 
 
+@nb.njit(cache=True, nogil=True, inline="always")
+def ring_bound(s, e, t, fan_t, nt, F, cur_node, sphere, err, ring):
+    """Record node ``s``'s ring bound in ``ring`` (e, 2) float32: (reach, ring error).
+
+    The ring is the current nodes of the positions around ``t`` (``fan_t[:nt]``,
+    the new fan) when ``s`` is made. Its error is the largest of theirs
+    (0 for leaves), its reach how far their spheres stick out of ``s``'s
+    (``sphere``, final: call after the error grew it), measured from ``s``'s
+    centre. The runtime splits ``s`` when that error, seen at the ring's
+    sphere (``s``'s centre, radius plus reach), is above the tolerance: then
+    a ring node that the view needs finer by its own test never stands
+    beside ``s`` kept coarse, a mix of ages the build never measured
+    (docs/error-bounds.md). A leaf's position lies in ``s``'s sphere already.
+    Both are rounded up on the way to float32.
+    """
+    j = s - e
+    cx, cy, cz, r = sphere[j, 0], sphere[j, 1], sphere[j, 2], sphere[j, 3]
+    reach = worst = 0.0
+    for i in range(nt):
+        f = fan_t[i]
+        k = corner_of(F, f, t)
+        for q in (F[f, (k + 1) % 3], F[f, (k + 2) % 3]):
+            w = cur_node[q] - e
+            if w >= 0:
+                dx, dy, dz = sphere[w, 0] - cx, sphere[w, 1] - cy, sphere[w, 2] - cz
+                reach = max(reach, math.sqrt(dx * dx + dy * dy + dz * dz) + sphere[w, 3] - r)
+                worst = max(worst, err[w])
+    # float32 rounds to nearest, within 2**-24 of the value: the factor keeps it above.
+    ring[j, 0] = np.float32(reach * (1.0 + 1e-6))
+    ring[j, 1] = np.float32(worst * (1.0 + 1e-6))
+
+
 @nb.njit(cache=True, nogil=True)
 def do_collapse(u, t, fl, fr, P, F, N, vface, alive, Q, cur_node, parent, child, npos,
                 nfaces, nfn, sphere, cone, err, creator, rotation, m, e, fan_u, nu, fan_t,
@@ -500,7 +532,7 @@ def gather_candidates(vface, best_t, best_c, region, cost, target, src):
 
 @nb.njit(cache=True, nogil=True)
 def perform_collapses(P, F, N, vface, alive, fgroup, pclass, fixed, pg_start, pg_groups, Q,
-                      cur_node, parent, child, npos, nfaces, nfn, sphere, cone, err, creator, rotation,
+                      cur_node, parent, child, npos, nfaces, nfn, sphere, cone, err, ring, creator, rotation,
                       pt_head, pt, face_pos, face_nbrs, star_start, star_faces, m, lock, mark, pass_id, fraction,
                       cost, target, src, nc, counter):
     """Perform the cheapest ranked collapses; returns the new node count m.
@@ -510,22 +542,23 @@ def perform_collapses(P, F, N, vface, alive, fgroup, pclass, fixed, pg_start, pg
     int32 their neighbours, and ``star_start``, ``star_faces``, the faces
     around each position
     (:func:`caveclod.kernels.surfacegap.star_lists`): the original surface that
-    reshaped faces are measured against.
+    reshaped faces are measured against. ``ring`` (e, 2) float32: each
+    node's ring bound (:func:`ring_bound`), internal nodes only.
 
     At most ``fraction`` of the ranked ones (the cheapest) are tried unless
     none of those could be made. Each is checked again on the current mesh.
     """
     pieces, ends = edge_stack()
     return _perform_collapses(P, F, N, vface, alive, fgroup, pclass, fixed, pg_start, pg_groups, Q, cur_node, parent,
-                              child, npos, nfaces, nfn, sphere, cone, err, creator, rotation, pt_head, pt, face_pos,
-                              face_nbrs, star_start, star_faces, m, lock, mark, pass_id, fraction, cost, target, src,
-                              nc, counter, np.empty(4096, np.int32), np.empty(4096, np.int32),
+                              child, npos, nfaces, nfn, sphere, cone, err, ring, creator, rotation, pt_head, pt,
+                              face_pos, face_nbrs, star_start, star_faces, m, lock, mark, pass_id, fraction, cost,
+                              target, src, nc, counter, np.empty(4096, np.int32), np.empty(4096, np.int32),
                               np.empty(4096, np.int32), pieces, ends, np.empty(4))
 
 
 @nb.njit(cache=True, nogil=True)
 def _perform_collapses(P, F, N, vface, alive, fgroup, pclass, fixed, pg_start, pg_groups, Q,
-                       cur_node, parent, child, npos, nfaces, nfn, sphere, cone, err, creator, rotation,
+                       cur_node, parent, child, npos, nfaces, nfn, sphere, cone, err, ring, creator, rotation,
                        pt_head, pt, face_pos, face_nbrs, star_start, star_faces, m, lock, mark, pass_id, fraction,
                        cost, target, src, nc, counter, fan_u, fan_t, heads, pieces, ends, leaf):
     """:func:`perform_collapses` with its scratch (``fan_u``, ``fan_t``,
@@ -535,9 +568,9 @@ def _perform_collapses(P, F, N, vface, alive, fgroup, pclass, fixed, pg_start, p
     P, F, N, vface, alive, fgroup, pclass, fixed, pg_start, pg_groups, Q = (
         borrow(P), borrow(F), borrow(N), borrow(vface), borrow(alive), borrow(fgroup), borrow(pclass), borrow(fixed),
         borrow(pg_start), borrow(pg_groups), borrow(Q))
-    cur_node, parent, child, npos, nfaces, nfn, sphere, cone, err, creator, rotation = (
+    cur_node, parent, child, npos, nfaces, nfn, sphere, cone, err, ring, creator, rotation = (
         borrow(cur_node), borrow(parent), borrow(child), borrow(npos), borrow(nfaces), borrow(nfn), borrow(sphere),
-        borrow(cone), borrow(err), borrow(creator), borrow(rotation))
+        borrow(cone), borrow(err), borrow(ring), borrow(creator), borrow(rotation))
     pt_head, pt, face_pos, face_nbrs, star_start, star_faces, lock, mark, cost, target, src, counter = (
         borrow(pt_head), borrow(pt), borrow(face_pos), borrow(face_nbrs), borrow(star_start), borrow(star_faces),
         borrow(lock), borrow(mark), borrow(cost), borrow(target), borrow(src), borrow(counter))
@@ -594,6 +627,7 @@ def _perform_collapses(P, F, N, vface, alive, fgroup, pclass, fixed, pg_start, p
             # the sphere: growing it by dev makes it hold every point charged
             # to s.
             sphere[s - e, 3] += dev
+            ring_bound(s, e, t, fan_t, nt, F, cur_node, sphere, err, ring)
             m += 1
             made += 1
         if made > 0:

@@ -189,12 +189,18 @@ class CachedCamera:
                            view.height, t, True, False, view.prune)
 
     def _outside(self) -> tuple[np.ndarray, float]:
-        """(centre of the mesh's box, R): every node's bounding sphere lies within R of the centre."""
+        """(centre of the mesh's box, R): every node's bounding sphere, and its ring test's,
+        lies within R of the centre."""
         if self._reach is None:
             lo, hi = self.mesh.bounds()
             centre = 0.5 * (lo + hi)
             bound = np.asarray(self.mesh.arrays["node_bound"], dtype=np.float64)
-            reach = float((np.linalg.norm(bound[:, :3] - centre, axis=1) + bound[:, 3]).max(initial=0.0))
+            radius = bound[:, 3]
+            ring = self.mesh.arrays.get("node_ring")
+            if ring is not None and len(ring):             # the ring test's sphere is larger by its reach
+                ring = np.asarray(ring, dtype=np.float64)
+                radius = radius + np.where(ring[:, 1] > 0.0, ring[:, 0], 0.0)
+            reach = float((np.linalg.norm(bound[:, :3] - centre, axis=1) + radius).max(initial=0.0))
             self._reach = (centre, reach)
         return self._reach
 

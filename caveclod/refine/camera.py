@@ -23,6 +23,8 @@ from .view import P_BACKFACE, P_CULL, P_EYE, P_KAPPA, P_PLANES, P_PRUNE, P_TOL, 
 UNLIMITED = np.iinfo(np.int64).max
 REBASE_TURNS = 100.0        # radians the odometer may turn before expiries are rebased
 REBASE_EXTENTS = 100.0      # mesh diagonals it may travel (float32 expiries keep ~1e-5 of it)
+NO_RING = np.zeros((0, 2), np.float32)   # a file from before ring bounds: the ring test is off
+NO_RING.setflags(write=False)            # read-only like a loaded file's maps: one compiled variant of the kernel
 SLACK_RECORDS = 256         # room per material kept beyond the need (28 bytes a record: 7 KB at most)
 
 
@@ -108,7 +110,7 @@ class CameraState:
         a = {k: np.asarray(v) for k, v in mesh.arrays.items()}   # plain views of the maps
         self._static = (
             mesh.n_positions, a["node_parent"], a["node_links"], a["node_position"],
-            a["node_bound"], a["node_cone"], a["face_creator"], a["face_rotation"],
+            a["node_bound"], a["node_cone"], a.get("node_ring", NO_RING), a["face_creator"], a["face_rotation"],
             a["face_material"], a["face_sgid"], a["pos_vstart"], a["vertex_sgid"], mesh.vertex_position_ids,
         )
         self._faces_of_material, base_count = mesh.material_face_counts()
@@ -368,7 +370,7 @@ class CameraState:
         growing the arrays once for all of them when asked."""
         if not len(self.part_hidden):
             return
-        e, _, _, npos, _, _, _, _, mat, fsgid, pos_vstart, vertex_sgid, _ = self._static
+        e, _, _, npos, _, _, _, _, _, mat, fsgid, pos_vstart, vertex_sgid, _ = self._static
         shown = self._part_counts[0:1]
         todo = np.empty(len(self.part_hidden), np.int32)
         need = np.zeros(self.n_materials + 1, np.int64)       # records per material, then list entries
@@ -407,7 +409,7 @@ class CameraState:
         """Hide the parts the view need not draw (small, or outside it), however refined."""
         if not len(self.part_hidden):
             return
-        e, _, links, _, _, _, _, _, mat, _, _, _, _ = self._static
+        e, _, links, _, _, _, _, _, _, mat, _, _, _, _ = self._static
         base_faces, _, _, sphere, root_start, roots, face_start, faces = self._parts_static
         self._parts_due = KP.hide_parts(
             e, links, base_faces, mat, sphere, root_start, roots, face_start, faces, self.part_hidden,

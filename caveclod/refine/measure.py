@@ -55,7 +55,8 @@ def needs_detail(mesh, nodes: np.ndarray, view: View) -> np.ndarray:
     """(k,) bool: whether each internal node of ``nodes`` (ids >= ``mesh.n_positions``)
     needs detail for ``view`` by its own test: in the frustum (bounding sphere
     against the five planes), not wholly back-facing (normal cone, when
-    enabled), and a screen-space error above the tolerance. The refinement's
+    enabled), and a screen-space error above the tolerance (its own, or its
+    ring bound's at the sphere grown by the reach). The refinement's
     criterion over many nodes at once (``ReferenceCamera.need_refine`` is the
     one-node version, in the same float64 arithmetic).
     """
@@ -82,7 +83,12 @@ def needs_detail(mesh, nodes: np.ndarray, view: View) -> np.ndarray:
     if p[P_TOL] <= 0.0:
         return need
     dist = length - r
-    return need & ((dist <= 0.0) | (error * p[P_KAPPA] > p[P_TOL] * dist))
+    own = (dist <= 0.0) | (error * p[P_KAPPA] > p[P_TOL] * dist)
+    ring = mesh.arrays.get("node_ring")
+    if ring is not None and len(ring):
+        reach, ring_error = np.asarray(ring, np.float64)[i].T
+        own |= (ring_error > 0.0) & ((dist - reach <= 0.0) | (ring_error * p[P_KAPPA] > p[P_TOL] * (dist - reach)))
+    return need & own
 
 
 def forced_splits(camera, view: View) -> dict:

@@ -111,6 +111,8 @@ class ReferenceCamera:
         self.sphere = rows("node_sphere", float)          # float32 -> exact Python floats
         self.error = [float(v) for v in mesh.node_error]
         self.cone = rows("node_cone", float)
+        ring = mesh.arrays.get("node_ring")                # (reach, error); files from before it have none
+        self.ring = rows("node_ring", float) if ring is not None and len(ring) else None
         self.creator = ints("face_creator")
         self.rotation = ints("face_rotation")            # where a split's first corner goes
         self.material = ints("face_material")
@@ -251,7 +253,8 @@ class ReferenceCamera:
         Same float64 arithmetic, in the same order, as the compiled kernel:
         frustum (bounding sphere against five planes), back-facing (normal
         cone, when enabled) and screen-space error ``err * kappa / distance``
-        against the tolerance in pixels.
+        against the tolerance in pixels, or the ring bound's error at the
+        sphere grown by its reach (``caveclod.kernels.simplify.ring_bound``).
         """
         v = self.view
         cx, cy, cz, r = self.sphere[x - self.e]
@@ -273,6 +276,10 @@ class ReferenceCamera:
         dist = length - r
         if dist <= 0.0:
             return True                           # the eye is inside the sphere
+        if self.ring is not None:
+            reach, ring_error = self.ring[x - self.e]
+            if ring_error > 0.0 and (dist - reach <= 0.0 or ring_error * v["kappa"] > v["tolerance"] * (dist - reach)):
+                return True                       # a node beside it may need detail by its own test
         return self.error[x - self.e] * v["kappa"] > v["tolerance"] * dist
 
     # -- splits ---------------------------------------------------------------
