@@ -19,8 +19,13 @@ errors do not cover those, and on rough terrain they exceeded the bound by
 up to 1.8x. So errors are *saturated*: a node's error is at least that of
 every node its collapse makes adjacent (the ring of the new fan), as terrain
 LOD saturates errors over dependencies (Pajarola 1998; Lindstrom & Pascucci
-2001). Whenever the view needs a neighbour finer, it then needs this node
-finer too, and the runtime mesh stays one the build measured. The bound
+2001). Saturation alone does not make a view that needs a neighbour finer
+need this node finer too (each is tested at its own sphere, and the
+neighbour's may reach nearer the eye): each node also records its ring
+bound (:func:`ring_bound`), and the runtime splits it whenever a neighbour
+needs detail by its own test, so the runtime mesh stays one the build
+measured but for neighbours split for their own neighbours' sake or forced
+(docs/error-bounds.md). The bound
 covers both directions: the original positions against the coarse faces
 (carried points), and the new edges and faces of each collapse against the
 original surface (:mod:`caveclod.kernels.surfacegap`). Measured
