@@ -67,6 +67,7 @@ import numpy as np
 
 import caveclod
 from caveclod import paths, wire
+from caveclod.builder.version import made_by_this_code
 from caveclod.v1 import caveclod_pb2 as pb
 from caveclod.refine.activevertices import ActiveVertices
 from caveclod.refine.cachedcamera import CachedCamera
@@ -129,7 +130,7 @@ def load_mesh(name: str, args):
     else:
         path = RESULTS / f"{name}_{args.terrain_size}.cvc"
         build = lambda: caveclod.build(name, size=args.terrain_size)    # noqa: E731
-    if not path.exists():
+    if not made_by_this_code(path):           # absent, or built by other code: build it again
         print(f"building {path.name} ...", file=sys.stderr)
         RESULTS.mkdir(parents=True, exist_ok=True)
         build().save(path)

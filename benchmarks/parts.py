@@ -141,9 +141,10 @@ def main() -> int:
     ap.add_argument("--terrain-size", type=int, default=708, help="the default terrain for the overhead run")
     args = ap.parse_args()
     import caveclod
+    from caveclod.builder.version import made_by_this_code
     path = RESULTS / f"debris_{args.size}.cvc"
     t0 = time.perf_counter()
-    if not path.exists():
+    if not made_by_this_code(path):           # absent, or built by other code: build it again
         RESULTS.mkdir(parents=True, exist_ok=True)
         caveclod.build("debris", size=args.size).save(path)
     mesh = caveclod.load(path)

@@ -35,6 +35,7 @@ from pathlib import Path
 import numpy as np
 
 import caveclod
+from caveclod.builder.version import made_by_this_code
 from caveclod.paths import flyover
 
 RESULTS = Path(__file__).parent / "results"
@@ -46,7 +47,7 @@ def load_mesh(name: str, size: int):
     if name.endswith(".cvc"):
         return caveclod.load(name), name
     path = RESULTS / f"{name}_{size}.cvc"
-    if not path.exists():
+    if not made_by_this_code(path):           # absent, or built by other code: build it again
         path.parent.mkdir(parents=True, exist_ok=True)
         caveclod.build(name, size=size).save(path)
     return caveclod.load(path), f"{name} --size {size}"

@@ -24,6 +24,7 @@ import time
 from pathlib import Path
 
 import caveclod
+from caveclod.builder.version import made_by_this_code
 from caveclod.paths import flyover
 from caveclod.render import Renderer, Vertices, contact_sheet, create_context, quadrants, save_png
 
@@ -35,7 +36,7 @@ WIDTH, HEIGHT = 1280, 720
 def load_mesh(name: str, size: int):
     """A built-in, built once into benchmarks/results/ (as refine.py does)."""
     path = RESULTS / f"{name}_{size}.cvc"
-    if not path.exists():
+    if not made_by_this_code(path):           # absent, or built by other code: build it again
         path.parent.mkdir(parents=True, exist_ok=True)
         caveclod.build(name, size=size).save(path)
     return caveclod.load(path)

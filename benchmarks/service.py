@@ -55,7 +55,8 @@ TICK = os.sysconf("SC_CLK_TCK")
 def mesh_path(size: int) -> Path:
     """benchmarks/results/default_SIZE.cvc, built when absent."""
     path = RESULTS / f"default_{size}.cvc"
-    if not path.exists():
+    from caveclod.builder.version import made_by_this_code
+    if not made_by_this_code(path):           # absent, or built by other code: build it again
         import caveclod
         RESULTS.mkdir(parents=True, exist_ok=True)
         print(f"building the default terrain --size {size} ...", file=sys.stderr)

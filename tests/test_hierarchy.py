@@ -207,6 +207,23 @@ def test_files_from_before_ring_bounds_load_and_refine_without_the_ring_test(tmp
     assert faces["back"] == faces["old"] <= faces["new"], faces
 
 
+def test_a_file_says_which_build_code_made_it(tmp_path):
+    """The build report records the build code's digest; a file without it, with another, a damaged
+    one or none at all is not one this checkout would make (the benchmarks' caches build again)."""
+    from caveclod.builder.version import build_code, made_by_this_code
+    mesh = caveclod.build("default", size=16)
+    assert mesh.info["build_code"] == build_code() and len(build_code()) == 16
+    mesh.save(tmp_path / "now.cvc")
+    assert made_by_this_code(tmp_path / "now.cvc")
+    mesh.info["build_code"] = "0" * 16
+    mesh.save(tmp_path / "other.cvc")
+    del mesh.info["build_code"]
+    mesh.save(tmp_path / "before.cvc")
+    (tmp_path / "damaged.cvc").write_bytes(b"CAVECLOD" + bytes(7))
+    for name in ("other", "before", "damaged", "missing"):
+        assert not made_by_this_code(tmp_path / f"{name}.cvc"), name
+
+
 def test_same_input_same_hash():
     a = caveclod.build("default", size=16)
     b = caveclod.build("default", size=16)

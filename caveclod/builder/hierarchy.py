@@ -31,6 +31,7 @@ from ..staticmesh import StaticMesh
 from .surfaces import RIGID, SurfaceLayout, corner_vertices, layout_surfaces
 from .tiles import positions_left_to_merge, tile_grid, tiles_per_side
 from .tilestore import TileStore, block_level, block_of, block_rows, fingerprint, read_blocks
+from .version import build_code
 from .topology import Topology, count_components, face_neighbours
 
 PASS_FRACTION = 0.5   # share of ranked collapses a pass may make (shallower tree)
@@ -76,6 +77,7 @@ def build_static_mesh(source: SourceMesh | Callable[[], SourceMesh], crease_angl
         "classes": mesh.class_tally(),
         "base_mesh": _base_mesh_reasons(hier, face_pos, topo, lay, mesh.face_material),
         "notes": notes,
+        "build_code": build_code(),
     }
     if store is not None:
         mesh.info["blocks_read"] = len(store.loaded)
