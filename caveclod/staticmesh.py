@@ -18,7 +18,10 @@ vertex downloads, :func:`caveclod.vertexpack.attach_packed`). A reader
 ignores names it does not know, so files with or without them load alike.
 Arrays of :data:`OPTIONAL_ARRAYS` may be absent likewise: a file from before
 one loads without what it adds (no ``node_ring``: the refinement's ring test
-is off), and a reader that does not know one ignores it.
+is off), and a reader that does not know one ignores it. The content hash
+(the mesh's identity) covers :data:`ARRAYS`; the optional arrays have a hash
+of their own (``optional_hash`` in the header), which :meth:`StaticMesh.verify`
+checks too, so a reader from before them still verifies a newer file.
 
 Loading reads only the header; arrays are ``np.memmap`` views, so a server
 can open a multi-gigabyte mesh at once and share its pages between processes.
@@ -98,6 +101,7 @@ class StaticMesh:
     path: str | None = None
     content_hash: str = ""
     vertex_buffer_hash: str = ""
+    optional_hash: str | None = None       # of the OPTIONAL_ARRAYS present ("" for none); None: compute it
     damaged: str = ""
     attachments: dict = field(default_factory=dict)     # name -> Attachment
 
@@ -107,6 +111,8 @@ class StaticMesh:
             raise FileFormatError(f"static mesh lacks arrays {sorted(missing)}")
         if not self.content_hash:
             self.content_hash, self.vertex_buffer_hash = _hashes(self.arrays)
+        if self.optional_hash is None:
+            self.optional_hash = _optional_hash(self.arrays)
 
     def __getattr__(self, name):
         arrays = self.__dict__.get("arrays")
@@ -328,7 +334,8 @@ class StaticMesh:
             offset += _aligned(att.data.nbytes)
         header = {"format": "caveclod-static", "version": VERSION, "materials": list(self.materials),
                   "info": self.info, "content_hash": self.content_hash,
-                  "vertex_buffer_hash": self.vertex_buffer_hash, "arrays": table, "attachments": attached}
+                  "vertex_buffer_hash": self.vertex_buffer_hash, "optional_hash": self.optional_hash,
+                  "arrays": table, "attachments": attached}
         blob = json.dumps(header, sort_keys=True).encode()
         data_start = _aligned(len(MAGIC) + 8 + len(blob))
         tmp = path.with_name(path.name + ".tmp")
@@ -349,7 +356,7 @@ class StaticMesh:
     def verify(self) -> None:
         """Re-hash every array (reads the whole file); raise if it changed."""
         content, _ = _hashes(self.arrays)
-        if content != self.content_hash:
+        if content != self.content_hash or _optional_hash(self.arrays) != self.optional_hash:
             raise FileFormatError(f"{self.path}: content hash mismatch; the file is corrupt, rebuild it")
 
 
@@ -379,6 +386,7 @@ def load(path: str | os.PathLike, check: bool = True) -> StaticMesh:
                    for name, (meta, start, nbytes) in attached.items()}
     mesh = StaticMesh(arrays=arrays, materials=header["materials"], info=header["info"], path=str(path),
                       content_hash=header["content_hash"], vertex_buffer_hash=header["vertex_buffer_hash"],
+                      optional_hash=header.get("optional_hash"),
                       attachments=attachments)
     if check:
         from .meshcheck import check_mesh
@@ -437,10 +445,12 @@ def _parse_header(path: Path, blob: bytes) -> dict:
         raise damaged_error(path, "the header names another format or version than its first bytes")
     if not isinstance(header.get("arrays"), dict):
         raise damaged_error(path, "the header has no table of arrays")
-    for key in ("content_hash", "vertex_buffer_hash"):
-        value = header.setdefault(key, "")          # "": StaticMesh computes it (reads every array)
+    for key in ("content_hash", "vertex_buffer_hash", "optional_hash"):
+        value = header.get(key, "")                 # absent: StaticMesh computes it (reads the arrays)
         if not isinstance(value, str) or value and (len(value) != 32 or value.strip("0123456789abcdef")):
             raise damaged_error(path, f"the header's {key} is not 32 hex digits")
+    header.setdefault("content_hash", "")
+    header.setdefault("vertex_buffer_hash", "")
     header["materials"] = _checked_materials(path, header.get("materials", []))
     info = header.setdefault("info", {})
     if not isinstance(info, dict) or _depth(info) > MAX_INFO_DEPTH:
@@ -567,10 +577,15 @@ def _present(arrays: dict) -> list:
 
 
 def _hashes(arrays: dict) -> tuple[str, str]:
-    """(content hash of every array, hash of the vertex buffer alone)."""
+    """(content hash of every array of :data:`ARRAYS`, hash of the vertex buffer alone).
+
+    The optional arrays have a hash of their own (:func:`_optional_hash`):
+    the content hash stays the mesh's identity whether or not a file has
+    them, and a reader from before one verifies the file as it did.
+    """
     content, vb = hashlib.blake2b(digest_size=16), hashlib.blake2b(digest_size=16)
-    for name in _present(arrays):
-        a = np.ascontiguousarray(arrays[name], dtype=DECLARED[name][0])
+    for name in ARRAYS:
+        a = np.ascontiguousarray(arrays[name], dtype=ARRAYS[name][0])
         tag = f"{name}{a.shape}".encode()
         content.update(tag)
         raw = a.reshape(-1).view(np.uint8)   # the bytes, without a copy
@@ -579,3 +594,16 @@ def _hashes(arrays: dict) -> tuple[str, str]:
             vb.update(tag)
             vb.update(raw)
     return content.hexdigest(), vb.hexdigest()
+
+
+def _optional_hash(arrays: dict) -> str:
+    """Hash of the :data:`OPTIONAL_ARRAYS` ``arrays`` has ("" when it has none)."""
+    names = [name for name in OPTIONAL_ARRAYS if name in arrays]
+    if not names:
+        return ""
+    h = hashlib.blake2b(digest_size=16)
+    for name in names:
+        a = np.ascontiguousarray(arrays[name], dtype=OPTIONAL_ARRAYS[name][0])
+        h.update(f"{name}{a.shape}".encode())
+        h.update(a.reshape(-1).view(np.uint8))
+    return h.hexdigest()

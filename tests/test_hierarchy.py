@@ -189,11 +189,23 @@ def test_files_from_before_ring_bounds_load_and_refine_without_the_ring_test(tmp
     mesh = caveclod.build("rough", size=64)
     assert "node_ring" in mesh.arrays
     old = StaticMesh(arrays={k: v for k, v in mesh.arrays.items() if k != "node_ring"}, materials=mesh.materials)
-    assert old.content_hash != mesh.content_hash
+    # The content hash is the mesh's identity, with or without the optional arrays; they have their own.
+    assert old.content_hash == mesh.content_hash and old.optional_hash == "" != mesh.optional_hash
     old.save(tmp_path / "old.cvc")
     back = caveclod.load(tmp_path / "old.cvc")
-    assert "node_ring" not in back.arrays and back.content_hash == old.content_hash
+    assert "node_ring" not in back.arrays and back.content_hash == old.content_hash and back.optional_hash == ""
     back.verify()
+    mesh.save(tmp_path / "new.cvc")
+    new = caveclod.load(tmp_path / "new.cvc")
+    assert new.optional_hash == mesh.optional_hash
+    new.verify()
+    ring = np.memmap(tmp_path / "new.cvc", mode="r+", dtype=np.uint8)   # a flipped bit in the ring bounds
+    at = new.arrays["node_ring"].offset
+    ring[at] ^= 1
+    ring.flush()
+    del ring
+    with pytest.raises(caveclod.FileFormatError, match="hash mismatch"):
+        caveclod.load(tmp_path / "new.cvc").verify()
     lo, hi = mesh.bounds()
     view = caveclod.View(eye=(lo[0], lo[1], hi[2] + 0.3 * (hi[0] - lo[0])), target=tuple(0.5 * (lo + hi)),
                          tolerance_px=0.5)
