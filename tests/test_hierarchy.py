@@ -183,8 +183,10 @@ def test_save_load_roundtrip_is_memory_mapped(tmp_path):
 
 
 def test_files_from_before_ring_bounds_load_and_refine_without_the_ring_test(tmp_path):
-    """A file without the optional node_ring (written before it) loads with its own content hash, and a
-    camera on it draws what a camera with the ring test off draws; one with it draws at least as much."""
+    """A file without the optional node_ring (written before it) loads and verifies with the same content
+    hash (the mesh's identity) and no optional hash; a flipped bit in a newer file's ring bounds fails
+    verify; a camera on the older file draws what a camera with the ring test off draws, one with the
+    ring test at least as much."""
     from caveclod.staticmesh import StaticMesh
     mesh = caveclod.build("rough", size=64)
     assert "node_ring" in mesh.arrays
