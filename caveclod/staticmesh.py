@@ -295,6 +295,7 @@ class StaticMesh:
             "equation1_static_bytes": self.equation1_bytes,
             "content_hash": self.content_hash,
             "vertex_buffer_hash": self.vertex_buffer_hash,
+            "optional_hash": self.optional_hash,
             "attachments": {name: int(a.data.nbytes) for name, a in sorted(self.attachments.items())},
         }
         out.update({k: v for k, v in self.info.items() if k not in out})

@@ -149,7 +149,7 @@ def test_command_line_jobs_and_merge(tmp_path):
     merged = json.loads(proc.stdout)
     assert merged["blocks_read"] == 4
     one = caveclod.build("rough", size=120, tiles=2)
-    assert merged["content_hash"] == one.content_hash
+    assert merged["content_hash"] == one.content_hash and merged["optional_hash"] == one.optional_hash != ""
     assert_refused(run("build", *common, "--tile-job", "0/2"), "--tiles-dir")
     assert_refused(run("build", *common, "--tiles-dir", tiles, "--tile-job", "2/2"), "I/N")
     assert_refused(run("build", *common, "--tiles-dir", tiles, "--tile-job", "0/2", "-o", tmp_path / "x.cvc"),
