@@ -289,35 +289,22 @@ def _node_err(err, x, e):
 
 
 @nb.njit(cache=True, nogil=True, inline="always")
-def ring_bound(s, e, t, fan_t, nt, F, cur_node, sphere, err, ring):
-    """Record node ``s``'s ring bound in ``ring`` (e, 2) float32: (reach, ring error).
+def ring_bound(ring, j, reach, error):
+    """Record internal node ``j``'s ring bound in ``ring`` (e, 2) float32: (reach, error).
 
-    The ring is the current nodes of the positions around ``t`` (``fan_t[:nt]``,
-    the new fan) when ``s`` is made. Its error is the largest of theirs
-    (0 for leaves), its reach how far their spheres stick out of ``s``'s
-    (``sphere``, final: call after the error grew it), measured from ``s``'s
-    centre. The runtime splits ``s`` when that error, seen at the ring's
-    sphere (``s``'s centre, radius plus reach), is above the tolerance: then
-    a ring node that the view needs finer by its own test never stands
-    beside ``s`` kept coarse, a mix of ages the build never measured
-    (docs/error-bounds.md). A leaf's position lies in ``s``'s sphere already.
-    Both are rounded up on the way to float32.
+    The ring is the current nodes of the positions around the new node's
+    position when it is made (:func:`do_collapse` measures it). Its error is
+    the largest of theirs (0 for leaves), its reach how far their spheres
+    stick out of the node's final sphere, from its centre (0 at least: a
+    leaf's position lies in the sphere already). The runtime splits the node
+    when that error, seen at its sphere grown by the reach, is above the
+    tolerance: then a ring node that the view needs finer by its own test
+    never stands beside it kept coarse, a mix of ages the build never
+    measured (docs/error-bounds.md). Both are rounded up on the way to float32.
     """
-    j = s - e
-    cx, cy, cz, r = sphere[j, 0], sphere[j, 1], sphere[j, 2], sphere[j, 3]
-    reach = worst = 0.0
-    for i in range(nt):
-        f = fan_t[i]
-        k = corner_of(F, f, t)
-        for q in (F[f, (k + 1) % 3], F[f, (k + 2) % 3]):
-            w = cur_node[q] - e
-            if w >= 0:
-                dx, dy, dz = sphere[w, 0] - cx, sphere[w, 1] - cy, sphere[w, 2] - cz
-                reach = max(reach, math.sqrt(dx * dx + dy * dy + dz * dz) + sphere[w, 3] - r)
-                worst = max(worst, err[w])
     # float32 rounds to nearest, within 2**-24 of the value: the factor keeps it above.
-    ring[j, 0] = np.float32(reach * (1.0 + 1e-6))
-    ring[j, 1] = np.float32(worst * (1.0 + 1e-6))
+    ring[j, 0] = np.float32(max(reach, 0.0) * (1.0 + 1e-6))
+    ring[j, 1] = np.float32(error * (1.0 + 1e-6))
 
 
 @nb.njit(cache=True, nogil=True)
@@ -335,10 +322,13 @@ def do_collapse(u, t, fl, fr, P, F, N, vface, alive, Q, cur_node, parent, child,
     corner at which fl's (fr's) source face holds t (u): a split makes the
     face from its nodes, and the rotation lets it list its corners in the
     source's order, so that full refinement gives the source faces back
-    exactly. Returns ``(node, fan size, error the node has anyway, vl, vr)``:
-    the error is its children's and its new neighbours' (saturation, module
-    doc), to which the caller adds the measured distances; vl and vr are the
-    third corners of fl and fr (-1 where absent).
+    exactly. Returns ``(node, fan size, error the node has anyway, vl, vr,
+    ring error, ring far)``: the error is its children's and its new
+    neighbours' (saturation, module doc), to which the caller adds the
+    measured distances; vl and vr are the third corners of fl and fr (-1
+    where absent); the ring error is the new neighbours' largest, and the
+    ring far how far from the node's centre their spheres reach (internal
+    neighbours only): :func:`ring_bound`'s.
     """
     s = e + m
     tn, un = cur_node[t], cur_node[u]
@@ -435,14 +425,17 @@ def do_collapse(u, t, fl, fr, P, F, N, vface, alive, Q, cur_node, parent, child,
     # The error s has anyway: its children's (monotone up the tree) and its
     # new neighbours' (saturation, module doc).
     inherited = max(_node_err(err, tn, e), _node_err(err, un, e))
+    ring_err = ring_far = 0.0
     for i in range(nt):
         f = fan_t[i]
         k = corner_of(F, f, t)
         for q in (F[f, (k + 1) % 3], F[f, (k + 2) % 3]):
-            w = cur_node[q]
-            if w >= 0:
-                inherited = max(inherited, _node_err(err, w, e))
-    return s, nt, inherited, vl, vr
+            w = cur_node[q] - e
+            if w >= 0:                    # an internal node (a leaf's error is 0, its position in sp)
+                ring_err = max(ring_err, err[w])
+                dx, dy, dz = sphere[w, 0] - sp[0], sphere[w, 1] - sp[1], sphere[w, 2] - sp[2]
+                ring_far = max(ring_far, math.sqrt(dx * dx + dy * dy + dz * dz) + sphere[w, 3])
+    return s, nt, max(inherited, ring_err), vl, vr, ring_err, ring_far
 
 
 @nb.njit(cache=True, nogil=True)
@@ -618,9 +611,9 @@ def _perform_collapses(P, F, N, vface, alive, fgroup, pclass, fixed, pg_start, p
             u_group = -1
             if pclass[u] == SHARP:
                 u_group = fgroup[fl] if fl != -1 else fgroup[fr]
-            s, nt, inherited, vl, vr = do_collapse(u, t, fl, fr, P, F, N, vface, alive, Q, cur_node, parent,
-                                                   child, npos, nfaces, nfn, sphere, cone, err, creator, rotation,
-                                                   m, e, fan_u, nu, fan_t, face_pos, star_start, star_faces, leaf)
+            s, nt, inherited, vl, vr, ring_err, ring_far = do_collapse(
+                u, t, fl, fr, P, F, N, vface, alive, Q, cur_node, parent, child, npos, nfaces, nfn, sphere, cone, err,
+                creator, rotation, m, e, fan_u, nu, fan_t, face_pos, star_start, star_faces, leaf)
             dev = remeasure(u, u_group, fl, fr, fan_u, nu, fan_t, nt, P, F, N, fgroup, alive, pt_head, pt,
                             heads, inherited)
             # Both directions: the original positions to the coarse faces
@@ -632,7 +625,7 @@ def _perform_collapses(P, F, N, vface, alive, fgroup, pclass, fixed, pg_start, p
             # the sphere: growing it by dev makes it hold every point charged
             # to s.
             sphere[s - e, 3] += dev
-            ring_bound(s, e, t, fan_t, nt, F, cur_node, sphere, err, ring)
+            ring_bound(ring, s - e, ring_far - sphere[s - e, 3], ring_err)
             m += 1
             made += 1
         if made > 0:
