@@ -586,10 +586,8 @@ def _hashes(arrays: dict) -> tuple[str, str]:
     """
     content, vb = hashlib.blake2b(digest_size=16), hashlib.blake2b(digest_size=16)
     for name in ARRAYS:
-        a = np.ascontiguousarray(arrays[name], dtype=ARRAYS[name][0])
-        tag = f"{name}{a.shape}".encode()
+        tag, raw = _tagged_bytes(name, arrays[name])
         content.update(tag)
-        raw = a.reshape(-1).view(np.uint8)   # the bytes, without a copy
         content.update(raw)
         if name in VERTEX_BUFFER:
             vb.update(tag)
@@ -604,7 +602,14 @@ def _optional_hash(arrays: dict) -> str:
         return ""
     h = hashlib.blake2b(digest_size=16)
     for name in names:
-        a = np.ascontiguousarray(arrays[name], dtype=OPTIONAL_ARRAYS[name][0])
-        h.update(f"{name}{a.shape}".encode())
-        h.update(a.reshape(-1).view(np.uint8))
+        tag, raw = _tagged_bytes(name, arrays[name])
+        h.update(tag)
+        h.update(raw)
     return h.hexdigest()
+
+
+def _tagged_bytes(name: str, a: np.ndarray) -> tuple[bytes, np.ndarray]:
+    """What array ``name`` adds to a hash: its name and shape, then its bytes
+    in the declared dtype (a view, without a copy when it has that dtype)."""
+    a = np.ascontiguousarray(a, dtype=DECLARED[name][0])
+    return f"{name}{a.shape}".encode(), a.reshape(-1).view(np.uint8)

@@ -59,6 +59,7 @@ from pathlib import Path
 import numpy as np
 
 from ..errors import InputError
+from .version import add_sources
 
 FORMAT = 1
 """Version of the tile files' layout."""
@@ -84,10 +85,7 @@ def fingerprint(arrays, per_side: int) -> str:
     """Hex digest of ``arrays`` (what the blocks read), the grid and the simplifying code."""
     h = hashlib.blake2b(digest_size=16)
     h.update(f"caveclod tiles {FORMAT} {per_side}".encode())
-    root = Path(__file__).resolve().parent.parent
-    for name in _CODE:
-        h.update(name.encode())
-        h.update((root / name).read_bytes())
+    add_sources(h, _CODE)
     for a in arrays:
         a = np.ascontiguousarray(a)
         h.update(f"{a.dtype.str}{a.shape}".encode())

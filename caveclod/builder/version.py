@@ -12,14 +12,24 @@ from functools import lru_cache
 from pathlib import Path
 
 
+ROOT = Path(__file__).resolve().parent.parent
+"""The ``caveclod`` package's directory, which source names are relative to."""
+
+
+def add_sources(h, names) -> None:
+    """Feed hash ``h`` each source of ``names`` (paths under ``caveclod/``,
+    such as ``"kernels/simplify.py"``): its name, then its bytes."""
+    for name in names:
+        h.update(name.encode())
+        h.update((ROOT / name).read_bytes())
+
+
 @lru_cache(maxsize=1)
 def build_code() -> str:
     """16 hex digits of every source under ``caveclod/builder`` and ``caveclod/kernels``, and the file format's."""
-    root = Path(__file__).resolve().parent.parent
     h = hashlib.blake2b(digest_size=8)
-    for path in sorted([*root.glob("builder/*.py"), *root.glob("kernels/*.py"), root / "staticmesh.py"]):
-        h.update(path.relative_to(root).as_posix().encode())
-        h.update(path.read_bytes())
+    add_sources(h, sorted(path.relative_to(ROOT).as_posix()
+                          for path in [*ROOT.glob("builder/*.py"), *ROOT.glob("kernels/*.py"), ROOT / "staticmesh.py"]))
     return h.hexdigest()
 
 
