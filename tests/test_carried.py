@@ -29,13 +29,13 @@ from meshes import holey_scan
 def _build_keeping_state(monkeypatch, source, tiles=None):
     """Build ``source``; returns the collapse state (:class:`hierarchy._CollapseState`) as the build left it."""
     kept = []
-    collapse = hierarchy._collapse_region
+    collapse = hierarchy._one_pass          # every pass of every level
 
     def keeping(st, *args, **kwargs):
         kept.append(st)
         return collapse(st, *args, **kwargs)
 
-    monkeypatch.setattr(hierarchy, "_collapse_region", keeping)
+    monkeypatch.setattr(hierarchy, "_one_pass", keeping)
     hierarchy.build_static_mesh(source, tiles=tiles, workers=2)
     assert kept, "the build collapsed nothing"
     return kept[-1]

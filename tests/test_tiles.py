@@ -66,6 +66,37 @@ def test_stamps_that_run_out_mid_build_change_nothing(rough, monkeypatch):
     assert digest(again) == digest(plain)
 
 
+def test_a_level_of_one_tile_runs_in_halves_with_the_same_file_for_any_workers(rough, monkeypatch):
+    """One tile (--tiles 1, or a tiled build's last level): passes cut in two halves made on two
+    threads; the cut depends on the mesh only, and the result is as legal, complete and
+    simplified as the same level made on one thread."""
+    from caveclod.builder import hierarchy
+    cuts = []
+    real = hierarchy._halves
+
+    def counting(*args):
+        halves, cut = real(*args)
+        cuts.append((len(halves[0]), len(halves[1]), len(cut)))
+        return halves, cut
+
+    monkeypatch.setattr(hierarchy, "_halves", counting)
+    one = build_static_mesh(rough, tiles=1, workers=1)
+    passes_in_halves = len(cuts)
+    three = build_static_mesh(rough, tiles=1, workers=3)
+    assert passes_in_halves >= 5 and len(cuts) == 2 * passes_in_halves, cuts
+    assert all(a > 0 and b > 0 and c < a + b for a, b, c in cuts), cuts
+    assert digest(one) == digest(three)
+    assert find_problem(one) is None
+    replay_collapses(one, rough)
+    parent = np.asarray(one.node_parent)
+    assert ((parent == -1) | (parent > np.arange(len(parent)))).all()
+    assert np.count_nonzero(parent >= 0) == 2 * one.n_internal
+    monkeypatch.setattr(hierarchy, "SPLIT_FROM", 1 << 40)     # every pass over the whole, on one thread
+    whole = build_static_mesh(rough, tiles=1, workers=2)
+    assert abs(one.n_internal - whole.n_internal) <= 0.01 * whole.n_internal
+    assert len(one.base_faces) <= 1.2 * len(whole.base_faces) + 10
+
+
 def test_tiled_build_is_legal_and_complete(rough):
     mesh = build_static_mesh(rough, tiles=4, workers=2)
     assert find_problem(mesh) is None
