@@ -87,15 +87,18 @@ class Packed:
     packed_crc32: int               # CRC-32 of ``data``
 
 
-def packed_hash(vertex_buffer_hash: str, position_bits: int, morph: bool = False) -> str:
+def packed_hash(vertex_buffer_hash: str, position_bits: int, morph: bool = False, content_hash: str = "") -> str:
     """Cache key of the decoded buffer (``VertexPacking.vertex_buffer_hash``).
 
     The lower-case hex SHA-256 of ``"caveclod.packed.v1:" + vertex_buffer_hash
-    + ":" + str(position_bits)`` (+ ``":morph"`` with morph targets; UTF-8),
-    so that a client computes it before it opens a session and offers a
-    buffer it decoded earlier.
+    + ":" + str(position_bits)`` (+ ``":morph:" + content_hash`` with morph
+    targets; UTF-8), so that a client computes it before it opens a session
+    and offers a buffer it decoded earlier. Morph targets come from the
+    hierarchy, which the vertex buffer's hash does not cover: a mesh built
+    again with the same vertices and another hierarchy has other targets,
+    and MeshInfo's ``content_hash`` tells them apart.
     """
-    text = f"caveclod.packed.v1:{vertex_buffer_hash}:{position_bits}" + (":morph" if morph else "")
+    text = f"caveclod.packed.v1:{vertex_buffer_hash}:{position_bits}" + (f":morph:{content_hash}" if morph else "")
     return hashlib.sha256(text.encode()).hexdigest()
 
 
@@ -459,13 +462,14 @@ def planar_payload(arrays: dict) -> bytes:
 
 # -- on the wire ---------------------------------------------------------------------------
 
-def to_message(packed: Packed, vertex_buffer_hash: str):
-    """The ``VertexPacking`` message of ``packed``; ``vertex_buffer_hash`` is the mesh's (MeshInfo's)."""
+def to_message(packed: Packed, vertex_buffer_hash: str, content_hash: str = ""):
+    """The ``VertexPacking`` message of ``packed``; ``vertex_buffer_hash`` and ``content_hash`` are
+    the mesh's (MeshInfo's; the second names the morph targets, :func:`packed_hash`)."""
     p = packed.packing
     x, y, z = p.position_origin
     return pb.VertexPacking(
         encoding=pb.VERTEX_ENCODING_PACKED, packed_bytes=len(packed.data), packed_crc32=packed.packed_crc32,
-        vertex_buffer_hash=packed_hash(vertex_buffer_hash, p.position_bits, p.has_morph),
+        vertex_buffer_hash=packed_hash(vertex_buffer_hash, p.position_bits, p.has_morph, content_hash),
         position_bits=p.position_bits,
         position_origin=pb.Vec3(x=x, y=y, z=z), position_step=p.position_step, normal_bits=p.normal_bits,
         texcoord_step=p.texcoord_step, max_position_error=packed.max_position_error,

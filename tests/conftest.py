@@ -14,6 +14,12 @@ def pytest_configure(config):
     import tempfile
     if not os.environ.get("CAVECLOD_CHECKED_DIR"):
         config._caveclod_checked = os.environ["CAVECLOD_CHECKED_DIR"] = tempfile.mkdtemp(prefix="caveclod-checked-")
+    # Clients (here and in the processes the tests start) cache vertex buffers in a directory
+    # of this run, not the user's cache, where an entry of another checkout's build must not
+    # decide a test.
+    if not os.environ.get("CAVECLOD_CACHE_DIR"):
+        config._caveclod_vertex_cache = os.environ["CAVECLOD_CACHE_DIR"] = tempfile.mkdtemp(
+            prefix="caveclod-vertex-buffers-")
     # Tests that build full-size meshes; deselect them with -m "not slow".
     config.addinivalue_line("markers", "slow: builds full-size (1024) meshes; deselect with -m 'not slow'")
     config.addinivalue_line("markers", "requires_tool(name): needs an optional system tool (tests/systemtools.py); "
@@ -24,6 +30,8 @@ def pytest_unconfigure(config):
     import shutil
     if getattr(config, "_caveclod_checked", None):
         shutil.rmtree(config._caveclod_checked, ignore_errors=True)
+    if getattr(config, "_caveclod_vertex_cache", None):
+        shutil.rmtree(config._caveclod_vertex_cache, ignore_errors=True)
 
 
 def pytest_runtest_setup(item):

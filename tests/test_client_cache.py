@@ -54,6 +54,9 @@ def test_keys_never_name_other_paths(tmp_path):
 
 
 def test_default_directory_follows_xdg(monkeypatch, tmp_path):
+    monkeypatch.setenv("CAVECLOD_CACHE_DIR", str(tmp_path / "own"))
+    assert default_cache_dir() == tmp_path / "own"
+    monkeypatch.delenv("CAVECLOD_CACHE_DIR")
     monkeypatch.setenv("XDG_CACHE_HOME", str(tmp_path))
     assert default_cache_dir() == tmp_path / "caveclod" / "vertex-buffers"
     monkeypatch.delenv("XDG_CACHE_HOME")

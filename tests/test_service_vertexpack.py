@@ -80,6 +80,33 @@ def test_position_bits_are_negotiated_and_checked(server):
     assert "Open.position_bits is 30; use 8 to 24" in details
 
 
+def test_a_rebuilt_mesh_s_morph_targets_are_not_taken_from_the_cache(make_server, tmp_path):
+    """Morph targets come from the hierarchy: the same vertices built again into another hierarchy
+    have other targets under another cache key (it takes MeshInfo.content_hash), so a client that
+    cached the first build's downloads the second's instead of offering a stale buffer (which the
+    server would take, and the session would end with DATA_LOSS)."""
+    import caveclod
+    from caveclod.builder.builtin import rough_terrain
+    from caveclod.refine.morphtargets import morph_targets
+    builds = {}
+    for tiles in (1, 2):
+        (tmp_path / str(tiles)).mkdir()
+        builds[tiles] = tmp_path / str(tiles) / "rough.cvc"
+        caveclod.build(rough_terrain(40), tiles=tiles).save(builds[tiles])
+    one, two = caveclod.load(builds[1]), caveclod.load(builds[2])
+    assert one.vertex_buffer_hash == two.vertex_buffer_hash and one.content_hash != two.content_hash
+    assert not np.array_equal(morph_targets(one), morph_targets(two)), "the test needs other targets"
+    cache = tmp_path / "cache"
+    for tiles, mesh, from_cache in ((1, one, False), (2, two, False), (2, two, True)):
+        server = make_server(meshes=[builds[tiles]])
+        with Client(f"127.0.0.1:{server.port}", cache_dir=cache) as client:
+            with client.session("rough", width=640, height=360, morph_targets=True) as s:
+                assert s.info.vertex_buffer_cached == from_cache
+                assert np.array_equal(s.vertex_buffer.morph_targets, morph_targets(mesh))
+                assert _fly(s, 2)
+        server.stop()
+
+
 def test_morph_targets_come_when_asked_for(server):
     from caveclod.refine.morphtargets import morph_targets
     with Client(f"127.0.0.1:{server.port}") as client:
@@ -94,7 +121,7 @@ def test_morph_targets_come_when_asked_for(server):
             want = morph_targets(server.sessions.catalogue.get("terrain").mesh)
             assert np.array_equal(s.vertex_buffer.morph_targets, want)
             assert info.vertex_packing.vertex_buffer_hash == vertexpack.packed_hash(
-                info.mesh.vertex_buffer_hash, 20, True) != key
+                info.mesh.vertex_buffer_hash, 20, True, info.mesh.content_hash) != key
             assert size < info.vertex_packing.packed_bytes < size + 4 * len(want), "a few bytes a vertex more"
             assert _fly(s, 2)
         # float32 has no morph targets: asked for, they are not sent.

@@ -108,17 +108,20 @@ def test_the_numpy_decoder_gives_the_reference_decoders_bytes(colors, morph):
     p, n, uv, c = _random_buffer(3, 300, offset=-40.0, extent=90.0, uv_scale=7.0, colors=colors)
     targets = np.maximum(np.arange(300) - np.random.default_rng(4).integers(0, 30, 300), 0) if morph else None
     packed = vertexpack.pack(p, n, uv, c, position_bits=17, morph_targets=targets)
-    msg = vertexpack.to_message(packed, "ab" * 16)
+    msg = vertexpack.to_message(packed, "ab" * 16, "cd" * 32)
     fmt = vertexpack.vertex_format(wire.vertex_blocks(p, n, uv, c), morph)
     mine = vertexpack.planar_payload(vertexpack.unpack(vertexpack.from_message(msg, fmt), packed.data))
     assert mine == reference_decode(msg, fmt, packed.data)
     assert zlib.crc32(mine) == packed.decoded_crc32
     assert msg.packed_bytes == len(packed.data) and msg.packed_crc32 == zlib.crc32(packed.data)
-    assert msg.vertex_buffer_hash == vertexpack.packed_hash("ab" * 16, 17, morph)
+    assert msg.vertex_buffer_hash == vertexpack.packed_hash("ab" * 16, 17, morph, "cd" * 32)
     if morph:
         decoded = vertexpack.unpack(vertexpack.from_message(msg, fmt), packed.data)
         assert np.array_equal(decoded["morph_target"].reshape(-1), targets)
-        assert vertexpack.packed_hash("ab" * 16, 17, True) != vertexpack.packed_hash("ab" * 16, 17)
+        assert vertexpack.packed_hash("ab" * 16, 17, True, "cd" * 32) != vertexpack.packed_hash("ab" * 16, 17)
+        # The targets come from the hierarchy: another build of the same vertices, another key.
+        assert vertexpack.packed_hash("ab" * 16, 17, True, "cd" * 32) != vertexpack.packed_hash("ab" * 16, 17, True,
+                                                                                              "ef" * 32)
 
 
 @pytest.mark.parametrize("source", ["rough", "scan", "sphere", "holey"])

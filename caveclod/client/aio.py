@@ -120,7 +120,8 @@ class AsyncSession(SessionState):
             except grpc.RpcError as exc:
                 raise SessionEnded(exc.code(), exc.details()) from None
             if self.protocol.mesh in meshes:
-                self.protocol.offer_vertex_buffer(meshes[self.protocol.mesh].vertex_buffer_hash)
+                self.protocol.offer_vertex_buffer(meshes[self.protocol.mesh].vertex_buffer_hash,
+                                                 meshes[self.protocol.mesh].content_hash)
         self._stream = _Stream(self.client.stub, self.protocol.open_message(),
                                self.protocol.metadata(self.client.metadata))
         async def until_ready():

@@ -1,7 +1,8 @@
 """The on-disk vertex buffer cache, keyed by ``vertex_buffer_hash``.
 
 ``$XDG_CACHE_HOME/caveclod/vertex-buffers/<hash>`` (``~/.cache/...`` when
-XDG_CACHE_HOME is unset), or a directory given by the caller. Each file is
+XDG_CACHE_HOME is unset; ``$CAVECLOD_CACHE_DIR/<hash>`` when that is set),
+or a directory given by the caller. Each file is
 the payload followed by its CRC-32 (4 bytes, little-endian), checked on
 every read from disk; writes go to a temporary file renamed into place, so
 readers never see half a file. A cache object also keeps the payloads it
@@ -22,6 +23,10 @@ MEMORY_ENTRIES = 2       # payloads a cache object keeps in memory
 
 
 def default_cache_dir() -> Path:
+    """Where clients cache vertex buffers unless told: ``$CAVECLOD_CACHE_DIR``, else
+    ``$XDG_CACHE_HOME/caveclod/vertex-buffers`` (``~/.cache`` when XDG_CACHE_HOME is unset)."""
+    if os.environ.get("CAVECLOD_CACHE_DIR"):
+        return Path(os.environ["CAVECLOD_CACHE_DIR"])
     base = os.environ.get("XDG_CACHE_HOME") or os.path.join(os.path.expanduser("~"), ".cache")
     return Path(base) / "caveclod" / "vertex-buffers"
 

@@ -76,7 +76,7 @@ async def fly_h2(args, shard: tuple) -> tuple:
                                        vertex_encoding=getattr(args, "vertex_encoding", "packed"),
                                        position_bits=getattr(args, "position_bits", None))
             if cache is not None and cached is None:
-                protocol.offer_vertex_buffer(mesh.vertex_buffer_hash)
+                protocol.offer_vertex_buffer(mesh.vertex_buffer_hash, mesh.content_hash)
             # Connections hold runs of neighbouring phases, so that the poses a
             # connection sends within a batch share its writes.
             sessions.append(H2Session(targets[k * n_conn // len(mine)], protocol, md, on_frame=frame,

@@ -220,13 +220,14 @@ class SessionProtocol:
         """Call metadata of this session's Session calls: ``base`` plus the affinity key."""
         return (*base, (AFFINITY_HEADER, self.affinity_key))
 
-    def offer_vertex_buffer(self, vertex_buffer_hash: str) -> bool:
+    def offer_vertex_buffer(self, vertex_buffer_hash: str, content_hash: str = "") -> bool:
         """Offer a cached buffer in the next Open when the cache holds ``vertex_buffer_hash``
-        (MeshInfo's; when the buffer travels packed, the key of its decoded form)."""
+        (MeshInfo's; when the buffer travels packed, the key of its decoded form, which with
+        morph targets takes MeshInfo's ``content_hash`` too)."""
         if self.vertex_encoding == "packed" and vertex_buffer_hash and self.cache_mode is None:
             vertex_buffer_hash = vertexpack.packed_hash(vertex_buffer_hash,
                                                         self.position_bits or vertexpack.DEFAULT_POSITION_BITS,
-                                                        self.morph_targets)
+                                                        self.morph_targets, content_hash)
         if self.vertex is not None and self.vertex.hash == vertex_buffer_hash:
             self._known_hash = vertex_buffer_hash
         elif self.cache is not None and vertex_buffer_hash and self.cache.lookup(vertex_buffer_hash) is not None:

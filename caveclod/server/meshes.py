@@ -144,7 +144,7 @@ class ServedMesh:
                 if packed is None:
                     packed = vertexpack.pack(m.vertex_positions, m.vertex_normals, m.vertex_uvs, m.vertex_colors,
                                              position_bits, self.morph_targets if morph else None)
-                found = (packed, vertexpack.to_message(packed, m.vertex_buffer_hash),
+                found = (packed, vertexpack.to_message(packed, m.vertex_buffer_hash, m.content_hash),
                          vertexpack.vertex_format(self.blocks, morph))
                 with self._lock:
                     self._packed[key] = found
