@@ -68,6 +68,9 @@ def test_processes_share_the_port_drain_together_and_sum_their_metrics(terrain_p
     children = sup.children()
     try:
         assert len(children) == 2 and all(_alive(p) for p in children)
+        # Both listening (a child still starting takes no connection: on a loaded machine the
+        # other one got all eight).
+        assert wait_until(lambda: len(log_events(sup.lines, "server.ready")) >= 2)
         status = cli.main(["loadtest", "--target", f"127.0.0.1:{sup.port}", "--sessions", "8", "--duration", "2",
                            "--rate", "20", "--json", "--cache-dir", str(tmp_path)])
         report = json.loads(capsys.readouterr().out)
