@@ -7,7 +7,7 @@ Each build runs in a fresh process (so peak memory is that build's own):
 the process imports caveclod, warms the compiled kernels on a tiny terrain,
 notes its resident memory, then generates and builds the terrain (the
 smooth ``default`` and the ``rough`` one with no-data holes), ``single``
-(``tiles=1``: one region, ranking on every core) or ``tiled`` (the
+(``tiles=1``: one region, in halves on two threads) or ``tiled`` (the
 automatic grid: tiles simplified in parallel with fixed borders, merged
 2 x 2; :mod:`caveclod.builder.tiles`). Reported: input triangles per
 second (generation included, and the build alone; medians over repeats), peak memory added by
