@@ -541,10 +541,8 @@ def _move_nodes(e, src, dst, k, child, npos, nfaces, nfn, sphere, cone, err, rin
                 creator[f] = e + b
         if cur_node[npos[b]] == e + a:
             cur_node[npos[b]] = e + b
-    for i in range(max(k, src - dst)):   # rows no node occupies now
-        r = dst + k + i
-        if r < src + k:
-            parent[e + r] = -1
+    for r in range(dst + k, src + k):        # rows no node occupies now
+        parent[e + r] = -1
 
 
 def _number_nodes(st: _CollapseState, e: int, m: int, bases: np.ndarray, made: np.ndarray) -> int:
