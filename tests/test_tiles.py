@@ -91,6 +91,12 @@ def test_a_level_of_one_tile_runs_in_halves_with_the_same_file_for_any_workers(r
     parent = np.asarray(one.node_parent)
     assert ((parent == -1) | (parent > np.arange(len(parent)))).all()
     assert np.count_nonzero(parent >= 0) == 2 * one.n_internal
+    # Until the kernels are compiled, what would run at once runs one after the other (threads
+    # calling a kernel first at once each compile it): the same file.
+    tiled = digest(build_static_mesh(rough, tiles=4, workers=2))
+    monkeypatch.setattr(hierarchy, "_compiled", lambda: False)
+    assert digest(build_static_mesh(rough, tiles=1, workers=2)) == digest(one)
+    assert digest(build_static_mesh(rough, tiles=4, workers=2)) == tiled
     monkeypatch.setattr(hierarchy, "SPLIT_FROM", 1 << 40)     # every pass over the whole, on one thread
     whole = build_static_mesh(rough, tiles=1, workers=2)
     assert abs(one.n_internal - whole.n_internal) <= 0.01 * whole.n_internal
