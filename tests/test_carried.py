@@ -29,11 +29,11 @@ from meshes import holey_scan
 def _build_keeping_state(monkeypatch, source, tiles=None):
     """Build ``source``; returns the collapse state (:class:`hierarchy._CollapseState`) as the build left it."""
     kept = []
-    collapse = hierarchy._one_pass          # every pass of every level
+    one_pass = hierarchy._one_pass          # called for every pass of every level
 
     def keeping(st, *args, **kwargs):
         kept.append(st)
-        return collapse(st, *args, **kwargs)
+        return one_pass(st, *args, **kwargs)
 
     monkeypatch.setattr(hierarchy, "_one_pass", keeping)
     hierarchy.build_static_mesh(source, tiles=tiles, workers=2)

@@ -212,6 +212,7 @@ def collapse_all(positions: np.ndarray, face_pos: np.ndarray, topo: Topology, la
     scratch: queue.SimpleQueue = queue.SimpleQueue()      # (mark, stamp counter) per thread at work
     for _ in range(workers):
         scratch.put(_thread_scratch(e))
+    _load_kernels(st, scratch)
 
     bar = Progress("collapsing", total=max(int(np.count_nonzero((st.cls != RIGID) & ~topo.nonmanifold)), 1),
                    enabled=progress)
@@ -259,14 +260,10 @@ def _collapse_tiles(st: _CollapseState, regions, bases, scratch, pool, bar, m) -
     """Simplify a level's tiles (``regions``, their nodes numbered from
     ``bases``) at once, each stopping where the merge takes over; returns
     (nodes made, passes), both (t,) int64."""
-    made, passes = np.zeros(len(regions), np.int64), np.zeros(len(regions), np.int64)
-    first = 0 if _compiled() else 1            # the first tile alone, while the kernels compile
-    for i in range(first):
-        made[i], passes[i] = _collapse_region(st, regions[i], int(bases[i]), scratch,
-                                              keep=positions_left_to_merge(len(regions[i])))
     jobs = [pool.submit(_collapse_region, st, r, int(b), scratch, keep=positions_left_to_merge(len(r)))
-            for r, b in zip(regions[first:], bases[first:])]
-    for i, job in enumerate(jobs, first):
+            for r, b in zip(regions, bases)]
+    made, passes = np.zeros(len(regions), np.int64), np.zeros(len(regions), np.int64)
+    for i, job in enumerate(jobs):
         made[i], passes[i] = job.result()
         bar.update(m + int(made.sum()))
     return made, passes
@@ -378,15 +375,22 @@ def _collapse_region(st: _CollapseState, region: np.ndarray, base: int, scratch:
             scratch.put(h)
 
 
-def _compiled() -> bool:
-    """Whether this process has compiled (or loaded from numba's cache) the collapse kernels.
+def _load_kernels(st: _CollapseState, scratch: queue.SimpleQueue) -> None:
+    """Compile (or load from numba's cache) the collapse kernels on this thread, before any
+    other thread calls them: a pass over no positions, with the build's own argument types.
 
-    Threads that call a kernel first at the same moment each compile it:
-    the first pass in halves took a one-tile build of 131k triangles from
-    84 s to 150 s in a fresh checkout. Until then, what would run at once
-    runs one after the other (the same results: the parts are disjoint).
+    Threads that call a kernel first at the same moment each compile it: the
+    halves' first pass, a level's first tiles and the ranking's shares did,
+    and a fresh checkout's first tiled build of the rough terrain at 256
+    cells took 148 s instead of 99 s (the demo's one-tile terrain 150 s
+    instead of 89.5 s).
     """
-    return all(k.signatures for k in (rank_collapses, gather_candidates, perform_collapses))
+    held = scratch.get()
+    try:
+        none = np.zeros(0, np.int32)
+        _one_pass(st, none, [none], [held], 0, 0, None)
+    finally:
+        scratch.put(held)
 
 
 def _one_pass(st: _CollapseState, region: np.ndarray, parts: list, held: list, m: int, pass_id: int,
@@ -397,7 +401,7 @@ def _one_pass(st: _CollapseState, region: np.ndarray, parts: list, held: list, m
     k = len(region)
     cost, target, src = np.empty(k), np.empty(k, np.int32), np.empty(k, np.int32)
     args = (st.P, st.F, st.N, st.vface, st.group, st.cls, st.fixed, st.pg_start, st.pg_groups, st.Q, st.lock)
-    if pool is not None and len(parts) > 1 and _compiled():
+    if pool is not None and len(parts) > 1:
         jobs = [pool.submit(rank_collapses, *args, mark, st.best_t, st.best_c, pass_id, part, counter)
                 for part, (mark, counter) in zip(parts, held)]
         for job in jobs:
@@ -456,7 +460,7 @@ def _collapse_whole(st: _CollapseState, region: np.ndarray, base: int, scratch: 
                 halves, cut = _halves(st.P, axes, pass_id, region, st.F, st.N, st.vface)
                 st.fixed[cut] = True
                 bases = (m, m + len(halves[0]))
-                if pool is not None and workers > 1 and _compiled():
+                if pool is not None and workers > 1:
                     jobs = [pool.submit(_one_pass, st, h, [h], [held[i]], b, pass_id, None)
                             for i, (h, b) in enumerate(zip(halves, bases))]
                     ends = [job.result() for job in jobs]
