@@ -26,7 +26,7 @@ from ..kernels.fans import collect_fan
 from ..kernels.simplify import gather_candidates, init_leaves, perform_collapses, rank_collapses
 from ..kernels.surfacegap import star_lists
 from .memory import give_back_freed_memory
-from .normals import add_crease_normals
+from .normals import add_crease_normals, face_weights
 from ..progress import Progress, stage
 from .source import SourceMesh
 from ..staticmesh import StaticMesh
@@ -68,8 +68,11 @@ def build_static_mesh(source: SourceMesh | Callable[[], SourceMesh], crease_angl
     give_back_freed_memory()                  # after each phase: .memory.give_back_freed_memory
     hier = collapse_all(positions, face_pos, topo, lay, progress, tiles=tiles, workers=workers, store=store)
     give_back_freed_memory()
-    arrays.update(node_arrays(positions, hier))
-    mesh = StaticMesh(arrays=arrays, materials=materials)
+    with ThreadPoolExecutor(1) as side:         # the report's reasons, meanwhile: they only read
+        reasons = side.submit(_base_mesh_reasons, hier, face_pos, topo, lay, arrays["face_material"])
+        arrays.update(node_arrays(positions, hier))
+        mesh = StaticMesh(arrays=arrays, materials=materials)
+        reasons = reasons.result()
     mesh.info = {
         "build_seconds": round(time.perf_counter() - t0, 3),
         "input_triangles": len(face_pos),
@@ -77,7 +80,7 @@ def build_static_mesh(source: SourceMesh | Callable[[], SourceMesh], crease_angl
         "tiles": hier.tiles,
         "surface_groups": lay.n_groups,
         "classes": mesh.class_tally(),
-        "base_mesh": _base_mesh_reasons(hier, face_pos, topo, lay, mesh.face_material),
+        "base_mesh": reasons,
         "notes": notes,
         "build_code": build_code(),
     }
@@ -193,19 +196,24 @@ def collapse_all(positions: np.ndarray, face_pos: np.ndarray, topo: Topology, la
     sphere, cone = empty_spheres(e), empty_cones(e)       # internal nodes only (a leaf's are made when needed)
     err = np.zeros(e)
     ring = np.zeros((e, 2), np.float32)
-    init_leaves(P, F, N, lay.face_group, vface, Q)
-    star_start, star_faces = star_lists(face_pos, e)       # the original surface, for the other direction
-
-    st = _CollapseState(
-        P=P, F=F, N=N, vface=vface, Q=Q, sphere=sphere, cone=cone, err=err, ring=ring,
-        alive=np.ones(p, bool), cur_node=np.arange(e, dtype=np.int32), parent=np.full(2 * e, -1, np.int32),
-        child=np.full((e, 2), -1, np.int32), npos=np.full(e, -1, np.int32), nfaces=np.full((e, 2), -1, np.int32),
-        nfn=np.full((e, 4), -1, np.int32), creator=np.full(p, -1, np.int32), rotation=np.zeros(p, np.uint8),
-        pt=new_store(p, e), lock=np.full(e, -1, np.int32), best_t=np.full(e, -1, np.int32), best_c=np.zeros(e),
-        group=lay.face_group, cls=lay.position_class, pg_start=lay.pos_vstart, pg_groups=lay.vertex_group,
-        fixed=topo.nonmanifold, face_pos=face_pos, face_nbrs=topo.nbrs, star_start=star_start, star_faces=star_faces)
+    # The leaves' quadrics are made on a second thread while this one makes what needs nothing of them:
+    # the original surface's stars (for the other direction), the other arrays and the grid (last, as
+    # before: made before the arrays, its temporaries left the one-tile build's peak 8 B a triangle higher).
+    with ThreadPoolExecutor(1) as side:
+        leaves = side.submit(init_leaves, P, F, N, lay.face_group, vface, Q)
+        star_start, star_faces = star_lists(face_pos, e)
+        st = _CollapseState(
+            P=P, F=F, N=N, vface=vface, Q=Q, sphere=sphere, cone=cone, err=err, ring=ring,
+            alive=np.ones(p, bool), cur_node=np.arange(e, dtype=np.int32), parent=np.full(2 * e, -1, np.int32),
+            child=np.full((e, 2), -1, np.int32), npos=np.full(e, -1, np.int32), nfaces=np.full((e, 2), -1, np.int32),
+            nfn=np.full((e, 4), -1, np.int32), creator=np.full(p, -1, np.int32), rotation=np.zeros(p, np.uint8),
+            pt=new_store(p, e), lock=np.full(e, -1, np.int32), best_t=np.full(e, -1, np.int32), best_c=np.zeros(e),
+            group=lay.face_group, cls=lay.position_class, pg_start=lay.pos_vstart, pg_groups=lay.vertex_group,
+            fixed=topo.nonmanifold, face_pos=face_pos, face_nbrs=topo.nbrs, star_start=star_start,
+            star_faces=star_faces)
+        grid = tile_grid(P, face_pos, tiles_per_side(p, tiles))
+        leaves.result()
     workers = max(1, min(os.cpu_count() or 1, 8)) if workers is None else max(1, int(workers))
-    grid = tile_grid(P, face_pos, tiles_per_side(p, tiles))
     if store is not None:
         store.key = fingerprint((P, face_pos, lay.face_group, lay.position_class, lay.pos_vstart, lay.vertex_group,
                                  topo.nonmanifold), grid.per_side)
@@ -260,11 +268,15 @@ def _collapse_tiles(st: _CollapseState, regions, bases, scratch, pool, bar, m) -
     """Simplify a level's tiles (``regions``, their nodes numbered from
     ``bases``) at once, each stopping where the merge takes over; returns
     (nodes made, passes), both (t,) int64."""
-    jobs = [pool.submit(_collapse_region, st, r, int(b), scratch, keep=positions_left_to_merge(len(r)))
-            for r, b in zip(regions, bases)]
+    # Largest tiles first: the level's last tile then is a small one, and the
+    # threads finish together instead of one running a large tile alone
+    # (the tiles are independent, so the order changes nothing they make).
+    order = sorted(range(len(regions)), key=lambda i: -len(regions[i]))
+    jobs = {i: pool.submit(_collapse_region, st, regions[i], int(bases[i]), scratch,
+                           keep=positions_left_to_merge(len(regions[i]))) for i in order}
     made, passes = np.zeros(len(regions), np.int64), np.zeros(len(regions), np.int64)
-    for i, job in enumerate(jobs):
-        made[i], passes[i] = job.result()
+    for i in order:
+        made[i], passes[i] = jobs[i].result()
         bar.update(m + int(made.sum()))
     return made, passes
 
@@ -747,10 +759,16 @@ def prepare_source(source: SourceMesh, crease_angle: float | None = None,
     """
     if face_pos is None:
         face_pos = source.face_positions.astype(np.int32)
-    topo = face_neighbours(face_pos, len(source.positions))
-    if source.vertex_normal is None:
+    # The faces' normals and corner angles need no topology: made on a second thread meanwhile. That
+    # thread makes the short-lived arrays; the topology, which lives through the build, is made here
+    # (made there, it left the build's peak 3-4 B a triangle higher).
+    with ThreadPoolExecutor(1) as side:
+        job = side.submit(face_weights, source.positions, face_pos) if source.vertex_normal is None else None
+        topo = face_neighbours(face_pos, len(source.positions))
+        weights = None if job is None else job.result()
+    if weights is not None:
         angle = source.crease_angle if crease_angle is None else crease_angle
-        source = add_crease_normals(source, angle, topo, face_pos)
+        source = add_crease_normals(source, angle, topo, face_pos, weights)
     return source, topo
 
 

@@ -46,14 +46,23 @@ def _face_normals(P, F):
     return unit, length
 
 
+def face_weights(positions: np.ndarray, face_pos: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(unit normals (p, 3) float64, interior angle at each corner (p, 3)
+    float64) of faces ``face_pos`` (p, 3): what a vertex normal averages.
+    Needs no topology, so a build makes them while it makes the topology."""
+    unit, _ = face_normals(positions, face_pos)
+    return unit, _corner_angles(positions, face_pos)
+
+
 def add_crease_normals(source: SourceMesh, crease_angle_deg: float, topo: Topology | None = None,
-                       face_pos: np.ndarray | None = None) -> SourceMesh:
+                       face_pos: np.ndarray | None = None, weights: tuple | None = None) -> SourceMesh:
     """Return ``source`` with vertex normals computed at ``crease_angle_deg``.
 
     Vertices are split where wedges differ, so the result's vertex ids change;
     UVs and colours of the input vertices are kept. ``topo`` is the mesh's
     :class:`~caveclod.builder.topology.Topology` when the caller already has it,
-    ``face_pos`` (p, 3) int32 its ``face_positions``.
+    ``face_pos`` (p, 3) int32 its ``face_positions`` and ``weights`` its
+    :func:`face_weights`.
     """
     if not 0.0 <= crease_angle_deg <= 180.0:
         raise InputError(f"--crease-angle must be between 0 and 180 degrees, got {crease_angle_deg}")
@@ -61,8 +70,7 @@ def add_crease_normals(source: SourceMesh, crease_angle_deg: float, topo: Topolo
         face_pos = source.face_positions.astype(np.int32)
     if topo is None:
         topo = face_neighbours(face_pos, len(source.positions))
-    unit, _ = face_normals(source.positions, face_pos)
-    corner_w = _corner_angles(source.positions, face_pos)
+    unit, corner_w = face_weights(source.positions, face_pos) if weights is None else weights
     wedge = _wedges(face_pos, topo.nbrs, source.faces.astype(np.int32), unit,
                     np.cos(np.radians(crease_angle_deg)))
     faces, old_vertex, normals = _wedge_vertices(wedge, source.faces.astype(np.int64), unit, corner_w)
