@@ -44,6 +44,42 @@ def test_the_same_file_for_one_and_three_workers(rough):
     assert one.info["tiles"] == 4
 
 
+def test_a_level_s_tiles_start_largest_first(rough, monkeypatch):
+    """So that a level's last tile is a small one and the threads finish together; one worker runs
+    them in the order they were handed out."""
+    from caveclod.builder import hierarchy
+    real, started = hierarchy._collapse_region, []
+
+    def recorded(st, region, base, scratch, *args, **kwargs):
+        started.append((len(region), base))
+        return real(st, region, base, scratch, *args, **kwargs)
+
+    monkeypatch.setattr(hierarchy, "_collapse_region", recorded)
+    mesh = build_static_mesh(rough, tiles=4, workers=1)
+    assert len(started) == 16 + 4, "the first level's 16 tiles and the second's 4 (the last runs in halves)"
+    for level in (started[:16], started[16:]):
+        sizes = [k for k, _ in level]
+        assert sizes == sorted(sizes, reverse=True)
+        assert sorted(b for _, b in level) != [b for _, b in level] or len(set(sizes)) == 1, \
+            "started out of the grid's order (else the test shows nothing)"
+    monkeypatch.setattr(hierarchy, "_collapse_region", real)
+    assert digest(mesh) == digest(build_static_mesh(rough, tiles=4, workers=3))
+
+
+def test_normals_made_beside_the_topology_are_the_ones_made_after_it(rough):
+    """prepare_source makes the faces' normals and corner angles on a second thread while it
+    makes the topology; the vertices and normals are those of the one-thread path."""
+    from caveclod.builder.normals import add_crease_normals
+    scan = range_scan(48)
+    for source, angle in ((rough, None), (scan, 30.0), (scan, 0.0)):
+        made, topo = prepare_source(source, angle)
+        alone = add_crease_normals(source, source.crease_angle if angle is None else angle)
+        assert source.vertex_normal is None and made.vertex_normal is not None
+        for name in ("faces", "vertex_position", "vertex_normal"):
+            assert np.array_equal(getattr(made, name), getattr(alone, name)), name
+        assert np.array_equal(topo.nbrs, prepare_source(made)[1].nbrs), "a source with normals: the same topology"
+
+
 def test_stamps_that_run_out_mid_build_change_nothing(rough, monkeypatch):
     """Each thread's stamps are int32 (kernels/simplify.next_stamp): a thread whose counter starts
     a few stamps short of the limit clears its marks and starts again within the first checks,
