@@ -15,6 +15,7 @@ from dataclasses import dataclass
 import numba as nb
 import numpy as np
 
+from ..errors import InputError
 from ..kernels.fans import collect_fan
 
 
@@ -40,6 +41,9 @@ class Topology:
 def face_neighbours(faces: np.ndarray, n_positions: int) -> Topology:
     """Compute :class:`Topology` for ``faces`` (p, 3) of position ids."""
     faces32 = np.ascontiguousarray(faces, dtype=np.int32)
+    if 3 * len(faces32) >= 2 ** 31:
+        raise InputError(f"{len(faces32):,} faces: the topology numbers half-edges in int32, which holds at most "
+                         f"{(2 ** 31 - 1) // 3:,} faces; build the mesh in parts")
     nbrs, edge_faces = _link_edges(faces32, n_positions)
     a = faces32
     b = np.roll(a, -1, axis=1)                       # edge k runs a[:, k] -> b[:, k]
@@ -69,8 +73,11 @@ def _link_pair(faces, nbrs, h, g):
 def _link_edges(faces, e):
     """(nbrs, edge_faces), (p, 3) int32 and uint8; see :class:`Topology`.
 
-    Half-edges are bucketed by their lower end (a CSR), so matching an edge
-    only scans the few half-edges that start at the same position.
+    Half-edges are bucketed by their lower end (a CSR), each with its upper
+    end beside it, so matching an edge scans the few half-edges that start
+    at the same position and compares one int32 each (no face lookups).
+    Half-edge ids 3f + k are int32: a build refuses more than 715M faces
+    long before (its memory check).
     """
     p = faces.shape[0]
     start = np.zeros(e + 1, np.int64)
@@ -81,12 +88,14 @@ def _link_edges(faces, e):
     for x in range(e):
         start[x + 1] += start[x]
     fill = start[:-1].copy()
-    bucket = np.empty(3 * p, np.int64)               # half-edge ids 3f + k
+    bucket = np.empty(3 * p, np.int32)               # half-edge ids 3f + k
+    far = np.empty(3 * p, np.int32)                  # the upper end of each
     for f in range(p):
         for k in range(3):
             a, b = faces[f, k], faces[f, (k + 1) % 3]
             lo = min(a, b)
             bucket[fill[lo]] = 3 * f + k
+            far[fill[lo]] = max(a, b)
             fill[lo] += 1
     nbrs = np.full((p, 3), -1, np.int32)
     edge_faces = np.zeros((p, 3), np.uint8)
@@ -95,20 +104,13 @@ def _link_edges(faces, e):
         if hi_end - lo > 32:
             # A high-valence position (a fan centre): sort its half-edges by
             # far end so equal edges sit together, instead of a quadratic scan.
-            far = np.empty(hi_end - lo, np.int64)
-            for i in range(lo, hi_end):
-                h = bucket[i]
-                far[i - lo] = max(faces[h // 3, h % 3], faces[h // 3, (h % 3 + 1) % 3])
-            bucket[lo:hi_end] = bucket[lo:hi_end][np.argsort(far, kind="mergesort")]
+            order = np.argsort(far[lo:hi_end], kind="mergesort")
+            bucket[lo:hi_end] = bucket[lo:hi_end][order]
+            far[lo:hi_end] = far[lo:hi_end][order]
             i = lo
             while i < hi_end:
                 j = i
-                h = bucket[i]
-                key = max(faces[h // 3, h % 3], faces[h // 3, (h % 3 + 1) % 3])
-                while j + 1 < hi_end:
-                    g = bucket[j + 1]
-                    if max(faces[g // 3, g % 3], faces[g // 3, (g % 3 + 1) % 3]) != key:
-                        break
+                while j + 1 < hi_end and far[j + 1] == far[i]:
                     j += 1
                 count = j - i + 1
                 for q in range(i, j + 1):
@@ -119,16 +121,15 @@ def _link_edges(faces, e):
                 i = j + 1
             continue
         for i in range(lo, hi_end):
-            h = bucket[i]
-            f, k = h // 3, h % 3
-            hi = max(faces[f, k], faces[f, (k + 1) % 3])
+            hi = far[i]
             count, other = 0, -1
             for j in range(lo, hi_end):
-                g = bucket[j]
-                if max(faces[g // 3, g % 3], faces[g // 3, (g % 3 + 1) % 3]) == hi:
+                if far[j] == hi:
                     count += 1
-                    if g != h:
-                        other = g
+                    if j != i:
+                        other = bucket[j]
+            h = bucket[i]
+            f, k = h // 3, h % 3
             edge_faces[f, k] = min(count, 255)
             if count == 2 and faces[f, k] == faces[other // 3, (other % 3 + 1) % 3]:
                 nbrs[f, k] = other // 3               # opposite directions: a manifold pair
