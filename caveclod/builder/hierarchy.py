@@ -362,29 +362,26 @@ class _CollapseState:
 
 
 def _collapse_region(st: _CollapseState, region: np.ndarray, base: int, scratch: queue.SimpleQueue,
-                     pool: ThreadPoolExecutor | None = None, workers: int = 1, keep: int = 0) -> tuple[int, int]:
-    """Collapse inside ``region`` (k,) int32 positions until nothing is left to do.
+                     keep: int = 0) -> tuple[int, int]:
+    """Collapse inside ``region`` (k,) int32 positions, on this thread, until nothing is left to do.
 
     Nodes are numbered ``e + base`` on (at most k of them: each collapse
-    removes a position of the region). With ``pool``, ranking runs on
-    ``workers`` threads, each over its share of the region. Returns (nodes
-    made, passes). Stops once at most ``keep`` of the region's positions are
-    left.
+    removes a position of the region). Returns (nodes made, passes). Stops
+    once at most ``keep`` of the region's positions are left. (A level of
+    one tile runs in halves instead: :func:`_collapse_whole`.)
     """
-    parts = np.array_split(region, workers) if pool is not None else [region]
-    held = [scratch.get() for _ in parts]
+    held = scratch.get()
     try:
         k = len(region)
         m, pass_id = base, 0
         while True:
             before = m
-            m = _one_pass(st, region, parts, held, m, pass_id, pool)
+            m = _one_pass(st, region, [region], [held], m, pass_id, None)
             pass_id += 1
             if m == before or k - (m - base) <= keep:
                 return m - base, pass_id
     finally:
-        for h in held:
-            scratch.put(h)
+        scratch.put(held)
 
 
 def _load_kernels(st: _CollapseState, scratch: queue.SimpleQueue) -> None:
@@ -394,8 +391,8 @@ def _load_kernels(st: _CollapseState, scratch: queue.SimpleQueue) -> None:
     Threads that call a kernel first at the same moment each compile it: the
     halves' first pass, a level's first tiles and the ranking's shares did,
     and a fresh checkout's first tiled build of the rough terrain at 256
-    cells took 148 s instead of 99 s (the demo's one-tile terrain 150 s
-    instead of 89.5 s).
+    cells took 148 s instead of the 83.5 s it takes once they load first
+    (docs/tiled-build.md, "Kernels compile once").
     """
     held = scratch.get()
     try:
