@@ -246,6 +246,25 @@ class StaticMesh:
             self.__dict__["_parts"] = parts
         return parts
 
+    def position_tops(self) -> np.ndarray:
+        """(e,) int32 the last node at each position, read-only; computed once.
+
+        The nodes at a position form one chain of stationary children (node
+        ids grow up it); its last node's parent is the collapse that took the
+        position away (none: a root). The strict bound reads whether a
+        position was gone before a node was made from it
+        (:mod:`caveclod.kernels.refine`, "the strict bound").
+        """
+        tops = self.__dict__.get("_position_tops")
+        if tops is None:
+            e = self.n_positions
+            npos = np.asarray(self.arrays["node_position"])
+            tops = np.arange(e, dtype=np.int32)
+            np.maximum.at(tops, npos, np.arange(e, e + len(npos), dtype=np.int32))
+            tops.setflags(write=False)      # like a loaded file's maps: one compiled variant of the kernel
+            self.__dict__["_position_tops"] = tops
+        return tops
+
     def node_positions(self, nodes: np.ndarray) -> np.ndarray:
         """(k,) position ids of ``nodes`` (leaves or internal)."""
         nodes = np.asarray(nodes)
@@ -305,7 +324,7 @@ class StaticMesh:
         """A fresh per-camera refinement state showing the base mesh.
 
         ``options``: :class:`~caveclod.refine.camera.CameraState`'s
-        (``max_ops``, ``max_faces``, ``expiries``).
+        (``max_ops``, ``max_faces``, ``expiries``, ``strict_bound``).
         """
         from .refine.camera import CameraState
         if self.damaged:

@@ -83,8 +83,9 @@ no corner there, reaches an inactive face or does not close within as many
 steps as there are records; a forced split whose stack or step count passes
 what an acyclic hierarchy can need (4n + 8 entries, 8n + 64 steps: every
 dependency goes to a higher node id, so a node is pushed at most once while
-unsplit). Each stops the pass with DAMAGED and the node it was working on,
-which the camera raises as :class:`caveclod.errors.MeshDamagedError`. The
+unsplit; with the strict bound, whose extra dependencies also go to higher
+ids, 64n + 64 and 128n + 256, for fans of many corners). Each stops the
+pass with DAMAGED and the node it was working on, which the camera raises as :class:`caveclod.errors.MeshDamagedError`. The
 functions that gained early returns for them (:func:`split_node`,
 :func:`_move_wedge`, :func:`_add_face`) are inlined by numba: LLVM stopped
 inlining them, and calls that pass every array as a struct of its own made
@@ -526,6 +527,231 @@ def _room_for_split(j, links, mat, cnt, cap):
     return -1
 
 
+# ---------------------------------------------------------------- the strict bound
+#
+# A camera opened with the strict bound never shows a node beside a position
+# that had been collapsed away before the node was made: every position beside
+# an active node was in the mesh when the node's collapse measured its error.
+# Node ids are in the order the build made them (a node's dependencies and
+# parent come later), so "position q was gone before node a" reads
+# ``parent[pos_top[q]] < a``: ``pos_top[q]`` is the last node at q (its
+# stationary chain's top), whose parent's collapse took q away. A split of y
+# brings its floating child's position back; every active node newer than y
+# beside it must be split first (pushed on the forced-split stack, like
+# Hoppe's dependencies: to newer nodes, so the stack ends). A collapse of x is
+# legal only if no position beside x's two was gone before x, and after it the
+# parents of x's new neighbours are collapse candidates (a position that
+# blocked their collapse may just have gone). docs/error-bounds.md, "The
+# strict bound".
+
+
+@nb.njit(cache=True, nogil=True, inline="always")
+def _gone_before(parent, pos_top, q, x):
+    """Whether position ``q`` had been collapsed away before node ``x`` was made."""
+    g = parent[pos_top[q]]
+    return g >= 0 and g < x
+
+
+@nb.njit(cache=True, nogil=True, inline="always")
+def _active_at(q, parent, pos_top, state):
+    """The active node at position ``q`` (on its stationary chain), or -1."""
+    x = q
+    top = pos_top[q]
+    while x >= 0:
+        if (ns_get(state, x) & STATE_MASK) == ACTIVE:
+            return x
+        if x == top:
+            return -1
+        x = parent[x]
+    return -1
+
+
+@nb.njit(cache=True, nogil=True, inline="always")
+def _note_blocker(q, x, parent, pos_top, state, out, n):
+    """Add the active node at ``q`` to ``out[:n]`` if it is newer than ``x`` (and not there yet)."""
+    if pos_top[q] <= x:
+        return n                           # every node at q is older than x
+    a = _active_at(q, parent, pos_top, state)
+    if a <= x:
+        return n
+    for i in range(n):
+        if out[i] == a:
+            return n
+    if n >= out.shape[0]:
+        return -1
+    out[n] = a
+    return n + 1
+
+
+@nb.njit(cache=True, nogil=True)
+def split_blockers(x, e, links, npos, parent, pos_top, state, vpos, face_map, rec_tri, rec_nbr, out):
+    """The active nodes newer than ``x`` that its split would put beside its
+    floating child's position (gone before they were made), for the strict
+    bound. In a fixed order: the corners of the wedge that moves to u, as
+    :func:`_move_wedge` walks it, then vl and vr.
+
+    Writes them to ``out`` and returns how many; -1 when ``out`` is too small,
+    -2 when a walk does not close (damaged: module doc, "Guards").
+    """
+    j = x - e
+    fl, fr = links[j, 2], links[j, 3]
+    fn0, fn1, fn2, fn3 = links[j, 4], links[j, 5], links[j, 6], links[j, 7]
+    px = npos[j]
+    n = 0
+    steps = rec_tri.shape[0] + 1
+    if fn0 >= 0:
+        f = fn0
+        while True:
+            r = fm_get(face_map, f)
+            k = corner_at(rec_tri, vpos, r, px) if r >= 0 else -1
+            steps -= 1
+            if k < 0 or steps < 0:
+                return -2
+            for d in range(1, 3):
+                n = _note_blocker(vpos[rec_tri[r, (k + d) % 3]], x, parent, pos_top, state, out, n)
+                if n < 0:
+                    return -1
+            if f == fn2:
+                break
+            f = rec_nbr[r, k]
+            if f < 0 or f == fr:
+                break
+    elif fn2 >= 0:
+        f = fn2
+        while True:
+            r = fm_get(face_map, f)
+            k = corner_at(rec_tri, vpos, r, px) if r >= 0 else -1
+            steps -= 1
+            if k < 0 or steps < 0:
+                return -2
+            for d in range(1, 3):
+                n = _note_blocker(vpos[rec_tri[r, (k + d) % 3]], x, parent, pos_top, state, out, n)
+                if n < 0:
+                    return -1
+            f = rec_nbr[r, (k + 2) % 3]
+            if f < 0 or f == fl:
+                break
+    # fl's and fr's third corners border u too (from t's side when u's wedge is empty).
+    for side in range(2):
+        if links[j, 2 + side] < 0:
+            continue
+        g, h = (fn0, fn1) if side == 0 else (fn2, fn3)
+        if g >= 0:
+            r = fm_get(face_map, g)
+            k = corner_at(rec_tri, vpos, r, px)
+            d = 2 if side == 0 else 1
+        elif h >= 0:
+            r = fm_get(face_map, h)
+            k = corner_at(rec_tri, vpos, r, px)
+            d = 1 if side == 0 else 2
+        else:
+            continue
+        if k < 0:
+            return -2
+        n = _note_blocker(vpos[rec_tri[r, (k + d) % 3]], x, parent, pos_top, state, out, n)
+        if n < 0:
+            return -1
+    return n
+
+
+@nb.njit(cache=True, nogil=True, inline="always")
+def _fan_start(f0, p, face_map, rec_tri, vpos):
+    """Record and corner of face ``f0`` at position ``p`` (-1, -1 if it has none)."""
+    r = fm_get(face_map, f0)
+    if r < 0:
+        return -1, -1
+    return r, corner_at(rec_tri, vpos, r, p)
+
+
+@nb.njit(cache=True, nogil=True)
+def strict_collapse_faces(x, e, links, npos, parent, pos_top, vpos, face_map, rec_tri, rec_nbr):
+    """Whether undoing the split of ``x`` keeps the strict bound: no position
+    beside x's two (t's and u's) was gone before x was made.
+
+    Returns the faces walked round the two positions (>= 0: legal; the
+    candidates the collapse pushes are at most twice as many), -1 when it
+    would put x beside such a position, -2 when a walk does not close
+    (damaged).
+    """
+    j = x - e
+    fl, fr = links[j, 2], links[j, 3]
+    px = npos[j]
+    pu = node_position(e, npos, links[j, 1])
+    f0 = fl if fl >= 0 else fr
+    if f0 < 0:
+        return 0
+    total = 0
+    steps = rec_tri.shape[0] + 1
+    for p in (px, pu):
+        r0, k0 = _fan_start(f0, p, face_map, rec_tri, vpos)
+        if k0 < 0:
+            return -2
+        for way in range(2):               # forward round p; backward from f0 if the fan is open
+            r, k = r0, k0
+            f = f0
+            while True:
+                if way == 0 or f != f0:
+                    total += 1
+                    if f != fl and f != fr:
+                        for d in range(1, 3):
+                            q = vpos[rec_tri[r, (k + d) % 3]]
+                            if q != px and q != pu and _gone_before(parent, pos_top, q, x):
+                                return -1
+                f = rec_nbr[r, k] if way == 0 else rec_nbr[r, (k + 2) % 3]
+                if f < 0 or f == f0:
+                    break
+                r = fm_get(face_map, f)
+                k = corner_at(rec_tri, vpos, r, p) if r >= 0 else -1
+                steps -= 1
+                if k < 0 or steps < 0:
+                    return -2
+            if f == f0:
+                break                      # a closed fan: walked whole
+    return total
+
+
+@nb.njit(cache=True, nogil=True)
+def _push_beside(x, e, parent, links, npos, pos_top, state, vpos, face_map, rec_tri, rec_nbr, queue, q):
+    """After the collapse of ``x`` under the strict bound: push the parents of
+    the active nodes beside x's position, whose collapse a position just gone
+    may have blocked. Walks round x from the first of fl_t, fl_u, fr_t, fr_u
+    present (forward, then backward if the fan is open). The caller made room
+    for twice the faces :func:`strict_collapse_faces` counted."""
+    j = x - e
+    px = npos[j]
+    f0 = -1
+    for c in (5, 4, 7, 6):
+        if links[j, c] >= 0:
+            f0 = links[j, c]
+            break
+    if f0 < 0:
+        return q
+    r0, k0 = _fan_start(f0, px, face_map, rec_tri, vpos)
+    if k0 < 0:
+        return q
+    steps = rec_tri.shape[0] + 1
+    for way in range(2):
+        r, k = r0, k0
+        f = f0
+        while True:
+            if way == 0 or f != f0:
+                for d in range(1, 3):
+                    b = _active_at(vpos[rec_tri[r, (k + d) % 3]], parent, pos_top, state)
+                    if b >= 0 and parent[b] >= 0:
+                        q = _push(parent[b], e, state, queue, q)
+            f = rec_nbr[r, k] if way == 0 else rec_nbr[r, (k + 2) % 3]
+            if f < 0 or f == f0:
+                break
+            r = fm_get(face_map, f)
+            k = corner_at(rec_tri, vpos, r, px) if r >= 0 else -1
+            steps -= 1
+            if k < 0 or steps < 0:
+                return q
+        if f == f0:
+            break
+    return q
+
+
 # ---------------------------------------------------------------- the active list
 
 
@@ -633,7 +859,7 @@ def _skip_run(active, texp, aexp, state, changed, odo, i, w, n, expire, clean):
 
 @nb.njit(cache=True, nogil=True)
 def adapt(e, parent, links, npos, bound, cone, ring, face_creator, rotation, mat, fsgid, pos_vstart, vertex_sgid,
-          vpos, state, face_map, off, cnt, cap, rec_tri, rec_nbr, rec_face, dirty,
+          vpos, pos_top, state, face_map, off, cnt, cap, rec_tri, rec_nbr, rec_face, dirty,
           active, texp, aexp, n_active, queue, changed, vp, odo, max_ops, max_faces, counts, resume, mode, expire):
     """One pass of incremental selective refinement over the active nodes.
 
@@ -648,7 +874,9 @@ def adapt(e, parent, links, npos, bound, cone, ring, face_creator, rotation, mat
     budgeted update refine first and coarsen with what budget is left.
     ``expire`` False evaluates every entry and records no expiries (budgets,
     tests of the expiries themselves). ``odo`` (2,) float64 is the camera's
-    travelled distance and turned angle.
+    travelled distance and turned angle. ``pos_top`` (e,) int32: the strict
+    bound's last node at each position (below, "the strict bound"), or
+    empty for cameras without it.
 
     Returns (status, material): OK, DAMAGED with the node being split or
     collapsed (the mesh is damaged: module doc, "Guards"; the camera is not
@@ -678,8 +906,8 @@ def adapt(e, parent, links, npos, bound, cone, ring, face_creator, rotation, mat
         # Candidates left when room ran out go first, as they would have.
         q, n, n_faces, status = _collapse_candidates(
             e, parent, links, npos, bound, cone, ring, face_creator, rotation, mat, fsgid, pos_vstart,
-            vertex_sgid, vpos, state, face_map, off, cnt, rec_tri, rec_nbr, rec_face, dirty, active, texp, aexp, n, vp,
-            max_ops, counts, queue, changed, q, n_faces)
+            vertex_sgid, vpos, pos_top, state, face_map, off, cnt, rec_tri, rec_nbr, rec_face, dirty, active, texp,
+            aexp, n, vp, max_ops, counts, queue, changed, q, n_faces)
         if status == DAMAGED:
             need_mat = queue[q]                  # the candidate it was collapsing
     else:
@@ -691,6 +919,12 @@ def adapt(e, parent, links, npos, bound, cone, ring, face_creator, rotation, mat
     stack = np.empty(256, np.int64)
     n_nodes = parent.shape[0]
     max_stack, max_steps = 4 * n_nodes + 8, 8 * n_nodes + 64     # what an acyclic hierarchy can need
+    strict = pos_top.shape[0] > 0
+    blockers = np.empty(64 if strict else 0, np.int64)
+    if strict:
+        # Each node also pushes the newer nodes its split would give a gone
+        # neighbour, as many as its fan has corners: room for any fan.
+        max_stack, max_steps = 64 * n_nodes + 64, 128 * n_nodes + 256
     while status == OK:
         i, w, st = _skip_run(active, texp, aexp, state, changed, odo, i, w, n, expire, clean)
         if i >= n:
@@ -745,6 +979,28 @@ def adapt(e, parent, links, npos, bound, cone, ring, face_creator, rotation, mat
                             missing = True
                     if missing:
                         continue
+                    if strict:
+                        nb_ = split_blockers(y, e, links, npos, parent, pos_top, state, vpos, face_map, rec_tri,
+                                             rec_nbr, blockers)
+                        while nb_ == -1:
+                            blockers = np.empty(2 * blockers.shape[0], np.int64)
+                            nb_ = split_blockers(y, e, links, npos, parent, pos_top, state, vpos, face_map, rec_tri,
+                                                 rec_nbr, blockers)
+                        if nb_ == -2:
+                            status, need_mat = DAMAGED, y
+                            break
+                        if nb_ > 0:
+                            if sp + nb_ + 5 > stack.shape[0]:
+                                if stack.shape[0] > max_stack:
+                                    status, need_mat = DAMAGED, y
+                                    break
+                                bigger = np.empty(2 * stack.shape[0] + nb_, np.int64)
+                                bigger[:sp] = stack[:sp]
+                                stack = bigger
+                            for b in range(nb_):
+                                stack[sp] = blockers[b]
+                                sp += 1
+                            continue
                     if counts[0] + counts[1] >= max_ops or n_faces + 2 > max_faces:
                         counts[2] = 1
                         break
@@ -787,12 +1043,19 @@ def adapt(e, parent, links, npos, bound, cone, ring, face_creator, rotation, mat
                 (ns_get(state, links[p - e, 1]) & STATE_MASK) == ACTIVE:
             need, tm, rm, dist = test_node(p - e, bound, cone, ring, vp)
             if not need:
-                if collapse_legal(p, e, links, rotation, state, face_map, rec_nbr):
+                walked = 0 if collapse_legal(p, e, links, rotation, state, face_map, rec_nbr) else -1
+                if walked == 0 and strict:
+                    walked = strict_collapse_faces(p, e, links, npos, parent, pos_top, vpos, face_map, rec_tri,
+                                                   rec_nbr)
+                    if walked == -2:
+                        status, need_mat = DAMAGED, p
+                        break
+                if walked >= 0:
                     if (ns_get(state, p) & IN_LIST) == 0 and n + 1 > active.shape[0]:
                         i -= 1
                         status = NEED_LIST
                         break
-                    if q + 5 > queue.shape[0]:
+                    if q + 5 + 2 * walked > queue.shape[0]:
                         i -= 1
                         status = NEED_QUEUE
                         break
@@ -806,10 +1069,13 @@ def adapt(e, parent, links, npos, bound, cone, ring, face_creator, rotation, mat
                     ns_update(state, x, IN_LIST, 0)
                     cs_note(changed, state, links[p - e, 1])     # x's entry is dropped; its sibling's not
                     q = _push_after_collapse(p, e, parent, links, face_creator, state, queue, q)
+                    if strict:
+                        q = _push_beside(p, e, parent, links, npos, pos_top, state, vpos, face_map, rec_tri, rec_nbr,
+                                         queue, q)
                     q, n, n_faces, status = _collapse_candidates(
                         e, parent, links, npos, bound, cone, ring, face_creator, rotation, mat, fsgid, pos_vstart,
-                        vertex_sgid, vpos, state, face_map, off, cnt, rec_tri, rec_nbr, rec_face, dirty, active,
-                        texp, aexp, n, vp, max_ops, counts, queue, changed, q, n_faces)
+                        vertex_sgid, vpos, pos_top, state, face_map, off, cnt, rec_tri, rec_nbr, rec_face, dirty,
+                        active, texp, aexp, n, vp, max_ops, counts, queue, changed, q, n_faces)
                     if status == DAMAGED:
                         need_mat = queue[q]      # the candidate it was collapsing
                     if status != OK:
@@ -841,8 +1107,8 @@ def adapt(e, parent, links, npos, bound, cone, ring, face_creator, rotation, mat
 
 @nb.njit(cache=True, nogil=True)
 def _collapse_candidates(e, parent, links, npos, bound, cone, ring, face_creator, rotation, mat, fsgid,
-                         pos_vstart, vertex_sgid, vpos, state, face_map, off, cnt, rec_tri, rec_nbr, rec_face, dirty,
-                         active, texp, aexp, n, vp, max_ops, counts, queue, changed, q, n_faces):
+                         pos_vstart, vertex_sgid, vpos, pos_top, state, face_map, off, cnt, rec_tri, rec_nbr, rec_face,
+                         dirty, active, texp, aexp, n, vp, max_ops, counts, queue, changed, q, n_faces):
     """Try the pushed candidates, last pushed first, until none is left.
 
     Returns (q, n, n_faces, status): NEED_LIST / NEED_QUEUE when a collapse
@@ -869,7 +1135,12 @@ def _collapse_candidates(e, parent, links, npos, bound, cone, ring, face_creator
             q -= 1
             ns_update(state, c, QUEUED, 0)
             continue
-        if not collapse_legal(c, e, links, rotation, state, face_map, rec_nbr):
+        walked = 0 if collapse_legal(c, e, links, rotation, state, face_map, rec_nbr) else -1
+        if walked == 0 and pos_top.shape[0] > 0:
+            walked = strict_collapse_faces(c, e, links, npos, parent, pos_top, vpos, face_map, rec_tri, rec_nbr)
+            if walked == -2:
+                return q - 1, n, n_faces, DAMAGED        # queue[q - 1]: the candidate, for the caller's report
+        if walked < 0:
             q -= 1
             ns_update(state, c, QUEUED, 0)
             continue
@@ -880,7 +1151,7 @@ def _collapse_candidates(e, parent, links, npos, bound, cone, ring, face_creator
             continue
         if (ns_get(state, c) & IN_LIST) == 0 and n + 1 > active.shape[0]:
             return q, n, n_faces, NEED_LIST
-        if q - 1 + 5 > queue.shape[0]:
+        if q - 1 + 5 + 2 * walked > queue.shape[0]:
             return q, n, n_faces, NEED_QUEUE
         q -= 1
         ns_update(state, c, QUEUED, 0)
@@ -893,6 +1164,8 @@ def _collapse_candidates(e, parent, links, npos, bound, cone, ring, face_creator
         n_faces -= (links[j, 2] >= 0) + (links[j, 3] >= 0)
         n = _append(c, active, texp, aexp, n, state, changed)
         q = _push_after_collapse(c, e, parent, links, face_creator, state, queue, q)
+        if pos_top.shape[0] > 0:
+            q = _push_beside(c, e, parent, links, npos, pos_top, state, vpos, face_map, rec_tri, rec_nbr, queue, q)
     return q, n, n_faces, OK
 
 

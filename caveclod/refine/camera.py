@@ -25,6 +25,8 @@ REBASE_TURNS = 100.0        # radians the odometer may turn before expiries are 
 REBASE_EXTENTS = 100.0      # mesh diagonals it may travel (float32 expiries keep ~1e-5 of it)
 NO_RING = np.zeros((0, 2), np.float32)   # a file from before ring bounds: the ring test is off
 NO_RING.setflags(write=False)            # read-only like a loaded file's maps: one compiled variant of the kernel
+NO_TOPS = np.zeros(0, np.int32)          # no strict bound (StaticMesh.position_tops when there is)
+NO_TOPS.setflags(write=False)
 SLACK_RECORDS = 256         # room per material kept beyond the need (28 bytes a record: 7 KB at most)
 
 
@@ -97,11 +99,17 @@ class CameraState:
     bound the work and size of an update; both default to unlimited.
     ``expiries=False`` re-evaluates every active node on every update
     instead of skipping those whose answer cannot have changed (for tests
-    and measurements; the results are the same).
+    and measurements; the results are the same). ``strict_bound=True``
+    never shows a node beside a position that was gone when the node's
+    error was measured (the mixes of ages that let original positions lie
+    up to 1.14 t from what is drawn; docs/error-bounds.md, "The strict
+    bound"): more splits, every original position within the tolerance.
     """
 
-    def __init__(self, mesh, max_ops: int | None = None, max_faces: int | None = None, expiries: bool = True):
+    def __init__(self, mesh, max_ops: int | None = None, max_faces: int | None = None, expiries: bool = True,
+                 strict_bound: bool = False):
         self.mesh = mesh
+        self.strict_bound = bool(strict_bound)
         self.max_ops = UNLIMITED if max_ops is None else int(max_ops)
         # A face budget the mesh cannot reach is no budget (and keeps the
         # single pass with expiries).
@@ -110,8 +118,11 @@ class CameraState:
         a = {k: np.asarray(v) for k, v in mesh.arrays.items()}   # plain views of the maps
         self._static = (
             mesh.n_positions, a["node_parent"], a["node_links"], a["node_position"],
-            a["node_bound"], a["node_cone"], a.get("node_ring", NO_RING), a["face_creator"], a["face_rotation"],
+            # The strict bound makes the ring test's splits whenever they matter (and more): without it.
+            a["node_bound"], a["node_cone"], NO_RING if self.strict_bound else a.get("node_ring", NO_RING),
+            a["face_creator"], a["face_rotation"],
             a["face_material"], a["face_sgid"], a["pos_vstart"], a["vertex_sgid"], mesh.vertex_position_ids,
+            mesh.position_tops() if self.strict_bound else NO_TOPS,
         )
         self._faces_of_material, base_count = mesh.material_face_counts()
         self.n_materials = len(base_count)
@@ -370,7 +381,7 @@ class CameraState:
         growing the arrays once for all of them when asked."""
         if not len(self.part_hidden):
             return
-        e, _, _, npos, _, _, _, _, _, mat, fsgid, pos_vstart, vertex_sgid, _ = self._static
+        e, _, _, npos, _, _, _, _, _, mat, fsgid, pos_vstart, vertex_sgid, _, _ = self._static
         shown = self._part_counts[0:1]
         todo = np.empty(len(self.part_hidden), np.int32)
         need = np.zeros(self.n_materials + 1, np.int64)       # records per material, then list entries
@@ -409,7 +420,7 @@ class CameraState:
         """Hide the parts the view need not draw (small, or outside it), however refined."""
         if not len(self.part_hidden):
             return
-        e, _, links, _, _, _, _, _, _, mat, _, _, _, _ = self._static
+        e, _, links, _, _, _, _, _, _, mat, _, _, _, _, _ = self._static
         base_faces, _, _, sphere, root_start, roots, face_start, faces = self._parts_static
         self._parts_due = KP.hide_parts(
             e, links, base_faces, mat, sphere, root_start, roots, face_start, faces, self.part_hidden,
@@ -545,8 +556,10 @@ class CameraState:
         descendants inactive), that faces are active exactly when their
         creator is split, crack-freeness (every neighbour link is mutual over
         the same edge, and no edge is shared by two faces without a link),
-        non-degenerate faces, and that the index buffers equal the D3Dindex
-        lookup of each face's surface group at its corner positions.
+        non-degenerate faces, that the index buffers equal the D3Dindex
+        lookup of each face's surface group at its corner positions, and
+        with the strict bound that no node stands beside a position gone
+        before it was made (:func:`caveclod.refine.measure.mixed_nodes`).
         """
         from .validate import validate_camera
         validate_camera(self)

@@ -51,14 +51,15 @@ def pixel_errors(mesh, triangles, view: View, points: np.ndarray | None = None) 
     return np.sqrt(d2) * vp[P_KAPPA] / np.maximum(np.linalg.norm(P - eye, axis=1), 1e-300)
 
 
-def needs_detail(mesh, nodes: np.ndarray, view: View) -> np.ndarray:
+def needs_detail(mesh, nodes: np.ndarray, view: View, ring: bool = True) -> np.ndarray:
     """(k,) bool: whether each internal node of ``nodes`` (ids >= ``mesh.n_positions``)
     needs detail for ``view`` by its own test: in the frustum (bounding sphere
     against the five planes), not wholly back-facing (normal cone, when
     enabled), and a screen-space error above the tolerance (its own, or its
     ring bound's at the sphere grown by the reach). The refinement's
     criterion over many nodes at once (``ReferenceCamera.need_refine`` is the
-    one-node version, in the same float64 arithmetic).
+    one-node version, in the same float64 arithmetic). ``ring=False``
+    leaves the ring bound out, as a camera with the strict bound does.
     """
     from .view import P_BACKFACE, P_CULL, P_TOL
     p = np.asarray(view.params(), np.float64)
@@ -84,11 +85,37 @@ def needs_detail(mesh, nodes: np.ndarray, view: View) -> np.ndarray:
         return need
     dist = length - r
     own = (dist <= 0.0) | (error * p[P_KAPPA] > p[P_TOL] * dist)
-    ring = mesh.arrays.get("node_ring")
+    ring = mesh.arrays.get("node_ring") if ring else None
     if ring is not None and len(ring):
         reach, ring_error = np.asarray(ring, np.float64)[i].T
         own |= (ring_error > 0.0) & ((dist - reach <= 0.0) | (ring_error * p[P_KAPPA] > p[P_TOL] * (dist - reach)))
     return need & own
+
+
+def mixed_nodes(camera) -> np.ndarray:
+    """(k,) sorted active internal nodes that stand beside a position collapsed
+    away before the node was made: the mixes of ages whose original
+    positions the node's error never measured (docs/error-bounds.md). Empty
+    for a camera with the strict bound.
+
+    Node ids are in the order the build made them; a position was gone
+    before node ``a`` when the parent of its last node
+    (:meth:`caveclod.StaticMesh.position_tops`) is older than ``a``.
+    """
+    mesh = camera.mesh
+    e = mesh.n_positions
+    tris = [np.asarray(t).reshape(-1, 3) for t in camera.triangles().values()]
+    if not tris:
+        return np.zeros(0, np.int64)
+    pos = mesh.vertex_position_ids[np.concatenate(tris)].astype(np.int64)
+    nodes = camera.active_nodes().astype(np.int64)
+    node_at = np.full(e, -1, np.int64)
+    node_at[mesh.node_positions(nodes)] = nodes
+    gone = np.asarray(mesh.node_parent)[mesh.position_tops()[pos]].astype(np.int64)
+    gone[gone < 0] = np.iinfo(np.int64).max        # never collapsed away: a root's position
+    at = node_at[pos]
+    mixed = [at[:, a][(at[:, a] >= e) & (gone[:, b] < at[:, a])] for a in range(3) for b in range(3) if a != b]
+    return np.unique(np.concatenate(mixed))
 
 
 def forced_splits(camera, view: View) -> dict:
@@ -104,7 +131,7 @@ def forced_splits(camera, view: View) -> dict:
     from ..kernels import refine as K
     split = np.flatnonzero((camera.node_states() & K.STATE_MASK) == K.SPLIT)
     split = split[split >= camera.mesh.n_positions]
-    forced = int((~needs_detail(camera.mesh, split, view)).sum())
+    forced = int((~needs_detail(camera.mesh, split, view, ring=not camera.strict_bound)).sum())
     faces = camera.n_faces
     return {"split_nodes": len(split), "forced_nodes": forced, "faces": faces, "forced_faces": 2 * forced,
             "forced_share": 2 * forced / faces if faces else 0.0}

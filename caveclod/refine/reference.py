@@ -72,10 +72,18 @@ class ReferenceCamera:
         max_faces: a split is made only while ``active faces + 2 <= max_faces``.
     """
 
-    def __init__(self, mesh, max_ops=None, max_faces=None):
+    def __init__(self, mesh, max_ops=None, max_faces=None, strict_bound=False):
         self.max_ops = math.inf if max_ops is None else int(max_ops)
         self.max_faces = math.inf if max_faces is None else int(max_faces)
         self._read_static(mesh)
+        self.strict = bool(strict_bound)
+        if self.strict:
+            self.ring = None                  # the strict bound does the ring test's work (and more)
+            # The last node at each position: the nodes at a position form one chain of stationary
+            # children, and the last one's parent is the collapse that took the position away.
+            self.top = list(range(self.e))
+            for j, p in enumerate(self.node_pos):
+                self.top[p] = max(self.top[p], self.e + j)
         # Per-camera state.
         self.state = {}                       # node -> ACTIVE / SPLIT (absent: INACTIVE)
         self.faces = {}                       # face -> {"pos": [p0, p1, p2], "nbr": [f0, f1, f2]}
@@ -313,11 +321,133 @@ class ReferenceCamera:
             if missing:
                 stack.extend(self.creator[f] for f in missing)
                 continue
+            if self.strict:
+                blockers = self.split_blockers(y)
+                if blockers:
+                    stack.extend(blockers)
+                    continue
             if not self.budget_allows_split():
                 return
             assert self.split_legal(y)
             self.split(y)
             stack.pop()
+
+    # -- the strict bound ---------------------------------------------------------
+    def gone_before(self, q, x):
+        """Whether position ``q`` had been collapsed away before node ``x`` was made
+        (node ids are in the order the build made them)."""
+        g = self.parent[self.top[q]]
+        return 0 <= g < x
+
+    def active_at(self, q):
+        """The active node at position ``q``, or -1."""
+        x = q
+        while x >= 0:
+            if self.node_state(x) == ACTIVE:
+                return x
+            if x == self.top[q]:
+                return -1
+            x = self.parent[x]
+        return -1
+
+    def split_blockers(self, y):
+        """The strict bound's extra dependencies of splitting ``y``: the active
+        nodes newer than ``y`` that would stand beside its floating child's
+        position, gone before they were made. In order: the corners of the
+        wedge moving to u (from fl_u round to fr_u; with fl_u absent, from
+        fr_u back to the border), then fl's and fr's third corners."""
+        j = y - self.e
+        fl, fr = self.new_faces[j]
+        fn0, fn1, fn2, fn3 = self.required[j]
+        p = self.position(y)
+        out = []
+
+        def note(q):
+            if self.top[q] > y:
+                a = self.active_at(q)
+                if a > y and a not in out:
+                    out.append(a)
+
+        def corners(f):
+            k = self._corner(f, p)
+            return [self.faces[f]["pos"][(k + 1) % 3], self.faces[f]["pos"][(k + 2) % 3]]
+
+        if fn0 >= 0:
+            f = fn0
+            while True:
+                for q in corners(f):
+                    note(q)
+                if f == fn2:
+                    break
+                f = self._step_out(f, p)
+                if f < 0 or f == fr:
+                    break
+        elif fn2 >= 0:
+            f = fn2
+            while True:
+                for q in corners(f):
+                    note(q)
+                f = self._step_in(f, p)
+                if f < 0 or f == fl:
+                    break
+        if fl >= 0 and (fn0 >= 0 or fn1 >= 0):
+            note(self._before(fn0, p) if fn0 >= 0 else self._after(fn1, p))
+        if fr >= 0 and (fn2 >= 0 or fn3 >= 0):
+            note(self._after(fn2, p) if fn2 >= 0 else self._before(fn3, p))
+        return out
+
+    def fan(self, f0, p):
+        """The active faces round position ``p`` from face ``f0``: forward
+        (across p's outgoing edges) until back at ``f0`` or at a border, then
+        backward from ``f0`` to the border."""
+        out = [f0]
+        f = self._step_out(f0, p)
+        while f >= 0 and f != f0:
+            out.append(f)
+            f = self._step_out(f, p)
+        if f < 0:
+            f = self._step_in(f0, p)
+            while f >= 0:
+                out.append(f)
+                f = self._step_in(f, p)
+        return out
+
+    def strict_collapse_legal(self, s):
+        """Undoing ``s``'s split keeps every position beside it one that was
+        still there when ``s`` was made."""
+        t, u = self.children[s - self.e]
+        fl, fr = self.new_faces[s - self.e]
+        f0 = fl if fl >= 0 else fr
+        if f0 < 0:
+            return True
+        pt, pu = self.position(t), self.position(u)
+        for p in (pt, pu):
+            for f in self.fan(f0, p):
+                if f in (fl, fr):
+                    continue
+                k = self._corner(f, p)
+                for q in (self.faces[f]["pos"][(k + 1) % 3], self.faces[f]["pos"][(k + 2) % 3]):
+                    if q not in (pt, pu) and self.gone_before(q, s):
+                        return False
+        return True
+
+    def beside_candidates(self, s):
+        """After collapsing ``s`` (strict bound): the parents of the active
+        nodes beside it, whose collapse a position just gone may have
+        blocked; round s from the first of fl_t, fl_u, fr_t, fr_u present."""
+        fn0, fn1, fn2, fn3 = self.required[s - self.e]
+        start = [f for f in (fn1, fn0, fn3, fn2) if f >= 0]
+        if not start:
+            return []
+        p = self.position(s)
+        out = []
+        for f in self.fan(start[0], p):
+            k = self._corner(f, p)
+            for q in (self.faces[f]["pos"][(k + 1) % 3], self.faces[f]["pos"][(k + 2) % 3]):
+                b = self.active_at(q)
+                if b >= 0 and self.parent[b] >= 0:
+                    out.append(self.parent[b])
+        return out
 
     def faces_moving_to_u(self, x):
         """The active faces around ``x`` that lie on its floating child's side.
@@ -391,7 +521,7 @@ class ReferenceCamera:
             return False
         if fr >= 0 and [self._across(fr, pt), self._across(fr, self._after(fr, pt))] != [fn3, fn2]:
             return False
-        return True
+        return not self.strict or self.strict_collapse_legal(s)
 
     def _across(self, f, p):
         """The neighbour of face ``f`` across its edge from position ``p``."""
@@ -469,7 +599,8 @@ class ReferenceCamera:
     def candidates_of(self, s):
         """Nodes whose collapse the collapse of ``s`` may have made legal, in push order."""
         fn = self.required[s - self.e]
-        return [self.parent[s]] + [self.creator[f] if f >= 0 else -1 for f in fn]
+        out = [self.parent[s]] + [self.creator[f] if f >= 0 else -1 for f in fn]
+        return out + self.beside_candidates(s) if self.strict else out
 
     def try_candidates(self, pushed):
         """Collapse candidates, last pushed first; each is pushed once while split."""

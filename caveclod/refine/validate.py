@@ -136,3 +136,11 @@ def validate_camera(cam) -> None:
     for (x, y), items in keys.items():
         if (y, x) in keys and len(items) == 1 and len(keys[(y, x)]) == 1:
             _fail(f"edge {x}-{y} is shared by two faces but not linked: a crack")
+
+    # The strict bound: no active node beside a position gone before it was made.
+    if cam.strict_bound:
+        from .measure import mixed_nodes
+        mixed = mixed_nodes(cam)
+        if len(mixed):
+            _fail(f"{len(mixed)} active nodes (first {int(mixed[0])}) stand beside a position gone before "
+                  "they were made, under the strict bound")
