@@ -85,8 +85,8 @@ what an acyclic hierarchy can need (4n + 8 entries, 8n + 64 steps: every
 dependency goes to a higher node id, so a node is pushed at most once while
 unsplit; with the strict bound, whose extra dependencies also go to higher
 ids, 64n + 64 and 128n + 256, for fans of many corners). Each stops the
-pass with DAMAGED and the node it was working on, which the camera raises as :class:`caveclod.errors.MeshDamagedError`. The
-functions that gained early returns for them (:func:`split_node`,
+pass with DAMAGED and the node it was working on, which the camera raises
+as :class:`caveclod.errors.MeshDamagedError`. The functions that gained early returns for them (:func:`split_node`,
 :func:`_move_wedge`, :func:`_add_face`) are inlined by numba: LLVM stopped
 inlining them, and calls that pass every array as a struct of its own made
 a jump's updates about 10 % slower (inlined: 3 to 7 %; inlining
