@@ -58,9 +58,9 @@ def views_for(lo, hi, cameras, frames, tolerance):
             for f in range(frames)]
 
 
-def per_camera(mesh, views):
-    """Each camera its own state. Returns ops, seconds, faces: (frames, cams)."""
-    cams = [mesh.new_camera() for _ in views[0]]
+def per_camera(mesh, views, **options):
+    """Each camera its own state (``options``: ``mesh.new_camera``'s). Returns ops, seconds, faces: (frames, cams)."""
+    cams = [mesh.new_camera(**options) for _ in views[0]]
     ops, secs, faces = (np.zeros((len(views), len(cams))) for _ in range(3))
     for f, frame in enumerate(views):
         for c, (cam, view) in enumerate(zip(cams, frame)):

@@ -206,7 +206,7 @@ def _parser() -> argparse.ArgumentParser:
     t.add_argument("--width", type=int, default=1280, help="viewport width (default 1280)")
     t.add_argument("--height", type=int, default=720, help="viewport height (default 720)")
     t.add_argument("--fov", type=float, default=60.0, help="vertical field of view, degrees (default 60)")
-    prune_argument(t)
+    refine_arguments(t)
     t.add_argument("--token", help="bearer token (or set CAVECLOD_TOKEN)")
     t.add_argument("--tls-ca", metavar="F", help="PEM CA certificate: connect with TLS and trust it")
     t.add_argument("--cache-dir", help="vertex buffer cache (default $XDG_CACHE_HOME/caveclod/vertex-buffers)")
@@ -283,17 +283,20 @@ def _client_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--tolerance", type=float, default=None, metavar="PX",
                    help="screen-space error in pixels (default: the server's, 1 px)")
     p.add_argument("--fov", type=float, default=60.0, help="vertical field of view, degrees (default 60)")
-    prune_argument(p)
+    refine_arguments(p)
     p.add_argument("--token", help="bearer token (or set CAVECLOD_TOKEN)")
     p.add_argument("--tls-ca", metavar="F", help="PEM CA certificate: connect with TLS and trust it")
     p.add_argument("--cache-dir", help="vertex buffer cache (default $XDG_CACHE_HOME/caveclod/vertex-buffers)")
 
 
-def prune_argument(p: argparse.ArgumentParser) -> None:
-    """``--no-prune`` of the commands that open sessions (render, view, loadtest)."""
+def refine_arguments(p: argparse.ArgumentParser) -> None:
+    """``--no-prune`` and ``--strict-bound`` of the commands that open sessions (render, view, loadtest)."""
     p.add_argument("--no-prune", action="store_true",
                    help="draw every part of the mesh, however small or far out of view (by default the server "
                         "hides a connected part while it is smaller than the tolerance or outside the view)")
+    p.add_argument("--strict-bound", action="store_true",
+                   help="the strict error bound: every original position in view within the tolerance of what "
+                        "is drawn, for more faces (RefineOptions.strict_bound)")
 
 
 def morph_argument(p: argparse.ArgumentParser) -> None:

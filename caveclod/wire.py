@@ -57,13 +57,16 @@ def from_vec3(v: pb.Vec3) -> tuple[float, float, float]:
     return (v.x, v.y, v.z)
 
 
-OPTION_DEFAULTS = {"fov_y": 60.0, "tolerance_px": 1.0, "cull": True, "backface": False, "prune": True}
+OPTION_DEFAULTS = {"fov_y": 60.0, "tolerance_px": 1.0, "cull": True, "backface": False, "prune": True,
+                   "strict_bound": False}
 _OPTION_FIELDS = (("fov_y", "fov_y_deg"), ("tolerance_px", "tolerance_px"), ("cull", "cull"),
-                  ("backface", "backface"), ("max_ops", "max_ops"), ("max_faces", "max_faces"), ("prune", "prune"))
+                  ("backface", "backface"), ("max_ops", "max_ops"), ("max_faces", "max_faces"), ("prune", "prune"),
+                  ("strict_bound", "strict_bound"))
 
 
 def options_to_dict(msg: pb.RefineOptions) -> dict:
-    """RefineOptions as ``{width, height, fov_y, tolerance_px, cull, backface, max_ops, max_faces, prune}``.
+    """RefineOptions as ``{width, height, fov_y, tolerance_px, cull, backface, max_ops, max_faces, prune,
+    strict_bound}``.
 
     Unset optional fields are ``None`` (the receiver fills in defaults);
     nothing is validated here.
@@ -366,11 +369,13 @@ def session_info(*, token: str, resumed: bool, mesh: pb.MeshInfo, vertex_format:
                  vertex_buffer_cached: bool, vertex_payload_crc32: int, view_options: dict, budgets: tuple,
                  cameras: int, ack_window: int, resume_ttl_s: int, last_frame_seq: int,
                  last_pose_seq: int, cache: dict | None = None,
-                 frame_encoding: int = pb.FRAME_ENCODING_RAW) -> pb.ServerMessage:
+                 frame_encoding: int = pb.FRAME_ENCODING_RAW, strict_bound: bool = False) -> pb.ServerMessage:
     """The SessionInfo ServerMessage; ``view_options`` are View keywords, ``budgets`` (max_ops, max_faces),
-    ``cache`` the cache mode in use ``{vertices, strategy, pq_fraction}`` or None."""
+    ``cache`` the cache mode in use ``{vertices, strategy, pq_fraction}`` or None, ``strict_bound`` the
+    cameras' (RefineOptions.strict_bound)."""
     max_ops, max_faces = budgets
-    options = options_from_dict({**view_options, "max_ops": max_ops, "max_faces": max_faces})
+    options = options_from_dict({**view_options, "max_ops": max_ops, "max_faces": max_faces,
+                                 "strict_bound": bool(strict_bound)})
     info = pb.SessionInfo(
         session_token=token, resumed=resumed, mesh=mesh, vertex_format=vertex_format,
         vertex_buffer_cached=vertex_buffer_cached, vertex_payload_crc32=vertex_payload_crc32, options=options,

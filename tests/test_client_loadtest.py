@@ -13,7 +13,7 @@ from caveclod import cli, opstream
                                                         ("ops", "grpc", "numpy")])
 def test_loadtest_reports_json_and_exits_0(server, tmp_path, capsys, encoding, transport, decoder):
     plot = tmp_path / "latency.png"
-    no_prune = ["--no-prune"] if encoding == "raw" else []
+    no_prune = ["--no-prune", "--strict-bound"] if encoding == "raw" else []
     status = cli.main(["loadtest", "--target", f"127.0.0.1:{server.port}", "--sessions", "3", "--cameras", "2",
                        "--duration", "2", "--rate", "20", "--trajectory", "circle", "--json",
                        "--plot", str(plot), "--cache-dir", str(tmp_path / "cache"), "--frame-encoding", encoding,
@@ -22,6 +22,7 @@ def test_loadtest_reports_json_and_exits_0(server, tmp_path, capsys, encoding, t
     report = json.loads(out)
     assert status == 0, report
     assert report["prune"] == (not no_prune) and report["transport"] == transport
+    assert report["strict_bound"] == bool(no_prune)
     # auto: the compiled decoder, numba being installed with the tests; the process's thin
     # clients decode with numpy again once the load test is over.
     assert report["decoder"] == ("compiled" if decoder == "auto" else "numpy") and opstream._compiled is None
@@ -80,6 +81,15 @@ def test_loadtest_cache_flags_are_checked(server, capsys):
     out, err = capsys.readouterr()
     assert json.loads(out)["errors"] == {"INVALID_ARGUMENT": 1}
     assert "ask for at least" in err
+
+
+def test_shard_processes_run_with_the_switches_of_the_load_test():
+    from caveclod.client.loadtest import _argv
+    args = cli._parser().parse_args(["loadtest", "--target", "127.0.0.1:1", "--no-prune", "--strict-bound"])
+    shard = cli._parser().parse_args(["loadtest", *_argv(args)])
+    assert shard.no_prune and shard.strict_bound
+    plain = cli._parser().parse_args(["loadtest", *_argv(cli._parser().parse_args(["loadtest", "--target", "h:1"]))])
+    assert not plain.no_prune and not plain.strict_bound
 
 
 def test_loadtest_in_several_processes_merges_their_figures(server, tmp_path, capsys):

@@ -20,9 +20,9 @@ from caveclod.v1 import caveclod_pb2 as pb
 from service import Driver
 
 
-def _options(width=640, height=360, tolerance=1.0, max_ops=None, cull=None):
+def _options(width=640, height=360, tolerance=1.0, max_ops=None, cull=None, strict_bound=None):
     return {"width": width, "height": height, "fov_y": None, "tolerance_px": tolerance, "cull": cull,
-            "backface": None, "max_ops": max_ops, "max_faces": None}
+            "backface": None, "max_ops": max_ops, "max_faces": None, "strict_bound": strict_bound}
 
 
 def _mirror(server, token):
@@ -64,7 +64,8 @@ def _core_cameras(path, info):
     mesh = caveclod.load(path)
     o = info.options
     budget = dict(max_ops=o.max_ops if o.HasField("max_ops") else None,
-                  max_faces=o.max_faces if o.HasField("max_faces") else None)
+                  max_faces=o.max_faces if o.HasField("max_faces") else None,
+                  strict_bound=o.HasField("strict_bound") and o.strict_bound)
     return [mesh.new_camera(**budget) for _ in range(info.cameras)]
 
 
@@ -74,10 +75,12 @@ def _view(info, eye, target):
                          height=o.viewport_height, tolerance_px=o.tolerance_px, cull=o.cull, backface=o.backface)
 
 
-@pytest.mark.parametrize("tolerance, max_ops, encoding", [(1.0, None, "ops"), (0.5, 40, "ops"), (1.0, None, "raw")])
-def test_random_walk_client_equals_mirror_equals_core(server, terrain_path, tolerance, max_ops, encoding, tmp_path):
+@pytest.mark.parametrize("tolerance, max_ops, encoding, strict", [(1.0, None, "ops", None), (0.5, 40, "ops", None),
+                                                                  (1.0, None, "raw", None), (0.5, None, "ops", True)])
+def test_random_walk_client_equals_mirror_equals_core(server, terrain_path, tolerance, max_ops, encoding, strict,
+                                                      tmp_path):
     rng = np.random.default_rng(11 if max_ops is None else 12)
-    protocol = SessionProtocol("terrain", 3, _options(tolerance=tolerance, max_ops=max_ops),
+    protocol = SessionProtocol("terrain", 3, _options(tolerance=tolerance, max_ops=max_ops, strict_bound=strict),
                                cache=VertexBufferCache(tmp_path), ack_window=1, frame_encoding=encoding)
     driver = Driver(server.port, protocol)
     try:
@@ -117,6 +120,11 @@ def test_random_walk_client_equals_mirror_equals_core(server, terrain_path, tole
             frames += 1
         assert frames >= 100
         assert all(cam.n_faces > 0 for cam in core)
+        # The session's cameras have the strict bound exactly when asked (SessionInfo says so too).
+        assert info.options.strict_bound is bool(strict)
+        assert all(cam.strict_bound is bool(strict) for cam in _mirror(server, protocol.token).cams)
+        for cam in core:
+            cam.validate()          # under the strict bound: no node beside a position gone before it
     finally:
         driver.close()
 

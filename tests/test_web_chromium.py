@@ -159,10 +159,12 @@ def test_a_terrain_flyover_in_quadrants(make_server, browser, cameras):
 
 def test_a_textured_object_circled_with_raw_frames(make_server, browser, textured_path):
     server = make_server(meshes=[textured_path], web_port=0)
-    with Page(browser, _base(server) + "?mesh=globe&trajectory=circle&encoding=raw&vertices=float32") as page:
+    with Page(browser, _base(server) + "?mesh=globe&trajectory=circle&encoding=raw&vertices=float32&strict=1") as page:
         stats = page.wait(lambda s: s["frames"] >= 30 and s["crcChecks"] >= 10 or s["error"])
         assert stats["error"] is None and stats["divergences"] == 0 and stats["crcChecks"] >= 10, stats
         assert not stats["vertexPacked"]
+        # &strict=1 asked for the strict error bound: the session's cameras have it.
+        assert all(cam.strict_bound for session in server.sessions.sessions.values() for cam in session.cams)
         assert stats["mesh"] == "globe" and stats["facesDrawn"] > 50
         assert all(_drawn(p) for p in page.quadrants(1))
         assert not page.console_errors and not _only_loopback(page.requests)

@@ -139,11 +139,11 @@ def test_vertex_payload_chunks_and_planar_views():
 
 def test_options_round_trip_keeps_unset_fields_unset():
     full = {"width": 1280, "height": 720, "fov_y": 45.0, "tolerance_px": 0.0, "cull": False, "backface": True,
-            "max_ops": 7, "max_faces": 9000, "prune": False}
+            "max_ops": 7, "max_faces": 9000, "prune": False, "strict_bound": True}
     assert wire.options_to_dict(wire.options_from_dict(full)) == full
     sparse = wire.options_to_dict(wire.options_from_dict({"width": 64, "height": 32}))
     assert sparse == {"width": 64, "height": 32, "fov_y": None, "tolerance_px": None, "cull": None,
-                      "backface": None, "max_ops": None, "max_faces": None, "prune": None}
+                      "backface": None, "max_ops": None, "max_faces": None, "prune": None, "strict_bound": None}
     assert math.isnan(wire.options_to_dict(wire.options_from_dict({"fov_y": math.nan}))["fov_y"])
 
 

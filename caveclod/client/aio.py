@@ -58,11 +58,11 @@ class AsyncClient:
                       cache_strategy: str | None = None, cache_pq_fraction: float | None = None,
                       frame_encoding: str = "ops", vertex_encoding: str = "packed",
                       position_bits: int | None = None, morph_targets: bool = False,
-                      prune: bool | None = None) -> "AsyncSession":
+                      prune: bool | None = None, strict_bound: bool | None = None) -> "AsyncSession":
         """Open a session and wait for its vertex buffer (or, in cache mode,
         its SessionInfo); see :meth:`caveclod.client.Client.session`."""
         protocol = SessionProtocol(mesh, cameras, refine_options(width, height, fov_y, tolerance_px, cull,
-                                                                 backface, max_ops, max_faces, prune),
+                                                                 backface, max_ops, max_faces, prune, strict_bound),
                                    cache=self.cache, ack_window=ack_window,
                                    cache_mode=cache_mode(cache_vertices, cache_strategy, cache_pq_fraction),
                                    frame_encoding=frame_encoding, vertex_encoding=vertex_encoding,

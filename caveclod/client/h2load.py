@@ -67,7 +67,8 @@ async def fly_h2(args, shard: tuple) -> tuple:
                 count_error(tally, index, end)
 
         options = refine_options(args.width, args.height, args.fov, args.tolerance, None, None, None, None,
-                                 False if getattr(args, "no_prune", False) else None)
+                                 False if getattr(args, "no_prune", False) else None,
+                                 True if getattr(args, "strict_bound", False) else None)
         cached = cache_mode(args.cache_vertices, args.cache_strategy, args.cache_pq_fraction)
         sessions = []
         for k, index in enumerate(mine):

@@ -178,7 +178,8 @@ async def _one(client: AsyncClient, index: int, args, mesh, tally: Tally, t0: fl
                                        frame_encoding=getattr(args, "frame_encoding", "linked"),
                                        vertex_encoding=getattr(args, "vertex_encoding", "packed"),
                                        position_bits=getattr(args, "position_bits", None),
-                                       prune=False if getattr(args, "no_prune", False) else None)
+                                       prune=False if getattr(args, "no_prune", False) else None,
+                                       strict_bound=True if getattr(args, "strict_bound", False) else None)
         flying = asyncio.ensure_future(_fly(session, index, args, lo, hi, t0, tally))
         try:
             await _receive(session, t0 + args.duration + TAIL_SECONDS, t0 + args.warmup, tally)
@@ -333,6 +334,9 @@ def _argv(args) -> list:
         value = getattr(args, name, None)
         if value is not None:
             out += ["--" + name.replace("_", "-"), str(value)]
+    for flag in ("no_prune", "strict_bound"):       # switches: there, or not
+        if getattr(args, flag, False):
+            out.append("--" + flag.replace("_", "-"))
     return out
 
 
@@ -354,7 +358,7 @@ def report(args, tally: Tally, mesh: str, faces: int, cpu: float, wall: float) -
         "target": args.target, "mesh": mesh, "mesh_faces": faces, "sessions": args.sessions,
         "cameras": args.cameras, "duration_s": args.duration, "warmup_s": args.warmup, "rate_hz": args.rate, "trajectory": args.trajectory,
         "viewport": [args.width, args.height], "fov_y": args.fov, "tolerance_px": args.tolerance,
-        "prune": not getattr(args, "no_prune", False),
+        "prune": not getattr(args, "no_prune", False), "strict_bound": bool(getattr(args, "strict_bound", False)),
         "frame_encoding": getattr(args, "frame_encoding", "linked"),
         "vertex_encoding": getattr(args, "vertex_encoding", "packed"), "processes": getattr(args, "processes", 1),
         "transport": transport(args), "decoder": decoder(args),

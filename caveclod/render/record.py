@@ -188,6 +188,7 @@ def main(args) -> int:
             mesh = pick_mesh(client, args.mesh, args.target)
             with client.session(mesh, cameras=args.cameras, width=qw, height=qh, fov_y=args.fov,
                                 tolerance_px=args.tolerance, prune=False if args.no_prune else None,
+                                strict_bound=True if getattr(args, "strict_bound", False) else None,
                                 **cache) as session:
                 summary, _ = record(session, out, size=size, trajectory=args.trajectory, frames=args.frames,
                                  fps=args.fps, wireframe=args.wireframe, morph_ms=args.morph_ms)

@@ -65,6 +65,7 @@ class Sessions:
             # A camera found the file damaged (caveclod.meshcheck's module doc): no new session on it.
             raise Refused(grpc.StatusCode.DATA_LOSS, damaged_message(served))
         view_options, budgets = self._options(msg.options)
+        strict = msg.options.HasField("strict_bound") and msg.options.strict_bound
         cache = self._cache(msg, served)
         encoding = _frame_encoding(msg, cache)
         if encoding == pb.FRAME_ENCODING_OPS_LINKED:
@@ -106,7 +107,7 @@ class Sessions:
             window = msg.ack_window or self.config.ack_window
             session = Session(secrets.token_urlsafe(24), served, view_options, budgets, msg.cameras,
                               min(max(window, 1), MAX_ACK_WINDOW), self.config.settle_seconds, self.metrics,
-                              client=msg.client[:80], cache=cache, frame_encoding=encoding)
+                              client=msg.client[:80], cache=cache, frame_encoding=encoding, strict_bound=strict)
             self.sessions[session.token] = session
             generation = session.attach(0)
             self._gauges()

@@ -137,7 +137,7 @@ class LodService:
             ack_window=session.ack_window, resume_ttl_s=self.sessions.config.resume_ttl,
             last_frame_seq=session.frame_seq if resumed else 0,
             last_pose_seq=session.last_pose_seq if resumed else 0, cache=session.cache,
-            frame_encoding=session.frame_encoding)
+            frame_encoding=session.frame_encoding, strict_bound=session.strict_bound)
         if packed is not None:
             info.session_info.vertex_packing.CopyFrom(packed[1])
         data = info.SerializeToString()

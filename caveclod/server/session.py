@@ -94,16 +94,20 @@ class Session:
             vertex buffer. Each camera has a cache of its own.
         frame_encoding: FRAME_ENCODING_RAW, _OPS or _OPS_LINKED (already
             granted: :meth:`.registry.Sessions.open` decides).
+        strict_bound: the cameras' strict error bound
+            (:class:`caveclod.refine.camera.CameraState`); kept when resumed.
     """
 
     def __init__(self, token: str, served, view_options: dict, budgets: tuple, cameras: int, ack_window: int,
                  settle: float, hooks, client: str = "", cache: dict | None = None,
-                 frame_encoding: int = pb.FRAME_ENCODING_RAW):
+                 frame_encoding: int = pb.FRAME_ENCODING_RAW, strict_bound: bool = False):
         self.token, self.served, self.client = token, served, client
         self.view_options, self.budgets = view_options, budgets
         self.ack_window, self.settle, self.hooks = ack_window, settle, hooks
         max_ops, max_faces = budgets
-        self.cams = [served.mesh.new_camera(max_ops=max_ops, max_faces=max_faces) for _ in range(cameras)]
+        self.strict_bound = bool(strict_bound)
+        self.cams = [served.mesh.new_camera(max_ops=max_ops, max_faces=max_faces, strict_bound=self.strict_bound)
+                     for _ in range(cameras)]
         self.n_materials = self.cams[0].n_materials
         self.cache = cache
         self.cached, self.sums = [], []
@@ -407,6 +411,8 @@ class Session:
                "client": self.client, "frame_seq": self.frame_seq, "pose_seq": self.last_pose_seq}
         if self.cache is not None:
             out["cache"] = f"{self.cache['vertices']} {self.cache['strategy']}"
+        if self.strict_bound:
+            out["strict_bound"] = True
         return out
 
 

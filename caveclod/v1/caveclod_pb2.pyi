@@ -133,7 +133,7 @@ class Open(_message.Message):
     def __init__(self, mesh: _Optional[str] = ..., options: _Optional[_Union[RefineOptions, _Mapping]] = ..., cameras: _Optional[int] = ..., vertex_buffer_hash: _Optional[str] = ..., resume_token: _Optional[str] = ..., last_frame_seq: _Optional[int] = ..., ack_window: _Optional[int] = ..., client: _Optional[str] = ..., cache_vertices: _Optional[int] = ..., cache_strategy: _Optional[_Union[CacheStrategy, str]] = ..., cache_pq_fraction: _Optional[float] = ..., frame_encoding: _Optional[_Union[FrameEncoding, str]] = ..., vertex_encoding: _Optional[_Union[VertexEncoding, str]] = ..., position_bits: _Optional[int] = ..., morph_targets: _Optional[bool] = ...) -> None: ...
 
 class RefineOptions(_message.Message):
-    __slots__ = ("viewport_width", "viewport_height", "fov_y_deg", "tolerance_px", "cull", "backface", "max_ops", "max_faces", "prune")
+    __slots__ = ("viewport_width", "viewport_height", "fov_y_deg", "tolerance_px", "cull", "backface", "max_ops", "max_faces", "prune", "strict_bound")
     VIEWPORT_WIDTH_FIELD_NUMBER: _ClassVar[int]
     VIEWPORT_HEIGHT_FIELD_NUMBER: _ClassVar[int]
     FOV_Y_DEG_FIELD_NUMBER: _ClassVar[int]
@@ -143,6 +143,7 @@ class RefineOptions(_message.Message):
     MAX_OPS_FIELD_NUMBER: _ClassVar[int]
     MAX_FACES_FIELD_NUMBER: _ClassVar[int]
     PRUNE_FIELD_NUMBER: _ClassVar[int]
+    STRICT_BOUND_FIELD_NUMBER: _ClassVar[int]
     viewport_width: int
     viewport_height: int
     fov_y_deg: float
@@ -152,7 +153,8 @@ class RefineOptions(_message.Message):
     max_ops: int
     max_faces: int
     prune: bool
-    def __init__(self, viewport_width: _Optional[int] = ..., viewport_height: _Optional[int] = ..., fov_y_deg: _Optional[float] = ..., tolerance_px: _Optional[float] = ..., cull: _Optional[bool] = ..., backface: _Optional[bool] = ..., max_ops: _Optional[int] = ..., max_faces: _Optional[int] = ..., prune: _Optional[bool] = ...) -> None: ...
+    strict_bound: bool
+    def __init__(self, viewport_width: _Optional[int] = ..., viewport_height: _Optional[int] = ..., fov_y_deg: _Optional[float] = ..., tolerance_px: _Optional[float] = ..., cull: _Optional[bool] = ..., backface: _Optional[bool] = ..., max_ops: _Optional[int] = ..., max_faces: _Optional[int] = ..., prune: _Optional[bool] = ..., strict_bound: _Optional[bool] = ...) -> None: ...
 
 class CameraPose(_message.Message):
     __slots__ = ("camera", "pose_seq", "eye", "target", "up", "ack_frame_seq")

@@ -7,6 +7,7 @@
 //   &trajectory=P       flyover | circle | rotate | line (caveclod loadtest's
 //                       paths); none: fly one camera yourself
 //   &tolerance=PX       screen-space error in pixels (default: the server's)
+//   &strict=1           the strict error bound (RefineOptions.strict_bound)
 //   &token=T            the server's bearer token (--token-file)
 //   &encoding=E         the frame encoding: linked (default with geomorphs, which
 //                       download the morph targets it reads), ops (default
@@ -111,6 +112,7 @@ async function main() {
   const quadrant = cameras === 1 ? [canvas.width, canvas.height] : [canvas.width / 2, cameras === 2 ? canvas.height : canvas.height / 2];
   const options = { viewportWidth: Math.floor(quadrant[0]), viewportHeight: Math.floor(quadrant[1]), fovYDeg: FOV_Y };
   if (params.get("tolerance")) options.tolerancePx = parseFloat(params.get("tolerance"));
+  if (params.get("strict") === "1") options.strictBound = true;
   stats.mesh = mesh;
   stats.cameras = cameras;
   document.getElementById("help").hidden = Boolean(trajectory);

@@ -459,6 +459,7 @@
                 RefineOptions.prototype.maxOps = null;
                 RefineOptions.prototype.maxFaces = null;
                 RefineOptions.prototype.prune = null;
+                RefineOptions.prototype.strictBound = null;
     
                 var $oneOfFields;
     
@@ -504,6 +505,12 @@
                     set: $util.oneOfSetter($oneOfFields)
                 });
     
+                // Virtual OneOf for proto3 optional field
+                $Object.defineProperty(RefineOptions.prototype, "_strictBound", {
+                    get: $util.oneOfGetter($oneOfFields = ["strictBound"]),
+                    set: $util.oneOfSetter($oneOfFields)
+                });
+    
                 RefineOptions.encode = function (message, writer, _depth) {
                     if (!writer)
                         writer = $Writer.create();
@@ -529,6 +536,8 @@
                         writer.uint32(64).uint64(message.maxFaces);
                     if (message.prune != null && $Object.hasOwnProperty.call(message, "prune"))
                         writer.uint32(72).bool(message.prune);
+                    if (message.strictBound != null && $Object.hasOwnProperty.call(message, "strictBound"))
+                        writer.uint32(80).bool(message.strictBound);
                     if (message.$unknowns != null && $Object.hasOwnProperty.call(message, "$unknowns"))
                         for (var i = 0; i < message.$unknowns.length; ++i)
                             writer.raw(message.$unknowns[i]);
@@ -627,6 +636,13 @@
                                     break;
                                 message.prune = reader.bool();
                                 message._prune = "prune";
+                                continue;
+                            }
+                        case 10: {
+                                if (wireType !== 0)
+                                    break;
+                                message.strictBound = reader.bool();
+                                message._strictBound = "strictBound";
                                 continue;
                             }
                         }
