@@ -21,13 +21,20 @@ EYE, TARGET = (-60.0, -60.0, 70.0), (24.0, 24.0, 0.0)
 
 
 def _fly(session, frames=4):
-    """Send a few poses, wait for their frames; the camera's triangles after them."""
+    """Send a few poses, each once the last has been answered and refined to the end (no frame
+    for 0.5 s: the server's convergence updates, 50 ms after a pose, have nothing left to do);
+    the camera's triangles after them. Waiting for the end keeps the two sessions' histories
+    equal: a pose answered before a convergence update the other session had made starts
+    from another state, and may end in another (a loaded machine made them differ)."""
     for k in range(frames):
         session.send_pose(0, (EYE[0] + 9 * k, EYE[1] + 5 * k, EYE[2] - 6 * k), TARGET)
         for _ in range(200):
             update = session.next_frame(timeout=5)
             assert update is not None, "no frame within 5 s"
             if update.pose_seq >= session.protocol.pose_seq:
+                break
+        for _ in range(200):
+            if session.next_frame(timeout=0.5) is None:
                 break
     return session.triangles(0)
 
