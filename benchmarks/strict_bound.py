@@ -40,7 +40,8 @@ import numpy as np
 import caveclod
 from caveclod.builder.builtin import rough_terrain
 from caveclod.builder.hierarchy import build_static_mesh
-from caveclod.refine.measure import forced_splits, mixed_nodes, original_triangles, pixel_errors, surface_errors
+from caveclod.refine.measure import (forced_splits, hidden_positions, mixed_nodes, original_triangles, pixel_errors,
+                                     surface_errors)
 
 sys.path.insert(0, str(Path(__file__).parent))
 from error import views  # noqa: E402
@@ -63,7 +64,8 @@ def bounds(mesh, tolerance, original, options) -> dict:
     for view in views(mesh, tolerance):
         cam = converged(mesh, view, options)
         tris = cam.triangles()
-        px.append(pixel_errors(mesh, tris, view))
+        # Parts hidden for being under the tolerance have nothing drawn to measure against (as error.py).
+        px.append(pixel_errors(mesh, tris, view, points=np.asarray(mesh.positions)[~hidden_positions(cam)]))
         back.append(surface_errors(mesh, tris, original, view))
         faces.append(cam.n_faces)
         mixed += len(mixed_nodes(cam))

@@ -553,26 +553,51 @@ def _gone_before(parent, pos_top, q, x):
 
 
 @nb.njit(cache=True, nogil=True, inline="always")
-def _active_at(q, parent, pos_top, state):
-    """The active node at position ``q`` (on its stationary chain), or -1."""
-    x = q
+def _active_from(c, q, parent, pos_top, state):
+    """The active node at position ``q`` at or above node ``c`` of q's chain, or -1."""
     top = pos_top[q]
-    while x >= 0:
-        if (ns_get(state, x) & STATE_MASK) == ACTIVE:
-            return x
-        if x == top:
+    while c >= 0:
+        if (ns_get(state, c) & STATE_MASK) == ACTIVE:
+            return c
+        if c == top:
             return -1
-        x = parent[x]
+        c = parent[c]
     return -1
 
 
 @nb.njit(cache=True, nogil=True, inline="always")
-def _note_blocker(q, x, parent, pos_top, state, out, n):
-    """Add the active node at ``q`` to ``out[:n]`` if it is newer than ``x`` (and not there yet)."""
-    if pos_top[q] <= x:
+def _lowest_newer(q, x, e, links, pos_top):
+    """The lowest node at position ``q`` newer than ``x``, or -1 (all older).
+
+    Walks down q's chain of stationary children from its last node: the
+    nodes newer than a node being split are few, where the walk up from the
+    leaf passed every older one, each a lookup in the node-state table."""
+    c = pos_top[q]
+    if c <= x:
+        return -1
+    while c >= e:
+        t = links[c - e, 0]
+        if t <= x:
+            break
+        c = t
+    return c
+
+
+@nb.njit(cache=True, nogil=True, inline="always")
+def _note_blocker(q, x, e, links, parent, pos_top, state, out, n):
+    """Add the active node at ``q`` to ``out[:n]`` if it is newer than ``x`` (and not there yet).
+
+    Along q's chain the nodes below the active one are inactive and those
+    above it split: it is newer than x unless the lowest node newer than x
+    is split."""
+    c = _lowest_newer(q, x, e, links, pos_top)
+    if c < 0:
         return n                           # every node at q is older than x
-    a = _active_at(q, parent, pos_top, state)
-    if a <= x:
+    s = ns_get(state, c) & STATE_MASK
+    if s == SPLIT:
+        return n
+    a = c if s == ACTIVE else _active_from(c, q, parent, pos_top, state)
+    if a < 0:
         return n
     for i in range(n):
         if out[i] == a:
@@ -608,7 +633,7 @@ def split_blockers(x, e, links, npos, parent, pos_top, state, vpos, face_map, re
             if k < 0 or steps < 0:
                 return -2
             for d in range(1, 3):
-                n = _note_blocker(vpos[rec_tri[r, (k + d) % 3]], x, parent, pos_top, state, out, n)
+                n = _note_blocker(vpos[rec_tri[r, (k + d) % 3]], x, e, links, parent, pos_top, state, out, n)
                 if n < 0:
                     return -1
             if f == fn2:
@@ -625,7 +650,7 @@ def split_blockers(x, e, links, npos, parent, pos_top, state, vpos, face_map, re
             if k < 0 or steps < 0:
                 return -2
             for d in range(1, 3):
-                n = _note_blocker(vpos[rec_tri[r, (k + d) % 3]], x, parent, pos_top, state, out, n)
+                n = _note_blocker(vpos[rec_tri[r, (k + d) % 3]], x, e, links, parent, pos_top, state, out, n)
                 if n < 0:
                     return -1
             f = rec_nbr[r, (k + 2) % 3]
@@ -648,7 +673,7 @@ def split_blockers(x, e, links, npos, parent, pos_top, state, vpos, face_map, re
             continue
         if k < 0:
             return -2
-        n = _note_blocker(vpos[rec_tri[r, (k + d) % 3]], x, parent, pos_top, state, out, n)
+        n = _note_blocker(vpos[rec_tri[r, (k + d) % 3]], x, e, links, parent, pos_top, state, out, n)
         if n < 0:
             return -1
     return n
@@ -714,7 +739,8 @@ def strict_collapse_faces(x, e, links, npos, parent, pos_top, vpos, face_map, re
 def _push_beside(x, e, parent, links, npos, pos_top, state, vpos, face_map, rec_tri, rec_nbr, queue, q):
     """After the collapse of ``x`` under the strict bound: push the parents of
     the active nodes beside x's position, whose collapse a position just gone
-    may have blocked. Walks round x from the first of fl_t, fl_u, fr_t, fr_u
+    may have blocked: those newer than x (u's position was gone before x
+    only for them). Walks round x from the first of fl_t, fl_u, fr_t, fr_u
     present (forward, then backward if the fan is open). The caller made room
     for twice the faces :func:`strict_collapse_faces` counted."""
     j = x - e
@@ -736,8 +762,21 @@ def _push_beside(x, e, parent, links, npos, pos_top, state, vpos, face_map, rec_
         while True:
             if way == 0 or f != f0:
                 for d in range(1, 3):
-                    b = _active_at(vpos[rec_tri[r, (k + d) % 3]], parent, pos_top, state)
-                    if b >= 0 and parent[b] >= 0:
+                    c = vpos[rec_tri[r, (k + d) % 3]]
+                    # Parents grow up a position's chain, the last node's the largest (a root's:
+                    # none). The nodes whose parent is newer than x: the lowest newer node's
+                    # stationary child and up, or the last node alone.
+                    top = pos_top[c]
+                    if top <= x and parent[top] <= x:
+                        continue
+                    lo = top
+                    if top > x:
+                        lo = links[_lowest_newer(c, x, e, links, pos_top) - e, 0]
+                    s = ns_get(state, lo) & STATE_MASK
+                    if s == SPLIT:
+                        continue               # the active node is below: its parent is older
+                    b = lo if s == ACTIVE else _active_from(lo, c, parent, pos_top, state)
+                    if b >= 0 and parent[b] > x:
                         q = _push(parent[b], e, state, queue, q)
             f = rec_nbr[r, k] if way == 0 else rec_nbr[r, (k + 2) % 3]
             if f < 0 or f == f0:

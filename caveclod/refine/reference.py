@@ -434,7 +434,8 @@ class ReferenceCamera:
     def beside_candidates(self, s):
         """After collapsing ``s`` (strict bound): the parents of the active
         nodes beside it, whose collapse a position just gone may have
-        blocked; round s from the first of fl_t, fl_u, fr_t, fr_u present."""
+        blocked: those newer than ``s`` (u's position was gone before s only
+        for them); round s from the first of fl_t, fl_u, fr_t, fr_u present."""
         fn0, fn1, fn2, fn3 = self.required[s - self.e]
         start = [f for f in (fn1, fn0, fn3, fn2) if f >= 0]
         if not start:
@@ -445,7 +446,7 @@ class ReferenceCamera:
             k = self._corner(f, p)
             for q in (self.faces[f]["pos"][(k + 1) % 3], self.faces[f]["pos"][(k + 2) % 3]):
                 b = self.active_at(q)
-                if b >= 0 and self.parent[b] >= 0:
+                if b >= 0 and self.parent[b] > s:
                     out.append(self.parent[b])
         return out
 
