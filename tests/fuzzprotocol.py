@@ -372,6 +372,8 @@ class CaseMaker:
             o.max_ops = rng.choice((1, 10, 1000, (1 << 64) - 1))
         if rng.random() < 0.3:
             o.max_faces = rng.choice((1, 100, 10_000, (1 << 64) - 1))
+        if rng.random() < 0.2:
+            o.strict_bound = rng.random() < 0.5
         return o
 
     def open(self, mesh: MeshTarget) -> pb.Open:
@@ -465,6 +467,7 @@ class CaseMaker:
             opened.options.CopyFrom(fresh.options)
             opened.options.ClearField("max_ops")       # budgets stay as opened: leave them unset
             opened.options.ClearField("max_faces")
+            opened.options.ClearField("strict_bound")  # as does the strict bound
             opened.frame_encoding = fresh.frame_encoding
             what = "resume of an earlier session"
         else:
