@@ -32,9 +32,9 @@ STRATEGIES = ("fa", "lru", "lru_pq")
 WIDTH, HEIGHT = 640, 360
 
 
-def _options(tolerance=1.0):
+def _options(tolerance=1.0, strict_bound=None):
     return {"width": WIDTH, "height": HEIGHT, "fov_y": None, "tolerance_px": tolerance, "cull": None,
-            "backface": None, "max_ops": None, "max_faces": None}
+            "backface": None, "max_ops": None, "max_faces": None, "strict_bound": strict_bound}
 
 
 def _walk(mesh, steps: int, seed: int, cameras: int):
@@ -57,9 +57,9 @@ def _view(eye, target, tolerance=1.0):
     return caveclod.View(eye=eye, target=target, up=(0, 0, 1), width=WIDTH, height=HEIGHT, tolerance_px=tolerance)
 
 
-def _peak(mesh, walk, cameras) -> int:
+def _peak(mesh, walk, cameras, **options) -> int:
     """The most vertices any camera uses on the walk, each pose refined until still (a dry run)."""
-    cams = [mesh.new_camera() for _ in range(cameras)]
+    cams = [mesh.new_camera(**options) for _ in range(cameras)]
     peak = len(active_vertices(cams[0].triangles()))
     for c, eye, target in walk:
         for _ in range(4):
@@ -89,13 +89,13 @@ def _resident_attributes(mesh) -> dict:
     return out
 
 
-@pytest.mark.parametrize("strategy", STRATEGIES)
-def test_cache_mode_draws_what_resident_mode_draws(server, terrain_path, strategy):
+@pytest.mark.parametrize("strategy, strict", [(s, False) for s in STRATEGIES] + [("lru", True)])
+def test_cache_mode_draws_what_resident_mode_draws(server, terrain_path, strategy, strict):
     mesh = caveclod.load(terrain_path)
     cameras = 2
     walk = _walk(mesh, 40, seed=3, cameras=cameras)
-    n = _peak(mesh, walk, cameras) + 40
-    protocol = SessionProtocol("terrain", cameras, _options(), cache=None, ack_window=1,
+    n = _peak(mesh, walk, cameras, strict_bound=strict) + 40
+    protocol = SessionProtocol("terrain", cameras, _options(strict_bound=strict or None), cache=None, ack_window=1,
                                cache_mode={"vertices": n, "strategy": strategy, "pq_fraction": None})
     kinds = []
     original = protocol.receive
@@ -106,7 +106,7 @@ def test_cache_mode_draws_what_resident_mode_draws(server, terrain_path, strateg
 
     protocol.receive = record
     driver = Driver(server.port, protocol)
-    core = [mesh.new_camera() for _ in range(cameras)]
+    core = [mesh.new_camera(strict_bound=strict) for _ in range(cameras)]
     resident = _resident_attributes(mesh)
     views, written, frames = {}, [np.zeros(n, np.int64) for _ in range(cameras)], 0
 
@@ -154,6 +154,7 @@ def test_cache_mode_draws_what_resident_mode_draws(server, terrain_path, strateg
         assert "vertex_chunk" not in kinds
         session = server.sessions.sessions[protocol.token]
         assert session.cached[0].cache.strategy == strategy
+        assert info.options.strict_bound is strict and all(cam.strict_bound is strict for cam in session.cams)
     finally:
         driver.close()
 
