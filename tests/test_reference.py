@@ -258,6 +258,15 @@ def test_budgets_agree(budget):
         assert len(pair.ref.faces) <= max(budget["max_faces"], len(mesh.base_faces))
 
 
+def test_a_face_budget_the_mesh_cannot_reach_is_no_budget():
+    """A camera drops a ``max_faces`` at or over the mesh's faces (one mixed pass, with expiries);
+    the reference does the same. Before it did not, and on such walks the two disagreed: the
+    reference refined and coarsened in two passes, and refused a last split at the boundary."""
+    mesh = mesh_named("holey_scan")
+    assert mesh.n_faces < 400
+    walk(mesh, seed=111, steps=8, max_faces=400)
+
+
 def test_shared_state_baseline_agrees():
     """The paper's baseline: one state re-refined for camera A, then B, then A ..."""
     mesh = mesh_named("terrain24")

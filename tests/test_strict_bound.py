@@ -66,6 +66,16 @@ def test_strict_camera_growing_its_buffers_agrees():
     walk(mesh, seed=2, steps=8, pair=CheckedPair(mesh, roomy=False, strict_bound=True))
 
 
+@pytest.mark.parametrize("seed", [100, 107])
+def test_a_forced_split_stopped_for_room_goes_on_where_it_stopped(seed):
+    """Under an operation budget, a forced split that runs out of room mid-way must go on from its
+    stack, not start again from its node: the strict bound's dependencies follow the splits already
+    made, so a fresh start met them in another order and the budget cut elsewhere (these walks
+    disagreed with the reference so)."""
+    mesh = mesh_named("terrain16")
+    walk(mesh, seed=seed, steps=8, pair=CheckedPair(mesh, roomy=False, strict_bound=True, max_ops=9))
+
+
 @pytest.mark.parametrize("name", ["terrain24", "holey_scan", "debris"])
 def test_strict_refines_fully_and_coarsens_back(name):
     """Every face back at 0 px; at a huge tolerance, the base mesh again."""

@@ -104,6 +104,7 @@ from .nodestate import (ACTIVE, IN_LIST, INACTIVE, QUEUED, RECHECK, SPLIT, STATE
 
 OK, NEED_RECORDS, NEED_LIST, NEED_QUEUE = 0, 1, 2, 3
 NEED_NODES = 5      # the node-state table is full (after DAMAGED, which kept its number)
+NEED_STACK = 6      # the forced-split stack is full
 # The static mesh broke a rule no built mesh breaks (a vertex lookup that
 # misses, a face walk that does not close, a forced split that does not end):
 # the file is damaged. See "Guards" in the module doc.
@@ -899,7 +900,8 @@ def _skip_run(active, texp, aexp, state, changed, odo, i, w, n, expire, clean):
 @nb.njit(cache=True, nogil=True)
 def adapt(e, parent, links, npos, bound, cone, ring, face_creator, rotation, mat, fsgid, pos_vstart, vertex_sgid,
           vpos, pos_top, state, face_map, off, cnt, cap, rec_tri, rec_nbr, rec_face, dirty,
-          active, texp, aexp, n_active, queue, changed, vp, odo, max_ops, max_faces, counts, resume, mode, expire):
+          active, texp, aexp, n_active, queue, fstack, changed, vp, odo, max_ops, max_faces, counts, resume, mode,
+          expire):
     """One pass of incremental selective refinement over the active nodes.
 
     Splits (forcing the splits a split needs) where the view needs detail and
@@ -921,16 +923,21 @@ def adapt(e, parent, links, npos, bound, cone, ring, face_creator, rotation, mat
     collapsed (the mesh is damaged: module doc, "Guards"; the camera is not
     to be used again), or NEED_RECORDS for that material /
     NEED_LIST / NEED_QUEUE (``queue``, the collapse candidates) / NEED_NODES
-    (``state``, before a split): grow the arrays and call again, and the
-    call *continues the same pass* where this one stopped: ``resume`` (5,)
-    int64 holds the read and write positions, a flag, the candidates left in
-    ``queue`` and whether the list is clean (module doc; the camera clears
-    it when anything else changes node states), so decisions never depend
-    on how much room the arrays happened to have. ``changed`` is the set of
+    (``state``, before a split) / NEED_STACK (``fstack``, the forced-split
+    stack; the material is the entries it needs, or -1 for twice as many):
+    grow the arrays and call again, and the call *continues the
+    same pass* where this one stopped: ``resume`` (6,) int64 holds the read
+    and write positions, a flag, the candidates left in ``queue``, whether
+    the list is clean (module doc; the camera clears it when anything else
+    changes node states) and the entries of a forced split left in
+    ``fstack``, so decisions never depend on how much room the arrays
+    happened to have. ``changed`` is the set of
     listed nodes changed since their check
     (:func:`caveclod.kernels.nodestate.cs_note`). (The node being force-split when room
-    ran out is visited again; its forced split restarts and, being
-    deterministic, makes the same decisions.)
+    ran out is visited again, and its forced split goes on from the stack
+    it left: started afresh, the strict bound's dependencies, which follow
+    the splits already made, came in another order, and under an operation
+    budget that made other decisions.)
     """
     n = n_active[0]
     n_faces = 0
@@ -955,7 +962,7 @@ def adapt(e, parent, links, npos, bound, cone, ring, face_creator, rotation, mat
         sort_active(active, texp, aexp, n)
         i = 0
         w = 0
-    stack = np.empty(256, np.int64)
+    stack = fstack
     n_nodes = parent.shape[0]
     max_stack, max_steps = 4 * n_nodes + 8, 8 * n_nodes + 64     # what an acyclic hierarchy can need
     strict = pos_top.shape[0] > 0
@@ -983,9 +990,14 @@ def adapt(e, parent, links, npos, bound, cone, ring, face_creator, rotation, mat
         if x >= e and mode != COLLAPSES_ONLY:
             need, tm, rm, dist = test_node(x - e, bound, cone, ring, vp)
             if need:
-                # Force the split of x: Hoppe's stack of unmet preconditions.
-                stack[0] = x
-                sp = 1
+                # Force the split of x: Hoppe's stack of unmet preconditions (or
+                # the stack an interrupted call left, which is x's).
+                if resume[5] > 0:
+                    sp = resume[5]
+                    resume[5] = 0
+                else:
+                    stack[0] = x
+                    sp = 1
                 steps = 0
                 while sp > 0:
                     y = stack[sp - 1]
@@ -1000,10 +1012,9 @@ def adapt(e, parent, links, npos, bound, cone, ring, face_creator, rotation, mat
                     if sp + 5 > stack.shape[0]:
                         if stack.shape[0] > max_stack:
                             status, need_mat = DAMAGED, y
-                            break
-                        bigger = np.empty(2 * stack.shape[0], np.int64)
-                        bigger[:sp] = stack[:sp]
-                        stack = bigger
+                        else:
+                            status = NEED_STACK
+                        break
                     if sy == INACTIVE:
                         stack[sp] = parent[y]
                         sp += 1
@@ -1032,10 +1043,9 @@ def adapt(e, parent, links, npos, bound, cone, ring, face_creator, rotation, mat
                             if sp + nb_ + 5 > stack.shape[0]:
                                 if stack.shape[0] > max_stack:
                                     status, need_mat = DAMAGED, y
-                                    break
-                                bigger = np.empty(2 * stack.shape[0] + nb_, np.int64)
-                                bigger[:sp] = stack[:sp]
-                                stack = bigger
+                                else:
+                                    status, need_mat = NEED_STACK, sp + nb_ + 5
+                                break
                             for b in range(nb_):
                                 stack[sp] = blockers[b]
                                 sp += 1
@@ -1065,6 +1075,8 @@ def adapt(e, parent, links, npos, bound, cone, ring, face_creator, rotation, mat
                     sp -= 1
                 if status != OK:
                     i -= 1                       # x is visited again on resume
+                    if status != DAMAGED:
+                        resume[5] = sp           # and its forced split goes on from here
                     break
                 if (ns_get(state, x) & STATE_MASK) == ACTIVE:      # a budget stopped it
                     active[w], texp[w], aexp[w] = x, NEVER, NEVER

@@ -142,8 +142,9 @@ class CameraState:
         self._parts_due = (-np.inf, -np.inf)                  # earliest part expiries (odo[0], odo[1])
         self._n_hidden = 0                                    # part_hidden.sum(), kept (servers read it every frame)
         self.queue = np.empty(32, np.int32)                # collapse candidates of a pass
+        self.fstack = np.empty(32, np.int64)               # a forced split's stack, kept when a pass stops for room
         self.counts = np.zeros(4, np.int64)
-        self._resume = np.zeros(5, np.int64)      # where an interrupted pass goes on; whether the list is clean
+        self._resume = np.zeros(6, np.int64)      # where an interrupted pass goes on; whether the list is clean
         self._hashed_blocks_max = NS.most_hashed_blocks(mesh.n_nodes)   # beyond: the dense form is smaller
         self.odo = np.zeros(2)                    # distance travelled, angle turned
         self._last_view = None
@@ -245,6 +246,12 @@ class CameraState:
         bigger = np.empty(2 * len(self.queue), np.int32)
         bigger[: len(self.queue)] = self.queue
         self.queue = bigger
+
+    def _grow_stack(self, at_least: int) -> None:
+        """Grow the forced-split stack, keeping its entries (the stopped split goes on from them)."""
+        bigger = np.empty(max(2 * len(self.fstack), at_least), np.int64)
+        bigger[: len(self.fstack)] = self.fstack
+        self.fstack = bigger
 
     def _add_base(self, a: dict) -> None:
         roots = np.flatnonzero(a["node_parent"] < 0).astype(np.int32)
@@ -356,7 +363,8 @@ class CameraState:
                 status, material = K.adapt(*self._static, self.state, self.face_map, self.off, self.cnt,
                                            self.cap, self.rec_tri, self.rec_nbr, self.rec_face, self.dirty,
                                            self.active, self.texp, self.aexp,
-                                           self.n_active, self.queue, self.changed, vp, self.odo, self.max_ops,
+                                           self.n_active, self.queue, self.fstack, self.changed, vp, self.odo,
+                                           self.max_ops,
                                            self.max_faces, self.counts, self._resume, mode, expire)
                 if status == K.OK:
                     return
@@ -368,6 +376,8 @@ class CameraState:
                     self._grow_queue()
                 elif status == K.NEED_NODES:
                     self._grow_nodes()
+                elif status == K.NEED_STACK:
+                    self._grow_stack(int(material))
                 elif status == K.DAMAGED:
                     raise self.mesh.mark_damaged(f"refinement found an impossible hierarchy at node {int(material)}")
                 else:  # pragma: no cover - the kernel has no other status
@@ -544,7 +554,7 @@ class CameraState:
     def nbytes(self) -> int:
         """Bytes this camera owns (the static mesh is shared, not counted)."""
         arrays = (self.state, self.face_map, self.rec_tri, self.rec_nbr, self.rec_face, self.dirty, self._slack,
-                  self.active, self.texp, self.aexp, self.n_active, self.queue, self.changed,
+                  self.active, self.texp, self.aexp, self.n_active, self.queue, self.fstack, self.changed,
                   self.off, self.cnt, self.cap, self._sent, self.counts, self._resume, self.odo,
                   self.part_hidden, self.part_texp, self.part_aexp, self._part_counts)
         return int(sum(x.nbytes for x in arrays))

@@ -74,7 +74,8 @@ class ReferenceCamera:
 
     def __init__(self, mesh, max_ops=None, max_faces=None, strict_bound=False):
         self.max_ops = math.inf if max_ops is None else int(max_ops)
-        self.max_faces = math.inf if max_faces is None else int(max_faces)
+        # A face budget the mesh cannot reach is no budget (as CameraState has it): one mixed pass.
+        self.max_faces = math.inf if max_faces is None or max_faces >= mesh.n_faces else int(max_faces)
         self._read_static(mesh)
         self.strict = bool(strict_bound)
         if self.strict:
