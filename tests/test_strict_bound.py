@@ -21,7 +21,7 @@ from caveclod.builder.hierarchy import build_static_mesh
 from caveclod.refine.measure import hidden_part_pixels, hidden_positions, mixed_nodes, pixel_errors
 from caveclod.refine.view import View
 
-from test_error_bound import CASES, views_of
+from test_error_bound import CASES, meshes, views_of  # noqa: F401 (meshes: the fixture)
 from test_reference import Pair, everything, mesh_named, walk
 
 
@@ -117,23 +117,11 @@ def test_strict_bound_holds_where_mixes_broke_it(rough192, tolerance):
     assert faces[True] < 1.3 * faces[False], f"strict draws {faces[True] / faces[False]:.2f} x the faces"
 
 
-@pytest.fixture(scope="module")
-def case_meshes():
-    cache = {}
-
-    def get(name):
-        if name not in cache:
-            tiles = int(name.rsplit("_tiles", 1)[1]) if "_tiles" in name else None
-            cache[name] = build_static_mesh(CASES[name](), tiles=tiles)
-        return cache[name]
-    return get
-
-
 @pytest.mark.parametrize("name", sorted(CASES))
-def test_strict_cameras_keep_every_original_position_within_the_tolerance(case_meshes, name):
+def test_strict_cameras_keep_every_original_position_within_the_tolerance(meshes, name):  # noqa: F811
     """test_error_bound's meshes and views (rough terrain with holes, scans with open borders and
     cut-up atlases, seam meshes, tiled builds), at 1 and 3 px: the maximum within t, not 1.5 t."""
-    mesh = case_meshes(name)
+    mesh = meshes(name)
     for tolerance in (1.0, 3.0):
         px = []
         for view in views_of(mesh, tolerance):
