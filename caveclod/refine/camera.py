@@ -144,7 +144,7 @@ class CameraState:
         self.queue = np.empty(32, np.int32)                # collapse candidates of a pass
         self.fstack = np.empty(32, np.int64)               # a forced split's stack, kept when a pass stops for room
         self.counts = np.zeros(4, np.int64)
-        self._resume = np.zeros(6, np.int64)      # where an interrupted pass goes on; whether the list is clean
+        self._resume = np.zeros(6, np.int64)      # where an interrupted pass goes on (its forced split too); clean?
         self._hashed_blocks_max = NS.most_hashed_blocks(mesh.n_nodes)   # beyond: the dense form is smaller
         self.odo = np.zeros(2)                    # distance travelled, angle turned
         self._last_view = None
