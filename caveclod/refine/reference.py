@@ -36,6 +36,14 @@ the specification of one update:
    when the sphere (c, r) around its original positions lies wholly outside
    a frustum plane (culling on), or projects smaller than the tolerance:
    the node test with an error of 2 r.
+7. With the strict bound (``strict_bound=True``), no active node stands
+   beside a position collapsed away before the node was made (node ids are
+   in build order): a split first splits, in the order of
+   :meth:`ReferenceCamera.split_blockers`, the active nodes newer than it
+   beside its floating child's position; a collapse is legal only if no
+   position beside the node's two was gone before it; after a collapse the
+   parents, newer than it, of the active nodes beside it are pushed as
+   candidates too (after rule 4's). The ring test is off.
 
 Node ids: leaves ``0 .. e-1`` are positions; internal node ``x`` has its
 static data at index ``x - e``. A split of ``s`` into ``t`` (stationary, at
@@ -69,7 +77,9 @@ class ReferenceCamera:
     Args:
         mesh: a :class:`caveclod.StaticMesh`.
         max_ops: at most this many splits + collapses per update (None: no limit).
-        max_faces: a split is made only while ``active faces + 2 <= max_faces``.
+        max_faces: a split is made only while ``active faces + 2 <= max_faces``
+            (a budget of at least the mesh's faces is none).
+        strict_bound: rule 7 of the module doc.
     """
 
     def __init__(self, mesh, max_ops=None, max_faces=None, strict_bound=False):
