@@ -201,7 +201,7 @@ class Client:
         (:class:`caveclod.client.geomorph.Geomorphs`).
 
         ``strict_bound``: every original position in view within the
-        tolerance of what is drawn, for about 12-19 % more faces on terrains
+        tolerance of what is drawn, for 10-33 % more faces on terrains
         (RefineOptions.strict_bound; a server older than the field ignores
         it, and SessionInfo.options then leaves it unset).
         """
