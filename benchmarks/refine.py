@@ -69,6 +69,32 @@ def per_camera(mesh, views, **options):
     return ops, secs, faces, cams
 
 
+def flight(mesh, views, **options) -> dict:
+    """One flyover of :func:`per_camera` (``options``: ``mesh.new_camera``'s): update p50 and p99 per
+    camera-frame in ms, faces a camera (mean) and operations, the first second left out."""
+    ops, secs, faces, _ = per_camera(mesh, views, **options)
+    s = secs[FPS:].ravel() * 1e3                      # the first second refines up from the base mesh
+    return {"update_ms_p50": float(np.percentile(s, 50)), "update_ms_p99": float(np.percentile(s, 99)),
+            "faces_mean": float(faces[FPS:].mean()), "operations": int(ops[FPS:].sum())}
+
+
+def compare_flights(variants: dict, views, repeats: int, label: str) -> dict:
+    """Fly each of ``variants`` ({name: (mesh, new_camera options)}) one after the other in each of
+    ``repeats`` rounds, so that drift of the machine hits all alike; print each variant's medians.
+    Returns ``{"runs": {name: [flight, ...]}, "median": {name: {figure: median}}}``."""
+    runs = {k: [] for k in variants}
+    for _ in range(repeats):
+        for k, (mesh, options) in variants.items():
+            runs[k].append(flight(mesh, views, **options))
+    med = {k: {q: statistics.median(r[q] for r in rs) for q in rs[0]} for k, rs in runs.items()}
+    width = max(len(k) for k in variants)
+    for k in variants:
+        m = med[k]
+        print(f"{label} {k:{width}s}: update p50 {m['update_ms_p50']:.3f} ms p99 {m['update_ms_p99']:.3f} ms; "
+              f"{m['faces_mean']:,.0f} faces a camera; {m['operations']:,.0f} operations", flush=True)
+    return {"runs": runs, "median": med}
+
+
 def shared_state(mesh, views):
     """The paper's baseline: one state refined for each camera in turn."""
     cam = mesh.new_camera()

@@ -19,14 +19,13 @@ from __future__ import annotations
 
 import argparse
 import json
-import statistics
 import sys
 from pathlib import Path
 
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).parent))
-from refine import FPS, RESULTS, load_mesh, per_camera, views_for  # noqa: E402
+from refine import FPS, RESULTS, compare_flights, load_mesh, views_for  # noqa: E402
 
 CAMERAS = 4
 
@@ -36,13 +35,6 @@ def without_ring(mesh):
     from caveclod.staticmesh import StaticMesh
     return StaticMesh(arrays={k: v for k, v in mesh.arrays.items() if k != "node_ring"},
                       materials=mesh.materials)
-
-
-def flight(mesh, views) -> dict:
-    ops, secs, faces, _ = per_camera(mesh, views)
-    s = secs[FPS:].ravel() * 1e3                      # the first second refines up from the base mesh
-    return {"update_ms_p50": float(np.percentile(s, 50)), "update_ms_p99": float(np.percentile(s, 99)),
-            "faces_mean": float(faces[FPS:].mean()), "operations": int(ops[FPS:].sum())}
 
 
 def main(argv=None) -> int:
@@ -61,17 +53,8 @@ def main(argv=None) -> int:
             return 2
         lo, hi = mesh.bounds()
         views = views_for(lo, hi, CAMERAS, int(args.seconds * FPS), 1.0)
-        variants = {"ring test": mesh, "without": without_ring(mesh)}
-        runs = {k: [] for k in variants}
-        for _ in range(args.repeats):
-            for k, m in variants.items():
-                runs[k].append(flight(m, views))
-        report["terrains"][name] = {"mesh": label, "runs": runs, "median": {
-            k: {q: statistics.median(r[q] for r in rs) for q in rs[0]} for k, rs in runs.items()}}
-        med = report["terrains"][name]["median"]
-        for k in variants:
-            print(f"{label} {k:9s}: update p50 {med[k]['update_ms_p50']:.3f} ms p99 {med[k]['update_ms_p99']:.3f} ms; "
-                  f"{med[k]['faces_mean']:,.0f} faces a camera; {med[k]['operations']:,.0f} operations", flush=True)
+        variants = {"ring test": (mesh, {}), "without": (without_ring(mesh), {})}
+        report["terrains"][name] = {"mesh": label, **compare_flights(variants, views, args.repeats, label)}
     args.out.parent.mkdir(parents=True, exist_ok=True)
     args.out.write_text(json.dumps(report, indent=1))
     _plot(report, args.out.with_suffix(".png"))

@@ -30,7 +30,6 @@ from __future__ import annotations
 
 import argparse
 import json
-import statistics
 import sys
 import time
 from pathlib import Path
@@ -45,7 +44,7 @@ from caveclod.refine.measure import (forced_splits, hidden_positions, mixed_node
 
 sys.path.insert(0, str(Path(__file__).parent))
 from error import views  # noqa: E402
-from refine import FPS, RESULTS, load_mesh, per_camera, views_for  # noqa: E402
+from refine import FPS, RESULTS, compare_flights, load_mesh, views_for  # noqa: E402
 
 CAMERAS = 4
 VARIANTS = {"default": {}, "strict": {"strict_bound": True}}
@@ -75,13 +74,6 @@ def bounds(mesh, tolerance, original, options) -> dict:
             "lod_to_original_p99": float(np.percentile(back, 99)), "lod_to_original_max": float(back.max()),
             "faces_mean": float(np.mean(faces)), "mixed_nodes": int(mixed),
             "forced_share_median": float(np.median(forced)), "forced_share_max": float(np.max(forced))}
-
-
-def flight(mesh, views_, options) -> dict:
-    ops, secs, faces, _ = per_camera(mesh, views_, **options)
-    s = secs[FPS:].ravel() * 1e3                      # the first second refines up from the base mesh
-    return {"update_ms_p50": float(np.percentile(s, 50)), "update_ms_p99": float(np.percentile(s, 99)),
-            "faces_mean": float(faces[FPS:].mean()), "operations": int(ops[FPS:].sum())}
 
 
 def main(argv=None) -> int:
@@ -120,16 +112,8 @@ def main(argv=None) -> int:
             mesh, label = load_mesh(name, args.flyover_size)
             lo, hi = mesh.bounds()
             views_ = views_for(lo, hi, CAMERAS, int(args.seconds * FPS), 1.0)
-            runs = {k: [] for k in VARIANTS}
-            for _ in range(args.repeats):
-                for k, o in VARIANTS.items():
-                    runs[k].append(flight(mesh, views_, o))
-            med = {k: {q: statistics.median(r[q] for r in rs) for q in rs[0]} for k, rs in runs.items()}
-            report["flyover"][name] = {"mesh": label, "runs": runs, "median": med}
-            for k in VARIANTS:
-                print(f"{label} {k:8s}: update p50 {med[k]['update_ms_p50']:.3f} ms p99 "
-                      f"{med[k]['update_ms_p99']:.3f} ms; {med[k]['faces_mean']:,.0f} faces a camera; "
-                      f"{med[k]['operations']:,.0f} operations", flush=True)
+            variants = {k: (mesh, o) for k, o in VARIANTS.items()}
+            report["flyover"][name] = {"mesh": label, **compare_flights(variants, views_, args.repeats, label)}
     args.out.parent.mkdir(parents=True, exist_ok=True)
     args.out.write_text(json.dumps(report, indent=1))
     _plot(report, args.out.with_suffix(".png"))
