@@ -625,38 +625,24 @@ def split_blockers(x, e, links, npos, parent, pos_top, state, vpos, face_map, re
     px = npos[j]
     n = 0
     steps = rec_tri.shape[0] + 1
-    if fn0 >= 0:
-        f = fn0
-        while True:
-            r = fm_get(face_map, f)
-            k = corner_at(rec_tri, vpos, r, px) if r >= 0 else -1
-            steps -= 1
-            if k < 0 or steps < 0:
-                return -2
-            for d in range(1, 3):
-                n = _note_blocker(vpos[rec_tri[r, (k + d) % 3]], x, e, links, parent, pos_top, state, out, n)
-                if n < 0:
-                    return -1
-            if f == fn2:
-                break
-            f = rec_nbr[r, k]
-            if f < 0 or f == fr:
-                break
-    elif fn2 >= 0:
-        f = fn2
-        while True:
-            r = fm_get(face_map, f)
-            k = corner_at(rec_tri, vpos, r, px) if r >= 0 else -1
-            steps -= 1
-            if k < 0 or steps < 0:
-                return -2
-            for d in range(1, 3):
-                n = _note_blocker(vpos[rec_tri[r, (k + d) % 3]], x, e, links, parent, pos_top, state, out, n)
-                if n < 0:
-                    return -1
-            f = rec_nbr[r, (k + 2) % 3]
-            if f < 0 or f == fl:
-                break
+    # From fl_u forward round px to fr_u, or, without fl_u, from fr_u backward to the border.
+    forward = fn0 >= 0
+    f = fn0 if forward else fn2
+    while f >= 0:
+        r = fm_get(face_map, f)
+        k = corner_at(rec_tri, vpos, r, px) if r >= 0 else -1
+        steps -= 1
+        if k < 0 or steps < 0:
+            return -2
+        for d in range(1, 3):
+            n = _note_blocker(vpos[rec_tri[r, (k + d) % 3]], x, e, links, parent, pos_top, state, out, n)
+            if n < 0:
+                return -1
+        if forward and f == fn2:
+            break
+        f = rec_nbr[r, k] if forward else rec_nbr[r, (k + 2) % 3]
+        if f == (fr if forward else fl):
+            break
     # fl's and fr's third corners border u too (from t's side when u's wedge is empty).
     for side in range(2):
         if links[j, 2 + side] < 0:
