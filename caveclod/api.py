@@ -12,11 +12,11 @@ from .builder.source import SourceMesh
 from .staticmesh import StaticMesh
 from .staticmesh import load as _load_file
 
-HEIGHTFIELD_SUFFIXES = {".npy", ".png", ".tif", ".tiff"}
+HEIGHTFIELD_SUFFIXES = {".npy", ".png", ".tif", ".tiff", ".hgt"}
 DEFAULT_SIZE = 256
 
 
-def build(source, *, cell_size: float = 1.0, z_scale: float = 1.0, materials=None,
+def build(source, *, cell_size: float | None = None, z_scale: float = 1.0, materials=None,
           crease_angle: float | None = None, size: int = DEFAULT_SIZE, seed: int | None = None, nodata: float | None = None,
           weld: float | None = None, progress: bool = False, tiles: int | None = None,
           workers: int | None = None, packed: bool = True, check_memory: bool = True,
@@ -29,9 +29,14 @@ def build(source, *, cell_size: float = 1.0, z_scale: float = 1.0, materials=Non
             a field of many small parts; see
             :mod:`caveclod.builder.builtin`), a path to a
             mesh file (anything trimesh loads) or a heightfield (``.npy``,
-            16-bit ``.png``/``.tif``), a ``trimesh.Trimesh``/``Scene``, or a
-            :class:`~caveclod.builder.source.SourceMesh`.
+            16-bit ``.png``/``.tif``, an SRTM ``.hgt``) or a heightfield
+            array, a ``trimesh.Trimesh``/``Scene``, or a
+            :class:`~caveclod.builder.source.SourceMesh`. A heightfield is
+            a raster: its first row is the north edge (the largest y).
         cell_size, z_scale: heightfield grid spacing and height scale.
+            ``cell_size`` None: what a GeoTIFF's or an SRTM tile's
+            georeference states (metres for degrees; see
+            :mod:`caveclod.builder.georef`), else 1.
         materials: heightfield material map: a path to ``.npy`` or an (r, c)
             / (r-1, c-1) integer array, one class per cell.
         crease_angle: degrees; normals are computed with it where the input
@@ -78,7 +83,7 @@ def build(source, *, cell_size: float = 1.0, z_scale: float = 1.0, materials=Non
     return mesh
 
 
-def build_tiles(source, tiles_dir: str | os.PathLike, job: str | tuple[int, int], *, cell_size: float = 1.0,
+def build_tiles(source, tiles_dir: str | os.PathLike, job: str | tuple[int, int], *, cell_size: float | None = None,
                 z_scale: float = 1.0, materials=None, crease_angle: float | None = None, size: int = DEFAULT_SIZE,
                 seed: int | None = None, nodata: float | None = None, weld: float | None = None,
                 progress: bool = False, tiles: int | None = None, workers: int | None = None,
@@ -129,10 +134,23 @@ def _check_workers(workers) -> None:
         raise InputError(f"--workers must be a whole number from 1 to 256, got {workers!r}")
 
 
+def _cell_size_of(path: Path, shape, cell_size) -> tuple:
+    """The cell size to build heightfield ``path`` with, and notes for the report: ``cell_size``
+    when given, else what the file's georeference states, else 1."""
+    from .builder.georef import grid_spacing
+    spacing, why_not = grid_spacing(path, shape)
+    if cell_size is not None:
+        return cell_size, [] if spacing is None else [f"--cell-size {cell_size:g} given; the file states "
+                                                      + spacing.note.replace("cell size ", "", 1)]
+    if spacing is None:
+        return 1.0, [] if why_not is None else [why_not + "; built with cell size 1"]
+    return (spacing.x, spacing.y), [spacing.note]
+
+
 def _check_options(crease_angle, cell_size, z_scale) -> None:
     """Refuse bad numeric options before any work is done."""
     for name, value in (("--crease-angle", 0.0 if crease_angle is None else crease_angle),
-                        ("--cell-size", cell_size), ("--z-scale", z_scale)):
+                        ("--cell-size", 1.0 if cell_size is None else cell_size), ("--z-scale", z_scale)):
         try:
             ok = np.isfinite(float(value))
         except (TypeError, ValueError):
@@ -145,11 +163,12 @@ def _check_options(crease_angle, cell_size, z_scale) -> None:
 
 def _refuse_heightfield_options(what: str, cell_size, z_scale, materials, nodata) -> None:
     """Options that only heightfields read are refused elsewhere, not silently ignored."""
-    given = [name for name, unused in (("--cell-size", float(cell_size) != 1.0), ("--z-scale", float(z_scale) != 1.0),
+    given = [name for name, unused in (("--cell-size", cell_size is not None and float(cell_size) != 1.0),
+                                       ("--z-scale", float(z_scale) != 1.0),
                                        ("--materials", materials is not None), ("--nodata", nodata is not None))
              if unused]
     if given:
-        raise InputError(f"{', '.join(given)} only apply to heightfields (.npy, .png, .tif), not to {what}; "
+        raise InputError(f"{', '.join(given)} only apply to heightfields (.npy, .png, .tif, .hgt), not to {what}; "
                          "drop them, or give a heightfield")
 
 
@@ -177,7 +196,7 @@ def _grid_triangles(shape) -> int:
     return 2 * max(rows - 1, 0) * max(cols - 1, 0)
 
 
-def to_source(source, *, cell_size=1.0, z_scale=1.0, materials=None, size=DEFAULT_SIZE, seed=None,
+def to_source(source, *, cell_size=None, z_scale=1.0, materials=None, size=DEFAULT_SIZE, seed=None,
               nodata=None, check_memory: bool = False) -> SourceMesh:
     """Turn any accepted ``source`` into a validated :class:`SourceMesh`.
 
@@ -210,13 +229,14 @@ def to_source(source, *, cell_size=1.0, z_scale=1.0, materials=None, size=DEFAUL
             if materials is not None:
                 classes = terrain.load_material_map(materials) if isinstance(materials, (str, os.PathLike)) \
                     else np.asarray(materials)
-            return terrain.heightfield_to_source(heights, cell_size=cell_size, z_scale=z_scale, materials=classes)
+            cell, notes = _cell_size_of(path, heights.shape, cell_size)
+            return terrain.raster_to_source(heights, cell_size=cell, z_scale=z_scale, materials=classes, notes=notes)
         _refuse_heightfield_options(f"the mesh file {path.name}", cell_size, z_scale, materials, nodata)
         return meshfile.load_mesh_file(path)
     if isinstance(source, np.ndarray):
         check_grid(_grid_triangles(source.shape))
-        return terrain.heightfield_to_source(source, cell_size=cell_size, z_scale=z_scale,
-                                             materials=None if materials is None else np.asarray(materials))
+        return terrain.raster_to_source(source, cell_size=1.0 if cell_size is None else cell_size, z_scale=z_scale,
+                                        materials=None if materials is None else np.asarray(materials))
     try:
         import trimesh
     except ImportError:  # pragma: no cover - trimesh is a dependency

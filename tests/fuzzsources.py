@@ -3,7 +3,7 @@
 :func:`fuzz_sources` makes one small, valid input of every kind the build
 reads (:func:`make_seeds`: OBJ with an .mtl, ASCII and binary PLY, GLB,
 glTF, ASCII and binary STL, OFF, .npy heightfields of three dtypes, 16-bit
-PNG and TIFF), mutates a copy per case (:func:`mutate`: lines, numbers,
+PNG, TIFF, a geographic GeoTIFF and an SRTM .hgt tile), mutates a copy per case (:func:`mutate`: lines, numbers,
 indices, header counts and fields, node transforms, bits, bytes,
 truncation, and whole-geometry edits: scaled, offset, flattened, snapped,
 holed, recast), sometimes with odd numeric options or a (mutated) material
@@ -79,13 +79,13 @@ class Seed:
     kind: str                    # what it is, for the report: "obj", "ply-binary", ...
     name: str
     data: bytes
-    family: str                  # text, gltf, glb, ply, stl, npy, png or tiff
+    family: str                  # text, gltf, glb, ply, stl, npy, png, tiff or hgt
     companions: dict = field(default_factory=dict)   # name -> bytes (an OBJ's .mtl)
     grid_shape: tuple | None = None                  # a heightfield's (rows, cols)
 
     @property
     def heightfield(self) -> bool:
-        return self.family in ("npy", "png", "tiff")
+        return self.family in ("npy", "png", "tiff", "hgt")
 
 
 # ------------------------------------------------------------------ seeds
@@ -111,9 +111,11 @@ def make_seeds(rng: np.random.Generator) -> list[Seed]:
     grids = [("npy-f32", "seed.npy", "npy", _heights(rng, holes=True).astype(np.float32), _npy_bytes),
              ("npy-f64", "seed.npy", "npy", _heights(rng, holes=True), _npy_bytes),
              ("npy-i16", "seed.npy", "npy", _int16_heights(rng), _npy_bytes),
-             ("png16", "seed.png", "png", _uint16_heights(rng), _png_bytes)]
+             ("png16", "seed.png", "png", _uint16_heights(rng), _png_bytes),
+             ("hgt", "N46E007.hgt", "hgt", _square(_int16_heights(rng)), _hgt_bytes)]
     if _have_tifffile():
         grids.append(("tiff", "seed.tif", "tiff", _heights(rng, holes=True).astype(np.float32), _tiff_bytes))
+        grids.append(("geotiff", "seed.tif", "tiff", _heights(rng, holes=True).astype(np.float32), _geotiff_bytes))
     for kind, name, family, grid, encode in grids:
         seeds.append(Seed(kind, name, encode(grid), family, grid_shape=grid.shape))
     return seeds
@@ -225,6 +227,26 @@ def _int16_heights(rng: np.random.Generator) -> np.ndarray:
     grid = np.clip(h, -30000, 30000).astype(np.int16)
     grid[rng.random(grid.shape) < 0.03] = -32768
     return grid
+
+
+def _square(grid: np.ndarray) -> np.ndarray:
+    """The largest square of ``grid`` from its first row and column (an SRTM tile is square)."""
+    side = min(grid.shape)
+    return grid[:side, :side]
+
+
+def _hgt_bytes(grid: np.ndarray) -> bytes:
+    """An SRTM .hgt tile: big-endian int16 samples, no header."""
+    return np.asarray(grid, ">i2").tobytes()
+
+
+def _geotiff_bytes(grid: np.ndarray) -> bytes:
+    """A geographic GeoTIFF: one arc-second samples tied at 7 E, 46 N, with GDAL's no-data tag."""
+    arcsec = 1.0 / 3600.0
+    keys = (1, 1, 0, 2, 1024, 0, 1, 2, 2054, 0, 1, 9102)    # GTModelType geographic, angular unit degree
+    return _tiff_bytes(grid, extratags=[(33550, 12, 3, (arcsec, arcsec, 0.0)),
+                                        (33922, 12, 6, (0.0, 0.0, 0.0, 7.0, 46.0, 0.0)),
+                                        (34735, 3, len(keys), keys), (42113, 2, 0, "-9999")])
 
 
 def _npy_bytes(array: np.ndarray) -> bytes:
@@ -765,6 +787,33 @@ def tiff_tag(data, rng):
     return data[:at + 8] + packed + data[at + 12:], f"tiff-{_TIFF_TAGS[tag]}={value}"
 
 
+_GEO_TAGS = {33550: "pixel-scale", 33922: "tiepoint", 34264: "transformation"}
+_GEO_VALUES = (0.0, -1.0, 1e-300, 1e300, float("inf"), float("nan"), 91.0, -1e9, 2.0 ** 62)
+
+
+def geotiff_double(data, rng):
+    """Set one double of a GeoTIFF's pixel scale or tie point (a stored, little-endian TIFF)."""
+    if len(data) < 8 or data[:4] != b"II*\0":
+        return bit_flips(data, rng)
+    ifd = struct.unpack_from("<I", data, 4)[0]
+    if ifd + 2 > len(data):
+        return bit_flips(data, rng)
+    entries = []
+    for i in range(min(struct.unpack_from("<H", data, ifd)[0], 64)):
+        at = ifd + 2 + 12 * i
+        if at + 12 > len(data):
+            break
+        tag, kind, count, offset = struct.unpack_from("<HHII", data, at)
+        if tag in _GEO_TAGS and kind == 12 and 0 < count and offset + 8 * count <= len(data):
+            entries.append((tag, count, offset))
+    if not entries:
+        return tiff_tag(data, rng)
+    tag, count, offset = rng.choice(entries)
+    k, value = rng.randrange(count), rng.choice(_GEO_VALUES)
+    at = offset + 8 * k
+    return data[:at] + struct.pack("<d", value) + data[at + 8:], f"geotiff-{_GEO_TAGS[tag]}[{k}]={value}"
+
+
 def tiff_description(data, rng):
     """Edit the numbers of tifffile's JSON description ('{"shape": [r, c]}'),
     which tifffile reshapes the pixels by."""
@@ -1021,8 +1070,9 @@ MUTATORS = {
     "npy": (npy_header, npy_header, npy_values, npy_values, npy_grid, npy_grid, npy_grid, truncate, bit_flips),
     "png": (png_header, png_header, png_drop_chunk, png_pixels, png_image, png_image, png_image, truncate,
             bit_flips, poke_bytes),
-    "tiff": (tiff_tag, tiff_tag, tiff_description, tiff_image, tiff_image, tiff_image, truncate, bit_flips,
-             poke_bytes),
+    "tiff": (tiff_tag, tiff_tag, tiff_description, tiff_image, tiff_image, tiff_image, geotiff_double, truncate,
+             bit_flips, poke_bytes),
+    "hgt": (truncate, truncate, bit_flips, poke_bytes, poke_bytes),
 }
 
 

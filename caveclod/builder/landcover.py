@@ -48,7 +48,7 @@ kept cells (and at least :data:`MIN_REGION_CELLS`) join their surroundings."""
 MIN_REGION_CELLS = 16
 
 
-def classify_terrain(heights: np.ndarray, cell_size: float, z_scale: float, *,
+def classify_terrain(heights: np.ndarray, cell_size: float | tuple[float, float], z_scale: float, *,
                      water_level: float | None = None,
                      snow_level: float | None = None,
                      rock_slope_deg: float = ROCK_SLOPE_DEG) -> np.ndarray:
@@ -71,9 +71,9 @@ def classify_terrain(heights: np.ndarray, cell_size: float, z_scale: float, *,
         rock where steep, then snow where high, grass otherwise. Cells touching
         a NaN sample get -1. See :func:`coherent_classes` for regions.
     """
-    from .terrain import _cell_corners, _cell_slope_deg, _checked_heights, _positive_finite
+    from .terrain import _cell_corners, _cell_slope_deg, _checked_heights, _positive_finite, cell_xy
     h = _checked_heights(heights)
-    cell_size = _positive_finite("cell_size", cell_size)
+    cell_size = cell_xy(cell_size)
     z_scale = _positive_finite("z_scale", z_scale)
     z = h * z_scale
     finite = z[np.isfinite(z)]

@@ -1,10 +1,17 @@
 """Heightfield terrain: loading and triangulation.
 
 A heightfield of ``(rows, cols)`` samples becomes a regular triangle mesh of
-``(rows - 1) * (cols - 1)`` cells with two triangles each. Sample ``(r, c)``
-sits at ``x = c * cell_size``, ``y = r * cell_size``, ``z = height * z_scale``,
-so rows grow along +y and columns along +x; cell ``(r, c)`` spans samples
-``(r, c)`` (its lower-left corner) to ``(r + 1, c + 1)``.
+``(rows - 1) * (cols - 1)`` cells with two triangles each. In
+:func:`heightfield_to_source`, sample ``(r, c)`` sits at ``x = c * cell_x``,
+``y = r * cell_y``, ``z = height * z_scale``, so rows grow along +y and
+columns along +x; cell ``(r, c)`` spans samples ``(r, c)`` (its lower-left
+corner) to ``(r + 1, c + 1)``.
+
+Files and arrays from users are *rasters* (:func:`raster_to_source`): GDAL,
+rasterio, SRTM tiles and images store their first row at the top, the
+north. Read as rows growing along +y they would be mirrored (x east, y
+south, z up is left-handed), so a raster's rows are taken in reverse: its
+first row gets the largest y, and the terrain appears as a map shows it.
 
 Every cell carries one material class (both of its triangles share it). The
 texture coordinates tile each material at its own scale, so where materials
@@ -51,8 +58,9 @@ def load_heightfield(path: str | os.PathLike, nodata: float | None = None) -> np
     """Read a heightfield file into a (rows, cols) float64 array.
 
     ``.npy`` (any real 2-D array), ``.png`` (16- or 8-bit greyscale, read with
-    Pillow) and ``.tif``/``.tiff`` (integer or float greyscale, read with
-    tifffile). Values come back as stored (0..65535 for a 16-bit image): pass
+    Pillow), ``.tif``/``.tiff`` (integer or float greyscale, read with
+    tifffile) and ``.hgt`` (an SRTM tile: big-endian int16, 1201 or 3601
+    samples a side). Values come back as stored (0..65535 for a 16-bit image): pass
     ``z_scale`` to :func:`heightfield_to_source` to turn them into heights.
 
     Missing samples become NaN (holes): NaN itself, ``nodata`` when given,
@@ -120,7 +128,7 @@ def load_material_map(path: str | os.PathLike) -> np.ndarray:
 
 
 def _read_grid(path: str | os.PathLike, what: str, palette: bool = False) -> np.ndarray:
-    """The 2-D array stored in ``path`` (.npy, .png, .tif/.tiff).
+    """The 2-D array stored in ``path`` (.npy, .png, .tif/.tiff, .hgt).
 
     ``palette``: accept palette PNGs (their indices are classes, not heights).
     """
@@ -138,8 +146,11 @@ def _read_grid(path: str | os.PathLike, what: str, palette: bool = False) -> np.
                 array = _read_png(path, what, palette)
             elif ext in (".tif", ".tiff"):
                 array = _read_tiff(path, what)
+            elif ext == ".hgt" and not palette:
+                array = _read_hgt(path, what)
             else:
-                raise InputError(f"{what} {path}: unknown file type {ext!r}; use .npy, .png, .tif or .tiff")
+                raise InputError(f"{what} {path}: unknown file type {ext!r}; use .npy, .png, .tif or .tiff"
+                                 + ("" if palette else " (or an SRTM .hgt)"))
     except InputError:
         raise
     except Exception as exc:  # corrupt files surface as many exception types
@@ -192,6 +203,17 @@ def _read_tiff(path: str, what: str) -> np.ndarray:
         return np.squeeze(tif.asarray())
 
 
+def _read_hgt(path: str, what: str) -> np.ndarray:
+    """An SRTM ``.hgt`` tile: a square of big-endian int16 samples, rows from north to south,
+    as native int16 (so that its -32768 voids are found like any int16 grid's)."""
+    size = os.path.getsize(path)
+    side = int(round((size / 2) ** 0.5))
+    if size % 2 or side * side * 2 != size or side < 2:
+        raise InputError(f"{what} {path} holds {size:,} bytes, not a square of 16-bit samples as an SRTM .hgt "
+                         "tile does (1201 x 1201 or 3601 x 3601); check that the file is whole")
+    return np.fromfile(path, dtype=">i2").reshape(side, side).astype(np.int16)
+
+
 def _too_many_pixels(what: str, path: str, limit: int) -> InputError:
     return InputError(f"{what} {path} has more than {limit:,} pixels, Pillow's limit against decompression "
                       "bombs; crop or downsample it (or the file's header is damaged)")
@@ -218,10 +240,10 @@ def _cell_corners(grid: np.ndarray) -> tuple[np.ndarray, ...]:
     return grid[:-1, :-1], grid[:-1, 1:], grid[1:, 1:], grid[1:, :-1]
 
 
-def _cell_slope_deg(a, b, c, d, cell_size: float) -> np.ndarray:
-    """Slope (degrees from horizontal) of each cell's best-fit plane."""
-    gx = ((b - a) + (c - d)) / (2.0 * cell_size)
-    gy = ((d - a) + (c - b)) / (2.0 * cell_size)
+def _cell_slope_deg(a, b, c, d, cell: tuple[float, float]) -> np.ndarray:
+    """Slope (degrees from horizontal) of each cell's best-fit plane; ``cell`` is (x, y) spacing."""
+    gx = ((b - a) + (c - d)) / (2.0 * cell[0])
+    gy = ((d - a) + (c - b)) / (2.0 * cell[1])
     return np.degrees(np.arctan(np.hypot(gx, gy)))
 
 
@@ -229,7 +251,29 @@ def _cell_slope_deg(a, b, c, d, cell_size: float) -> np.ndarray:
 # triangulation
 
 
-def heightfield_to_source(heights: np.ndarray, cell_size: float = 1.0, z_scale: float = 1.0,
+def raster_to_source(heights: np.ndarray, cell_size: float | tuple[float, float] = 1.0, z_scale: float = 1.0,
+                     materials: np.ndarray | None = None, notes: Sequence[str] = ()) -> SourceMesh:
+    """:func:`heightfield_to_source` of a raster, whose first row is the north edge.
+
+    The rows of ``heights`` (and of ``materials``) are taken in reverse, so
+    that raster row ``r`` of ``rows`` lies at ``y = (rows - 1 - r) * cell_y``
+    (see the module's docstring). A per-sample material map gives each cell
+    the class of its first sample in raster order (its north-west corner).
+    ``notes`` (say, where the cell size came from) lead the mesh's notes.
+    """
+    classes = None if materials is None else np.asarray(materials)
+    if classes is not None and classes.ndim == 2:       # other shapes are refused, as they are, below
+        if classes.shape == np.shape(heights):
+            classes = classes[:-1, :-1]          # per cell, in raster order, before the rows turn
+        classes = classes[::-1]
+    if np.ndim(heights) == 2:
+        heights = np.asarray(heights)[::-1]
+    source = heightfield_to_source(heights, cell_size=cell_size, z_scale=z_scale, materials=classes)
+    source.notes[:0] = list(notes)
+    return source
+
+
+def heightfield_to_source(heights: np.ndarray, cell_size: float | tuple[float, float] = 1.0, z_scale: float = 1.0,
                           materials: np.ndarray | None = None,
                           material_names: Sequence[str] | None = None) -> SourceMesh:
     """Triangulate a heightfield into a validated :class:`SourceMesh`.
@@ -237,7 +281,9 @@ def heightfield_to_source(heights: np.ndarray, cell_size: float = 1.0, z_scale: 
     Args:
         heights: (rows, cols) samples, rows, cols >= 2. NaN samples are holes:
             every cell touching one is dropped. Infinite values are an error.
-        cell_size: spacing of the samples in world units (x and y).
+        cell_size: spacing of the samples in world units, one number for
+            both axes or (x, y) (a geographic grid's cells are narrower
+            east-west than north-south).
         z_scale: world units per height unit.
         materials: class id per cell, (rows-1, cols-1), or per sample,
             (rows, cols), in which case a cell takes the class of its
@@ -256,7 +302,7 @@ def heightfield_to_source(heights: np.ndarray, cell_size: float = 1.0, z_scale: 
         and no normals or colours.
     """
     h = _checked_heights(heights)
-    cell_size = _positive_finite("cell_size", cell_size)
+    cell_size = cell_xy(cell_size)
     z_scale = _positive_finite("z_scale", z_scale)
     _refuse_far_grid(h.shape, cell_size)
     _refuse_far_heights(h, z_scale)
@@ -330,17 +376,26 @@ def _positive_finite(name: str, value) -> float:
     return value
 
 
-def _refuse_far_grid(shape: tuple[int, int], cell_size: float) -> None:
-    """Refuse a cell size whose grid of ``shape`` (rows, cols) samples reaches
+def cell_xy(cell_size) -> tuple[float, float]:
+    """``cell_size`` (one number, or (x, y)) as an (x, y) pair of positive finite floats; InputError otherwise."""
+    if isinstance(cell_size, (tuple, list, np.ndarray)) and len(cell_size) == 2:
+        return _positive_finite("cell_size", cell_size[0]), _positive_finite("cell_size", cell_size[1])
+    size = _positive_finite("cell_size", cell_size)
+    return size, size
+
+
+def _refuse_far_grid(shape: tuple[int, int], cell: tuple[float, float]) -> None:
+    """Refuse an (x, y) cell size whose grid of ``shape`` (rows, cols) samples reaches
     beyond +-MAX_COORDINATE, or whose x and y float32 cannot hold."""
-    span = (max(shape) - 1) * cell_size
-    if span > MAX_COORDINATE:
-        raise InputError(f"the grid spans {span:.3g} ({max(shape)} samples {cell_size:g} apart), beyond "
-                         f"+-{MAX_COORDINATE:.2g}, too far for the float32 the .cvc stores positions in; "
-                         "give a smaller --cell-size")
-    if cell_size < FLOAT32_TINY:
-        raise InputError(f"cell_size (--cell-size) {cell_size:g} is below {FLOAT32_TINY:.3g}, the smallest normal "
-                         "float32: the .cvc could not tell the grid's samples apart; give a larger --cell-size")
+    for samples, size in ((shape[1], cell[0]), (shape[0], cell[1])):
+        span = (samples - 1) * size
+        if span > MAX_COORDINATE:
+            raise InputError(f"the grid spans {span:.3g} ({samples} samples {size:g} apart), beyond "
+                             f"+-{MAX_COORDINATE:.2g}, too far for the float32 the .cvc stores positions in; "
+                             "give a smaller --cell-size")
+        if size < FLOAT32_TINY:
+            raise InputError(f"cell_size (--cell-size) {size:g} is below {FLOAT32_TINY:.3g}, the smallest normal "
+                             "float32: the .cvc could not tell the grid's samples apart; give a larger --cell-size")
 
 
 def _refuse_far_heights(h: np.ndarray, z_scale: float) -> None:
@@ -455,10 +510,10 @@ def _compact_positions(vertex_sample: np.ndarray, n_samples: int) -> tuple[np.nd
     return np.flatnonzero(used), position_of_sample[vertex_sample]
 
 
-def _sample_positions(h: np.ndarray, sample_ids: np.ndarray, cell_size: float, z_scale: float) -> np.ndarray:
-    """(e, 3) float64 world positions of flat sample ids."""
+def _sample_positions(h: np.ndarray, sample_ids: np.ndarray, cell: tuple[float, float], z_scale: float) -> np.ndarray:
+    """(e, 3) float64 world positions of flat sample ids; ``cell`` is the (x, y) spacing."""
     row, col = np.divmod(sample_ids, h.shape[1])
-    return np.stack([col * cell_size, row * cell_size, h.reshape(-1)[sample_ids] * z_scale], axis=1)
+    return np.stack([col * cell[0], row * cell[1], h.reshape(-1)[sample_ids] * z_scale], axis=1)
 
 
 def _cell_triangles(corner_vertex: np.ndarray) -> np.ndarray:
@@ -474,7 +529,7 @@ def _cell_triangles(corner_vertex: np.ndarray) -> np.ndarray:
 
 
 def _tiled_uvs(vertex_sample: np.ndarray, vertex_material: np.ndarray, cols: int,
-               cell_size: float, names: list[str]) -> np.ndarray:
+               cell: tuple[float, float], names: list[str]) -> np.ndarray:
     """(v, 2) float32 UVs: (x, y) / tile size of the vertex's material.
 
     Tile sizes differ between materials, so two vertices of one position get
@@ -483,8 +538,8 @@ def _tiled_uvs(vertex_sample: np.ndarray, vertex_material: np.ndarray, cols: int
     """
     tile = _tile_sizes(names)
     row, col = np.divmod(vertex_sample, cols)
-    scale = cell_size / tile[vertex_material]
-    return np.stack([col * scale, row * scale], axis=1).astype(np.float32)
+    return np.stack([col * (cell[0] / tile[vertex_material]), row * (cell[1] / tile[vertex_material])],
+                    axis=1).astype(np.float32)
 
 
 def _tile_sizes(names: list[str]) -> np.ndarray:

@@ -1,0 +1,171 @@
+"""The grid spacing of georeferenced heightfields, so that a real elevation
+model is built at its own scale without ``--cell-size``.
+
+Elevation models say how far apart their samples are: a GeoTIFF in its
+``ModelPixelScale`` (or ``ModelTransformation``) tag, in the units of its
+coordinate system (metres for a projected one, degrees for a geographic
+one), and an SRTM ``.hgt`` tile in its name and size (one degree of
+latitude and longitude, 1201 or 3601 samples a side). Heights are metres.
+Built with a cell size of 1 instead, a 30 m grid would come out thirty
+times steeper than it is.
+
+Degrees become metres at the grid's middle latitude on a sphere of the
+Earth's mean radius: a sample spacing of ``d`` degrees is ``d * pi / 180 *
+R`` metres north-south and that times ``cos(latitude)`` east-west. Over one
+degree of latitude the east-west spacing changes by 1-3 % at mid latitudes;
+a local flat projection is what a terrain viewer draws anyway.
+
+Where the spacing cannot be read (no tags, a geographic grid with no tie
+point to give its latitude, units this module does not know), the build
+uses the given ``--cell-size`` or 1 and its report says so.
+"""
+
+from __future__ import annotations
+
+import math
+import os
+import re
+from dataclasses import dataclass
+
+EARTH_RADIUS_M = 6_371_008.8
+"""Mean radius of the Earth (IUGG), metres."""
+
+_HGT_NAME = re.compile(r"^([NS])(\d{1,2})([EW])(\d{1,3})", re.IGNORECASE)
+
+# GeoTIFF tag and key numbers (GeoTIFF 1.1, OGC 19-008r4).
+_PIXEL_SCALE, _TIEPOINT, _TRANSFORMATION, _GEOKEYS = 33550, 33922, 34264, 34735
+_MODEL_TYPE, _ANGULAR_UNITS, _LINEAR_UNITS = 1024, 2054, 3076
+_PROJECTED, _GEOGRAPHIC = 1, 2
+_LINEAR_NAMES = {9001: "metres", 9002: "feet", 9003: "US survey feet"}   # ProjLinearUnitsGeoKey values
+_DEGREE, _RADIAN = 9102, 9101
+
+
+@dataclass(frozen=True)
+class Spacing:
+    """How far apart a grid's samples are, in world units (metres for geographic grids).
+
+    Attributes:
+        x: between neighbouring columns.
+        y: between neighbouring rows.
+        note: where the figures came from, for the build's report.
+    """
+
+    x: float
+    y: float
+    note: str
+
+
+def grid_spacing(path: str | os.PathLike, shape: tuple[int, int]) -> tuple[Spacing | None, str | None]:
+    """The sample spacing a heightfield file states, and why none when it states none usable.
+
+    Args:
+        path: a ``.tif``/``.tiff`` or ``.hgt`` heightfield (other types state none).
+        shape: (rows, cols) of its grid.
+
+    Returns:
+        (spacing or None, a note for the report when the file is georeferenced
+        but its spacing was not used, else None).
+    """
+    ext = os.path.splitext(os.fspath(path))[1].lower()
+    if ext == ".hgt":
+        return _hgt_spacing(path, shape)
+    if ext in (".tif", ".tiff"):
+        return _geotiff_spacing(path, shape)
+    return None, None
+
+
+def _hgt_spacing(path, shape) -> tuple[Spacing | None, str | None]:
+    """An SRTM tile's spacing from its name (``N46E007.hgt``: south-west corner) and side: one
+    degree over ``side - 1`` intervals (1201 samples: 3 arc-seconds, 3601: 1)."""
+    seconds = 3600.0 / (shape[0] - 1)
+    match = _HGT_NAME.match(os.path.basename(os.fspath(path)))
+    if not match:
+        return None, ("the .hgt file's name does not give its latitude (SRTM tiles are named like N46E007.hgt): "
+                      "its spacing is unknown, give --cell-size in metres")
+    lat = int(match.group(2)) * (1 if match.group(1).upper() == "N" else -1)
+    return _degrees_to_metres(seconds / 3600.0, seconds / 3600.0, lat + 0.5,
+                              f"SRTM tile {match.group(0).upper()}, {seconds:g} arc-seconds"), None
+
+
+def _geotiff_spacing(path, shape) -> tuple[Spacing | None, str | None]:
+    """A GeoTIFF's spacing from its ModelPixelScale or ModelTransformation tag."""
+    import tifffile
+
+    from .quiet import quiet_reading
+    try:
+        with quiet_reading("tifffile"), tifffile.TiffFile(path) as tif:
+            tags = tif.pages[0].tags
+            values = {code: tags[code].value for code in (_PIXEL_SCALE, _TIEPOINT, _TRANSFORMATION, _GEOKEYS)
+                      if code in tags}
+    except Exception:   # the pixels were read; damaged tags only cost the spacing
+        return None, "the GeoTIFF's georeference tags could not be read: give --cell-size"
+    scale = _pixel_scale(values)
+    if scale is None:
+        return None, None           # a plain TIFF: nothing stated
+    sx, sy = scale
+    keys = _geokeys(values.get(_GEOKEYS))
+    if keys.get(_MODEL_TYPE) == _GEOGRAPHIC:
+        unit = keys.get(_ANGULAR_UNITS, _DEGREE)
+        if unit not in (_DEGREE, _RADIAN):
+            return None, f"the GeoTIFF's angular unit (EPSG {unit}) is not degrees or radians: give --cell-size"
+        if unit == _RADIAN:
+            sx, sy = math.degrees(sx), math.degrees(sy)
+        lat = _middle_latitude(values, shape, sy, unit)
+        if lat is None:
+            return None, ("the GeoTIFF is geographic (degrees) but has no tie point to give its latitude: "
+                          "give --cell-size")
+        return _degrees_to_metres(sx, sy, lat, f"GeoTIFF pixel scale {sx:.9g} x {sy:.9g} degrees"), None
+    units = _LINEAR_NAMES.get(keys.get(_LINEAR_UNITS), "in the units of the file's coordinate system")
+    return Spacing(sx, sy, f"cell size {sx:g} x {sy:g} ({units}) from the GeoTIFF's pixel scale"), None
+
+
+def _pixel_scale(values: dict) -> tuple[float, float] | None:
+    """(x, y) sample spacing from ModelPixelScale, else the columns of ModelTransformation;
+    None when neither gives two positive finite numbers."""
+    if _PIXEL_SCALE in values and len(values[_PIXEL_SCALE]) >= 2:
+        sx, sy = (abs(float(v)) for v in values[_PIXEL_SCALE][:2])
+    elif _TRANSFORMATION in values and len(values[_TRANSFORMATION]) >= 8:
+        m = [float(v) for v in values[_TRANSFORMATION]]
+        sx, sy = math.hypot(m[0], m[4]), math.hypot(m[1], m[5])
+    else:
+        return None
+    if not (math.isfinite(sx) and math.isfinite(sy) and sx > 0.0 and sy > 0.0):
+        return None
+    return sx, sy
+
+
+def _geokeys(directory) -> dict[int, int]:
+    """Short-valued keys of a GeoKeyDirectory (header of 4, then key, location, count, value)."""
+    if directory is None:
+        return {}
+    d = [int(v) for v in directory]
+    keys = {}
+    for i in range(4, len(d) - 3, 4):
+        if d[i + 1] == 0:          # location 0: the value is in the entry itself
+            keys[d[i]] = d[i + 3]
+    return keys
+
+
+def _middle_latitude(values: dict, shape, sy_degrees: float, unit: int) -> float | None:
+    """Latitude (degrees) of the grid's middle row, from its first tie point (raster i, j to
+    model x, y; rows go south)."""
+    tie = values.get(_TIEPOINT)
+    if tie is None or len(tie) < 6:
+        t = values.get(_TRANSFORMATION)
+        if t is None or len(t) < 8:
+            return None
+        j, y = 0.0, float(t[7])
+    else:
+        j, y = float(tie[1]), float(tie[4])
+    if unit == _RADIAN:
+        y = math.degrees(y)
+    lat = y - ((shape[0] - 1) / 2.0 - j) * sy_degrees
+    return lat if math.isfinite(lat) and -90.0 <= lat <= 90.0 else None
+
+
+def _degrees_to_metres(dx: float, dy: float, lat: float, what: str) -> Spacing:
+    """A spacing of (dx, dy) degrees as metres at latitude ``lat``."""
+    metres = math.pi / 180.0 * EARTH_RADIUS_M
+    x = dx * metres * max(math.cos(math.radians(lat)), 1e-6)
+    y = dy * metres
+    return Spacing(x, y, f"cell size {x:.4g} x {y:.4g} m from {what} at latitude {lat:.2f}")

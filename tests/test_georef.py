@@ -1,0 +1,219 @@
+"""Real elevation files at their own scale and the right way round: a raster's first row is
+the north, a GeoTIFF's pixel scale and an SRTM tile's name give the cell size."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+import tifffile
+
+import caveclod
+from caveclod.api import to_source
+from caveclod.builder.georef import EARTH_RADIUS_M, grid_spacing
+from caveclod.builder.terrain import raster_to_source
+from caveclod.errors import InputError
+from fuzzsources import build_here as build_cli
+
+PIXEL_SCALE, TIEPOINT, GEOKEYS, NODATA = 33550, 33922, 34735, 42113
+METRES_PER_DEGREE = math.pi / 180.0 * EARTH_RADIUS_M
+
+
+def _raster(rows=5, cols=7, seed=3) -> np.ndarray:
+    """(rows, cols) float64 heights, every one distinct, so that a sample can be found by its height."""
+    rng = np.random.default_rng(seed)
+    return rng.permutation(rows * cols).reshape(rows, cols).astype(np.float64) * 0.5 + 100.0
+
+
+def _write_geotiff(path, heights, *, scale=(30.0, 30.0), tie=None, geokeys=None, nodata=None):
+    tags = [(PIXEL_SCALE, 12, 3, (*scale, 0.0))]
+    if tie is not None:
+        tags.append((TIEPOINT, 12, 6, (0.0, 0.0, 0.0, *tie, 0.0)))
+    if geokeys is not None:
+        tags.append((GEOKEYS, 3, len(geokeys), tuple(geokeys)))
+    if nodata is not None:
+        tags.append((NODATA, 2, 0, str(nodata)))
+    tifffile.imwrite(path, heights, extratags=tags)
+
+
+def _geographic_keys():
+    """A GeoKeyDirectory: version 1.1.0, 2 keys: GTModelType geographic, angular unit degree."""
+    return [1, 1, 0, 2, 1024, 0, 1, 2, 2054, 0, 1, 9102]
+
+
+def _sample_xy(source, height) -> np.ndarray:
+    """(x, y) of the position holding ``height``."""
+    at = np.flatnonzero(source.positions[:, 2] == height)
+    assert len(at) == 1
+    return source.positions[at[0], :2]
+
+
+# ------------------------------------------------------------ orientation
+
+
+def test_a_rasters_first_row_is_the_north_edge():
+    h = _raster()
+    rows, cols = h.shape
+    source = raster_to_source(h, cell_size=(2.0, 3.0))
+    for r, c in [(0, 0), (0, cols - 1), (rows - 1, 0), (2, 3)]:
+        assert tuple(_sample_xy(source, h[r, c])) == (c * 2.0, (rows - 1 - r) * 3.0)
+
+
+def test_raster_faces_face_up_and_are_a_mirror_of_the_math_grids():
+    h = _raster()
+    source = raster_to_source(h)
+    p = source.positions[source.face_positions]
+    normals = np.cross(p[:, 1] - p[:, 0], p[:, 2] - p[:, 0])
+    assert (normals[:, 2] > 0).all()
+    # The same grid read as rows along +y is its mirror image in y.
+    plain = caveclod.builder.terrain.heightfield_to_source(h)
+    top = h.shape[0] - 1
+    for value in h.ravel()[::5]:
+        x, y = _sample_xy(source, value)
+        x2, y2 = _sample_xy(plain, value)
+        assert (x, y) == (x2, top - y2)
+
+
+def test_build_of_an_array_and_of_its_npy_file_agree(tmp_path):
+    h = _raster(9, 6)
+    np.save(tmp_path / "dem.npy", h)
+    a = to_source(h)
+    b = to_source(str(tmp_path / "dem.npy"))
+    assert np.array_equal(a.positions, b.positions) and np.array_equal(a.faces, b.faces)
+
+
+@pytest.mark.parametrize("per_sample", [False, True])
+def test_a_raster_cell_takes_its_class_from_its_own_row(per_sample):
+    """Cell (r, c) of a raster spans its rows r and r + 1; with a per-sample map it takes the
+    class of sample (r, c), its north-west corner, as a per-cell map would give it."""
+    h = _raster(4, 5)
+    rows, cols = h.shape
+    cells = np.arange((rows - 1) * (cols - 1)).reshape(rows - 1, cols - 1) + 10     # named "material N"
+    classes = np.zeros(h.shape, np.int64) if per_sample else cells
+    if per_sample:
+        classes[:-1, :-1] = cells
+        classes[-1, :] = classes[:, -1] = 99          # the south row and east column decide no cell
+    source = raster_to_source(h, materials=classes, cell_size=1.0)
+    names = source.materials
+    p = source.positions[source.face_positions]
+    centre = p.mean(axis=1)
+    for r, c in [(0, 0), (0, cols - 2), (rows - 2, 1), (1, 2)]:
+        # raster cell (r, c) spans x in [c, c + 1] and y in [rows - 2 - r, rows - 1 - r]
+        inside = (np.floor(centre[:, 0]) == c) & (np.floor(centre[:, 1]) == rows - 2 - r)
+        assert inside.sum() == 2
+        assert {names[m] for m in source.face_material[inside]} == {f"material {cells[r, c]}"}
+
+
+# --------------------------------------------------------------- GeoTIFF
+
+
+def test_a_projected_geotiff_is_built_at_its_pixel_scale(tmp_path):
+    path = tmp_path / "dem.tif"
+    _write_geotiff(path, _raster(6, 8).astype(np.float32), scale=(25.0, 30.0), tie=(500000.0, 4100000.0))
+    source = to_source(str(path))
+    span = np.ptp(source.positions[:, :2], axis=0)
+    assert tuple(span) == (7 * 25.0, 5 * 30.0)
+    assert any("25 x 30" in n and "pixel scale" in n for n in source.notes)
+
+
+def test_a_given_cell_size_wins_and_the_report_says_what_the_file_states(tmp_path):
+    path = tmp_path / "dem.tif"
+    _write_geotiff(path, _raster(6, 8).astype(np.float32), scale=(30.0, 30.0))
+    source = to_source(str(path), cell_size=2.0)
+    assert tuple(np.ptp(source.positions[:, :2], axis=0)) == (14.0, 10.0)
+    assert any(n.startswith("--cell-size 2 given; the file states 30 x 30") for n in source.notes)
+
+
+def test_a_geographic_geotiff_gets_metres_at_its_latitude(tmp_path):
+    path = tmp_path / "dem.tif"
+    rows, cols = 11, 9
+    arcsec = 1.0 / 3600.0
+    # Tie point: raster (0, 0) at longitude 7, latitude 46.5 + 5 rows; the middle row at 46.5.
+    _write_geotiff(path, _raster(rows, cols).astype(np.float32), scale=(arcsec, arcsec),
+                   tie=(7.0, 46.5 + 5 * arcsec), geokeys=_geographic_keys())
+    spacing, why_not = grid_spacing(path, (rows, cols))
+    assert why_not is None
+    assert spacing.y == pytest.approx(arcsec * METRES_PER_DEGREE)          # about 30.9 m
+    assert spacing.x == pytest.approx(spacing.y * math.cos(math.radians(46.5)), rel=1e-9)
+    source = to_source(str(path))
+    assert np.ptp(source.positions[:, 0]) == pytest.approx((cols - 1) * spacing.x)
+    assert any("latitude 46.50" in n for n in source.notes)
+
+
+def test_a_geographic_geotiff_without_a_tie_point_says_to_give_the_cell_size(tmp_path):
+    path = tmp_path / "dem.tif"
+    _write_geotiff(path, _raster().astype(np.float32), scale=(1 / 3600, 1 / 3600), geokeys=_geographic_keys())
+    source = to_source(str(path))
+    assert np.ptp(source.positions[:, 0]) == 6.0
+    assert any("no tie point" in n and "--cell-size" in n for n in source.notes)
+
+
+def test_a_plain_tiff_states_nothing(tmp_path):
+    path = tmp_path / "dem.tif"
+    tifffile.imwrite(path, _raster().astype(np.float32))
+    assert grid_spacing(path, (5, 7)) == (None, None)
+    source = to_source(str(path))
+    assert np.ptp(source.positions[:, 0]) == 6.0 and not any("cell" in n for n in source.notes)
+
+
+@pytest.mark.parametrize("scale", [(0.0, 30.0), (float("nan"), 30.0), (-30.0, float("inf"))])
+def test_a_degenerate_pixel_scale_is_not_used(tmp_path, scale):
+    path = tmp_path / "dem.tif"
+    _write_geotiff(path, _raster().astype(np.float32), scale=scale)
+    assert grid_spacing(path, (5, 7))[0] is None
+
+
+# ------------------------------------------------------------------ SRTM
+
+
+def _write_hgt(path, heights):
+    np.asarray(heights, ">i2").tofile(path)
+
+
+def test_an_srtm_tile_is_read_with_its_voids_and_spacing(tmp_path):
+    side = 13                                        # 300 arc-seconds apart: a small stand-in for 1201
+    h = (np.arange(side * side).reshape(side, side) % 97 + 200).astype(np.int16)
+    h[4, 5] = -32768
+    path = tmp_path / "S33W071.hgt"
+    _write_hgt(path, h)
+    source = to_source(str(path))
+    spacing = 300.0 / 3600.0 * METRES_PER_DEGREE
+    assert np.ptp(source.positions[:, 1]) == pytest.approx((side - 1) * spacing)
+    assert np.ptp(source.positions[:, 0]) == pytest.approx((side - 1) * spacing * math.cos(math.radians(-32.5)))
+    assert not (source.positions[:, 2] == -32768).any()
+    assert any("dropped 4 cells" in n for n in source.notes)
+    assert any("SRTM tile S33W071" in n for n in source.notes)
+    # north first: raster row 0 is the largest y
+    north = source.positions[source.positions[:, 1] == source.positions[:, 1].max(), 2]
+    assert set(north) == set(h[0].astype(float))
+
+
+def test_an_srtm_tile_without_its_name_is_built_with_a_note(tmp_path):
+    path = tmp_path / "tile.hgt"
+    _write_hgt(path, np.full((5, 5), 10, np.int16))
+    source = to_source(str(path))
+    assert np.ptp(source.positions[:, 0]) == 4.0
+    assert any("N46E007.hgt" in n for n in source.notes)
+
+
+def test_a_truncated_srtm_tile_is_refused(tmp_path, capsys):
+    path = tmp_path / "N46E007.hgt"
+    path.write_bytes(b"\0" * (2 * 1201 * 1201 - 2))
+    with pytest.raises(InputError, match="not a square of 16-bit samples"):
+        to_source(str(path))
+    status, err = build_cli(capsys, path)
+    assert status == 2 and "check that the file is whole" in err
+
+
+def test_the_cli_builds_an_srtm_tile_at_its_scale(tmp_path, capsys):
+    side = 33
+    rng = np.random.default_rng(5)
+    h = (np.cumsum(rng.integers(-3, 4, (side, side)), axis=0) + 1500).astype(np.int16)
+    path = tmp_path / "N46E007.hgt"
+    _write_hgt(path, h)
+    status, err = build_cli(capsys, path, "--quiet")
+    assert status == 0, err
+    mesh = caveclod.load(tmp_path / "out.cvc")
+    p = np.asarray(mesh.positions, np.float64)
+    assert np.ptp(p[:, 1]) == pytest.approx((side - 1) * 112.5 / 3600.0 * METRES_PER_DEGREE, rel=1e-6)
