@@ -217,3 +217,32 @@ def test_the_cli_builds_an_srtm_tile_at_its_scale(tmp_path, capsys):
     mesh = caveclod.load(tmp_path / "out.cvc")
     p = np.asarray(mesh.positions, np.float64)
     assert np.ptp(p[:, 1]) == pytest.approx((side - 1) * 112.5 / 3600.0 * METRES_PER_DEGREE, rel=1e-6)
+
+
+# ------------------------------------------------------------- no-data hints
+
+
+def test_a_common_no_data_value_below_the_rest_gets_a_note(tmp_path):
+    h = _raster(6, 6)
+    h[2:4, 1:3] = -9999.0
+    np.save(tmp_path / "dem.npy", h)
+    source = to_source(str(tmp_path / "dem.npy"))
+    assert any("4 samples hold -9999" in n and "--nodata=-9999.0" in n for n in source.notes)
+    holed = to_source(str(tmp_path / "dem.npy"), nodata=-9999)
+    assert not any("common no-data" in n for n in holed.notes) and holed.positions[:, 2].min() > 0
+
+
+def test_heights_that_merely_reach_such_a_value_get_no_note():
+    h = np.linspace(-10000.0, -9000.0, 36).reshape(6, 6)         # a deep trench, -10000 among its heights
+    assert not any("no-data" in n for n in to_source(h).notes)
+
+
+def test_float32_lowest_is_refused_with_the_nodata_hint(tmp_path, capsys):
+    h = _raster(6, 6).astype(np.float32)
+    h[0, 0] = np.finfo(np.float32).min
+    path = tmp_path / "dem.tif"
+    tifffile.imwrite(path, h)
+    status, err = build_cli(capsys, path)
+    assert status == 2 and "--nodata=-3.4028234663852886e+38" in err
+    status, err = build_cli(capsys, path, "--nodata=-3.4028234663852886e+38")   # as the hint writes it
+    assert status == 0, err

@@ -269,8 +269,32 @@ def raster_to_source(heights: np.ndarray, cell_size: float | tuple[float, float]
     if np.ndim(heights) == 2:
         heights = np.asarray(heights)[::-1]
     source = heightfield_to_source(heights, cell_size=cell_size, z_scale=z_scale, materials=classes)
-    source.notes[:0] = list(notes)
+    source.notes[:0] = list(notes) + _sentinel_notes(heights)
     return source
+
+
+COMMON_NODATA = (-9999.0, -99999.0, -32767.0, -32768.0, -10000.0, -3.4028234663852886e38)
+"""No-data values elevation rasters use when a file does not say which (GDAL's and ArcGIS's
+defaults, SRTM's, float32's lowest); NaN and -32768 in int16 grids are holes already."""
+
+
+def _sentinel_notes(heights) -> list[str]:
+    """A note when the lowest samples of a raster hold a common no-data value well below the
+    rest: built as heights, they are pits; the note says how to make them holes."""
+    h = np.asarray(heights, dtype=np.float64)
+    finite = h[np.isfinite(h)]
+    if finite.size == 0:
+        return []
+    low = float(finite.min())
+    if low not in COMMON_NODATA:
+        return []
+    at_low = finite == low
+    rest = finite[~at_low]
+    if rest.size and float(rest.min()) - low < abs(low) / 2:
+        return []                       # the value lies among the heights: it may be one
+    return [f"{int(np.count_nonzero(at_low)):,} samples hold {low:g}, a common no-data value, "
+            f"{'far ' if rest.size else ''}below the rest: built as heights they are pits; if they mark missing "
+            f"data, build with --nodata={low!r}"]
 
 
 def heightfield_to_source(heights: np.ndarray, cell_size: float | tuple[float, float] = 1.0, z_scale: float = 1.0,
@@ -405,10 +429,14 @@ def _refuse_far_heights(h: np.ndarray, z_scale: float) -> None:
         far = np.abs(h) * z_scale > MAX_COORDINATE
     n_far = int(np.count_nonzero(far))
     if n_far:
-        largest = float(np.abs(h[far]).max())
+        values = np.unique(h[far])
+        largest = float(np.abs(values).max())
+        one = repr(float(values[0]))       # repr: the exact float, which --nodata must match
+        hint = (f"; if {one} marks missing samples (a no-data value), build with --nodata={one}"
+                if len(values) == 1 else "")
         raise InputError(f"{n_far} heightfield samples give elevations beyond +-{MAX_COORDINATE:.2g} (the largest: "
                          f"{largest:.3g} x z-scale {z_scale:g}), too far for the float32 the .cvc stores positions "
-                         "in; give a smaller --z-scale or rescale the heights")
+                         f"in; give a smaller --z-scale or rescale the heights{hint}")
 
 
 def _cells_with_finite_corners(h: np.ndarray) -> np.ndarray:
