@@ -123,7 +123,9 @@ def position_quantization(positions: np.ndarray, bits: int) -> tuple[np.ndarray,
 def texcoord_step(top: float) -> float:
     """The power-of-two step of texcoords whose largest |uv| is ``top``: 2**-16, or coarser when it reaches 2**8."""
     e = TEXCOORD_MAX_EXPONENT
-    while e > -64 and top * 2.0 ** e >= 2 ** TEXCOORD_RANGE_BITS:
+    # Down to 2**104 for float32's largest (2**128 - 2**104, then q = 2**24 - 1 exactly): a floor of
+    # 2**64 left texcoords beyond about 3e26 (a damaged file's) with q past int64.
+    while e > -128 and top * 2.0 ** e >= 2 ** TEXCOORD_RANGE_BITS:
         e -= 1
     return 2.0 ** -e
 

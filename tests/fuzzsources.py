@@ -1,8 +1,8 @@
 """Fuzz ``caveclod build`` with mutated mesh files and heightfields.
 
 :func:`fuzz_sources` makes one small, valid input of every kind the build
-reads (:func:`make_seeds`: OBJ with an .mtl, ASCII and binary PLY, GLB,
-glTF, ASCII and binary STL, OFF, .npy heightfields of three dtypes, 16-bit
+reads (:func:`make_seeds`: OBJ with an .mtl, ASCII and binary PLY, GLB
+(plain and Draco-compressed), glTF, ASCII and binary STL, OFF, .npy heightfields of three dtypes, 16-bit
 PNG, TIFF, a geographic GeoTIFF and an SRTM .hgt tile), mutates a copy per case (:func:`mutate`: lines, numbers,
 indices, header counts and fields, node transforms, bits, bytes,
 truncation, and whole-geometry edits: scaled, offset, flattened, snapped,
@@ -103,6 +103,7 @@ def make_seeds(rng: np.random.Generator) -> list[Seed]:
         Seed("ply-ascii", "seed.ply", ply.export_ply(sphere, encoding="ascii", vertex_normal=True), "text"),
         Seed("ply-binary", "seed.ply", ply.export_ply(sphere, encoding="binary", vertex_normal=True), "ply"),
         Seed("glb", "seed.glb", _two_part_scene(rng).export(file_type="glb"), "glb"),
+        Seed("glb-draco", "seed.glb", _draco_glb(_two_part_scene(rng)), "glb"),
         Seed("gltf", "seed.gltf", _gltf_bytes(_two_part_scene(rng)), "gltf"),
         Seed("stl-ascii", "seed.stl", stl.export_stl_ascii(sphere).encode(), "text"),
         Seed("stl-binary", "seed.stl", stl.export_stl(sphere), "stl"),
@@ -119,6 +120,12 @@ def make_seeds(rng: np.random.Generator) -> list[Seed]:
     for kind, name, family, grid, encode in grids:
         seeds.append(Seed(kind, name, encode(grid), family, grid_shape=grid.shape))
     return seeds
+
+
+def _draco_glb(scene) -> bytes:
+    """``scene`` as a GLB whose geometry is Draco-compressed (KHR_draco_mesh_compression)."""
+    from trimesh.exchange.gltf import export_glb
+    return export_glb(scene, extension_draco=True)
 
 
 def _have_tifffile() -> bool:

@@ -144,7 +144,7 @@ def test_realistic_meshes_pack_small_and_decode_within_their_bounds(source):
 @settings(max_examples=40, deadline=None)
 @given(seed=st.integers(0, 2**31), d=st.integers(0, 64), bits=st.integers(8, 24),
        offset=st.sampled_from([0.0, -1e3, 5e6]), extent=st.sampled_from([0.0, 1e-3, 1.0, 1e4]),
-       uv_scale=st.sampled_from([0.0, 1.0, 900.0, 1e6]), colors=st.booleans())
+       uv_scale=st.sampled_from([0.0, 1.0, 900.0, 1e6, 1e30, 3.4e38]), colors=st.booleans())
 @example(seed=0, d=1, bits=8, offset=0.0, extent=0.0, uv_scale=0.0, colors=False)   # one vertex, no extent
 def test_any_buffer_round_trips_within_its_quantization(seed, d, bits, offset, extent, uv_scale, colors):
     p, n, uv, c = _random_buffer(seed, d, offset=offset, extent=extent, uv_scale=uv_scale, colors=colors)
@@ -153,6 +153,24 @@ def test_any_buffer_round_trips_within_its_quantization(seed, d, bits, offset, e
     assert zlib.crc32(vertexpack.planar_payload(decoded)) == packed.decoded_crc32
     if d:
         _check_bounds(packed, p, n.astype(np.float64), uv, c, decoded)
+
+
+def test_texcoords_up_to_float32s_largest_pack_without_overflow():
+    """A damaged file's texcoords can reach float32's range, which the build accepts: once packing
+    failed past about 3e26 (q beyond int64; the fuzzer's Draco seeds found it)."""
+    import warnings
+    top = float(np.finfo(np.float32).max)
+    uv = np.array([[top, -top], [3.1179412e38, 0.5], [1e27, -1e-3], [0.0, 1.0]], np.float32)
+    p = np.zeros((4, 3), np.float32)
+    n = np.tile(np.float32([0, 0, 1]), (4, 1))
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        packed = vertexpack.pack(p, n, uv, None, 20)
+        decoded = vertexpack.unpack(packed.packing, packed.data)
+    step = packed.packing.texcoord_step
+    assert step == 2.0 ** 104
+    assert np.isfinite(decoded["texcoord"]).all()
+    assert (np.abs(decoded["texcoord"].astype(np.float64) - uv) <= step / 2).all()
 
 
 @settings(max_examples=30, deadline=None)

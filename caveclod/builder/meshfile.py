@@ -177,11 +177,15 @@ def _read_scene(path: Path, file_type: str):
     """
     import trimesh
 
+    from .gltfcodecs import UndecodedWatch, refuse_undecodable
+
+    refuse_undecodable(path, file_type)           # compressed glTF geometry nothing here decodes
     try:
-        with quiet_reading("trimesh"):
+        with quiet_reading("trimesh"), UndecodedWatch() as watch:
             if hasattr(trimesh, "load_scene"):  # trimesh >= 4.6
-                return trimesh.load_scene(str(path), file_type=file_type, process=False)
-            return trimesh.load(str(path), file_type=file_type, process=False, force="scene")
+                scene = trimesh.load_scene(str(path), file_type=file_type, process=False)
+            else:
+                scene = trimesh.load(str(path), file_type=file_type, process=False, force="scene")
     except ImportError as exc:
         # trimesh imports optional modules lazily; for text formats it only
         # reaches for a charset detector when the bytes are not UTF-8, which
@@ -197,6 +201,8 @@ def _read_scene(path: Path, file_type: str):
             f"{path}: could not read as {file_type.upper()} ({_describe(exc)}); the file "
             f"is probably truncated, corrupt or not really {file_type.upper()}"
         ) from None
+    watch.check(path)                             # geometry left as zeros by an extension that failed
+    return scene
 
 
 def _describe(exc: BaseException) -> str:

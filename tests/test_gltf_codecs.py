@@ -1,0 +1,107 @@
+"""Compressed glTF geometry: Draco files build; what cannot be decoded is refused by name."""
+
+from __future__ import annotations
+
+import json
+import logging
+import struct
+
+import numpy as np
+import pytest
+import trimesh
+from trimesh.exchange.gltf import export_glb
+from trimesh.visual import TextureVisuals
+
+from caveclod.builder import gltfcodecs
+from caveclod.builder.meshfile import load_mesh_file
+from caveclod.errors import InputError
+from fuzzsources import build_here as build_cli
+
+
+def _textured_sphere() -> trimesh.Trimesh:
+    """An icosphere with a UV seam-free chart (its vertex order), 320 faces."""
+    mesh = trimesh.creation.icosphere(subdivisions=2)
+    uv = np.stack([np.arctan2(mesh.vertices[:, 1], mesh.vertices[:, 0]), mesh.vertices[:, 2]], axis=1)
+    mesh.visual = TextureVisuals(uv=(uv * 0.25 + 0.5).astype(np.float64))
+    return mesh
+
+
+def _glb_parts(data: bytes) -> tuple[dict, bytes]:
+    """(JSON tree, binary chunk) of a GLB."""
+    (json_len,) = struct.unpack_from("<I", data, 12)
+    tree = json.loads(data[20:20 + json_len])
+    bin_at = 20 + json_len
+    (bin_len,) = struct.unpack_from("<I", data, bin_at)
+    return tree, data[bin_at + 8:bin_at + 8 + bin_len]
+
+
+def _glb(tree: dict, binary: bytes) -> bytes:
+    text = json.dumps(tree).encode()
+    text += b" " * (-len(text) % 4)
+    binary += b"\0" * (-len(binary) % 4)
+    body = struct.pack("<II", len(text), 0x4E4F534A) + text + struct.pack("<II", len(binary), 0x004E4942) + binary
+    return struct.pack("<III", 0x46546C67, 2, 12 + len(body)) + body
+
+
+def test_a_draco_glb_builds_as_its_uncompressed_twin(tmp_path):
+    mesh = _textured_sphere()
+    (tmp_path / "plain.glb").write_bytes(export_glb(trimesh.Scene(mesh)))
+    (tmp_path / "draco.glb").write_bytes(export_glb(trimesh.Scene(mesh), extension_draco=True))
+    assert "KHR_draco_mesh_compression" in gltfcodecs.required_extensions(tmp_path / "draco.glb", "glb")
+    plain, draco = load_mesh_file(tmp_path / "plain.glb"), load_mesh_file(tmp_path / "draco.glb")
+    assert len(draco.faces) == len(plain.faces) == 320
+    # Draco quantizes positions (trimesh writes 14 bits): within half a step of the extent.
+    step = np.ptp(plain.positions, axis=0).max() * 2.0 ** -14
+    order_p, order_d = np.lexsort(plain.positions.T), np.lexsort(draco.positions.T)
+    assert np.abs(plain.positions[order_p] - draco.positions[order_d]).max() <= step
+    assert draco.vertex_uv is not None and len(draco.vertex_uv) == len(plain.vertex_uv)
+
+
+def test_the_cli_builds_a_draco_glb(tmp_path, capsys):
+    (tmp_path / "draco.glb").write_bytes(export_glb(trimesh.Scene(_textured_sphere()), extension_draco=True))
+    status, err = build_cli(capsys, tmp_path / "draco.glb", "--quiet")
+    assert status == 0, err
+
+
+def test_damaged_draco_data_is_named_not_called_degenerate(tmp_path, capsys):
+    tree, binary = _glb_parts(export_glb(trimesh.Scene(_textured_sphere()), extension_draco=True))
+    view = tree["meshes"][0]["primitives"][0]["extensions"]["KHR_draco_mesh_compression"]["bufferView"]
+    at = tree["bufferViews"][view].get("byteOffset", 0)
+    broken = binary[:at] + b"\xff" * 16 + binary[at + 16:]          # the Draco header itself
+    (tmp_path / "broken.glb").write_bytes(_glb(tree, broken))
+    with pytest.raises(InputError, match="compressed with KHR_draco_mesh_compression, and decoding it failed"):
+        load_mesh_file(tmp_path / "broken.glb")
+    status, err = build_cli(capsys, tmp_path / "broken.glb")
+    assert status == 2 and "degenerate" not in err
+
+
+def test_meshopt_compression_is_refused_with_what_to_do(tmp_path):
+    tree, binary = _glb_parts(export_glb(trimesh.Scene(_textured_sphere())))
+    tree["extensionsUsed"] = tree["extensionsRequired"] = ["EXT_meshopt_compression"]
+    (tmp_path / "packed.glb").write_bytes(_glb(tree, binary))
+    with pytest.raises(InputError, match=r"EXT_meshopt_compression .*gltfpack without -c"):
+        load_mesh_file(tmp_path / "packed.glb")
+
+
+def test_without_dracopy_the_message_says_to_install_it(tmp_path, monkeypatch):
+    (tmp_path / "draco.glb").write_bytes(export_glb(trimesh.Scene(_textured_sphere()), extension_draco=True))
+    real = gltfcodecs.importlib.util.find_spec
+    monkeypatch.setattr(gltfcodecs.importlib.util, "find_spec", lambda name: None if name == "DracoPy" else real(name))
+    with pytest.raises(InputError, match="pip install DracoPy"):
+        load_mesh_file(tmp_path / "draco.glb")
+
+
+@pytest.mark.parametrize("data", [b"", b"glTF", b"glTF\x02\0\0\0" + b"\xff" * 12, b"not json"])
+def test_unreadable_headers_are_left_to_the_reader(tmp_path, data):
+    (tmp_path / "x.glb").write_bytes(data)
+    (tmp_path / "x.gltf").write_bytes(data)
+    assert gltfcodecs.required_extensions(tmp_path / "x.glb", "glb") == set()
+    assert gltfcodecs.required_extensions(tmp_path / "x.gltf", "gltf") == set()
+
+
+def test_the_watch_leaves_logging_as_it_was(tmp_path):
+    (tmp_path / "draco.glb").write_bytes(export_glb(trimesh.Scene(_textured_sphere()), extension_draco=True))
+    loggers = [logging.getLogger(n) for n in ("trimesh", "trimesh.util")]
+    before = [(lg.level, lg.propagate, list(lg.handlers)) for lg in loggers]
+    load_mesh_file(tmp_path / "draco.glb")
+    assert [(lg.level, lg.propagate, list(lg.handlers)) for lg in loggers] == before
