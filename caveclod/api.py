@@ -20,7 +20,7 @@ def build(source, *, cell_size: float | None = None, z_scale: float = 1.0, mater
           crease_angle: float | None = None, size: int = DEFAULT_SIZE, seed: int | None = None, nodata: float | None = None,
           weld: float | None = None, progress: bool = False, tiles: int | None = None,
           workers: int | None = None, packed: bool = True, check_memory: bool = True,
-          tiles_dir: str | os.PathLike | None = None) -> StaticMesh:
+          tiles_dir: str | os.PathLike | None = None, origin=None) -> StaticMesh:
     """Build the static CAVECLOD mesh of ``source``.
 
     Args:
@@ -66,6 +66,11 @@ def build(source, *, cell_size: float | None = None, z_scale: float = 1.0, mater
         tiles_dir: a directory of blocks of tiles made by
             :func:`build_tiles` jobs, read and merged instead of made (the
             mesh is the same).
+        origin: ``"auto"`` or (x, y, z): subtracted from every position
+            before the build and recorded as ``info["origin"]``, for meshes
+            in world coordinates far from 0, where float32 positions lose
+            detail (``"auto"``: the bounding box's centre, rounded; see
+            :mod:`caveclod.builder.origin`).
     """
     from .builder.hierarchy import build_static_mesh
     from .builder.tilestore import TileStore
@@ -75,7 +80,7 @@ def build(source, *, cell_size: float | None = None, z_scale: float = 1.0, mater
     mesh = build_static_mesh(lambda: _prepared_source(source, cell_size=cell_size, z_scale=z_scale, materials=materials,
                                                       crease_angle=crease_angle, size=size, seed=seed, nodata=nodata,
                                                       weld=weld, tiles=tiles, workers=workers,
-                                                      check_memory=check_memory),
+                                                      check_memory=check_memory, origin=origin),
                              crease_angle=crease_angle, progress=progress, tiles=tiles, workers=workers, store=store)
     if packed:
         from .vertexpack import attach_packed
@@ -87,7 +92,7 @@ def build_tiles(source, tiles_dir: str | os.PathLike, job: str | tuple[int, int]
                 z_scale: float = 1.0, materials=None, crease_angle: float | None = None, size: int = DEFAULT_SIZE,
                 seed: int | None = None, nodata: float | None = None, weld: float | None = None,
                 progress: bool = False, tiles: int | None = None, workers: int | None = None,
-                check_memory: bool = True) -> dict:
+                check_memory: bool = True, origin=None) -> dict:
     """Make one tile job's share of ``source``'s blocks of tiles and write them to ``tiles_dir``.
 
     ``job``: ``"I/N"`` or (I, N), this job's index and the number of jobs;
@@ -106,22 +111,26 @@ def build_tiles(source, tiles_dir: str | os.PathLike, job: str | tuple[int, int]
     store = TileStore(Path(tiles_dir), job=job)
     return build_tile_job(lambda: _prepared_source(source, cell_size=cell_size, z_scale=z_scale, materials=materials,
                                                    crease_angle=crease_angle, size=size, seed=seed, nodata=nodata,
-                                                   weld=weld, tiles=tiles, workers=workers, check_memory=check_memory),
+                                                   weld=weld, tiles=tiles, workers=workers, check_memory=check_memory,
+                                                   origin=origin),
                           store, crease_angle=crease_angle, progress=progress, tiles=tiles, workers=workers)
 
 
 def _prepared_source(source, *, cell_size, z_scale, materials, crease_angle, size, seed, nodata, weld, tiles, workers,
-                     check_memory) -> SourceMesh:
+                     check_memory, origin=None) -> SourceMesh:
     """The options checked, then ``source`` as a (welded) :class:`SourceMesh` that fits in memory."""
     from .builder.memory import check_build_memory
     from .builder.tiles import check_tiles
+    from .builder.origin import move_to_origin, parse_origin
     _check_options(crease_angle=crease_angle, cell_size=cell_size, z_scale=z_scale)
+    parse_origin(origin)
     _check_workers(workers)
     check_tiles(tiles)
     src = to_source(source, cell_size=cell_size, z_scale=z_scale, materials=materials, size=size, seed=seed,
                     nodata=nodata, check_memory=check_memory)
     if check_memory:
         check_build_memory(len(src.faces), _input_name(source, size))
+    move_to_origin(src, origin)
     if weld is not None:
         from .builder.weld import weld_positions
         src = weld_positions(src, weld)

@@ -88,6 +88,10 @@ def _parser() -> argparse.ArgumentParser:
     b.add_argument("--crease-angle", type=float, help="degrees; edges sharper than this become normal seams where the "
                                                      "input has no normals (default: 30 for meshes, smooth normals "
                                                      "for heightfields)")
+    b.add_argument("--origin", metavar="auto|X,Y,Z", help="subtract this point from every position (auto: the "
+                                                        "mesh's centre, rounded), recorded in the file; for meshes "
+                                                        "in world coordinates far from 0, where the float32 "
+                                                        "positions of the .cvc would lose their detail")
     b.add_argument("--weld", type=float, help="merge positions closer than about this distance "
                                               "(default: only bitwise-equal positions are one)")
     b.add_argument("--tiles", type=int, help="tiles per side, a power of two: tiles are simplified in parallel with "
@@ -360,6 +364,7 @@ def _build(args) -> int:
     from .api import build, build_tiles
     options = dict(cell_size=args.cell_size, z_scale=args.z_scale, materials=args.materials,
                    crease_angle=args.crease_angle, size=args.size, seed=args.seed, nodata=args.nodata, weld=args.weld,
+                   origin=args.origin,
                    progress=not args.quiet, tiles=args.tiles, workers=args.workers,
                    check_memory=not args.no_memory_check)
     if args.tile_job is not None:

@@ -27,6 +27,7 @@ from ..kernels.simplify import gather_candidates, init_leaves, perform_collapses
 from ..kernels.surfacegap import star_lists
 from .memory import give_back_freed_memory
 from .normals import add_crease_normals, face_weights
+from .origin import float32_rounding_note
 from ..progress import Progress, stage
 from .source import SourceMesh
 from ..staticmesh import StaticMesh
@@ -62,7 +63,7 @@ def build_static_mesh(source: SourceMesh | Callable[[], SourceMesh], crease_angl
     # source's vertex arrays and the layout's ids (40 bytes a triangle) are gone before the collapses, whose
     # arrays are the build's peak; what replaces them is the file's compact form (22 bytes).
     arrays = vertex_arrays(source, face_pos, lay)
-    positions, materials, notes = source.positions, list(source.materials), list(source.notes)
+    positions, materials, notes, origin = source.positions, list(source.materials), list(source.notes), source.origin
     del source
     lay = _for_collapses(lay)
     give_back_freed_memory()                  # after each phase: .memory.give_back_freed_memory
@@ -84,6 +85,8 @@ def build_static_mesh(source: SourceMesh | Callable[[], SourceMesh], crease_angl
         "notes": notes,
         "build_code": build_code(),
     }
+    if origin is not None:
+        mesh.info["origin"] = list(origin)
     if store is not None:
         mesh.info["blocks_read"] = len(store.loaded)
     if mesh.info["base_mesh"]["large"]:
@@ -120,7 +123,7 @@ def _prepare(source: SourceMesh, crease_angle, progress) -> tuple:
     """(source with normals, face_pos (p, 3) int32, topology, surface layout), checked."""
     source.validate()
     face_pos = source.face_positions.astype(np.int32)       # once: 0.2 s a gather at 2M faces
-    _refuse_faces_float32_collapses(source, face_pos)
+    _check_float32_positions(source, face_pos)
     stage(f"preparing {len(source.faces):,} triangles: normals, topology, surface groups", progress)
     source, topo = prepare_source(source, crease_angle, face_pos)
     lay = layout_surfaces(face_pos, source.faces.astype(np.int32), source.face_material, topo.nbrs,
@@ -710,8 +713,9 @@ def _base_mesh_reasons(hier: Hierarchy, face_pos: np.ndarray, topo: Topology, la
             "material_border_faces": material_faces, "large": large, "why": why}
 
 
-def _refuse_faces_float32_collapses(source: SourceMesh, face_pos: np.ndarray) -> None:
-    """Refuse a mesh some of whose faces float32 turns into points or lines.
+def _check_float32_positions(source: SourceMesh, face_pos: np.ndarray) -> None:
+    """Refuse a mesh some of whose faces float32 turns into points or lines; note a mesh whose
+    positions float32 moves by a visible share of an edge (:mod:`.origin`).
 
     The .cvc stores positions as float32, whose step near a coordinate x is
     about x * 1.2e-7 (2**-23). A mesh small for its distance from the origin (1 m of
@@ -729,8 +733,11 @@ def _refuse_faces_float32_collapses(source: SourceMesh, face_pos: np.ndarray) ->
         step = float(np.spacing(np.float32(largest)))
         raise InputError(f"{n:,} of {len(collapsed):,} faces collapse to a point or a line when their positions are "
                          f"rounded to float32, as the .cvc stores them (float32's step near {largest:.3g} is "
-                         f"{step:.3g}); move the mesh near the origin (subtract its centre), or merge positions "
-                         f"that close with --weld {2 * step:.2g}")
+                         f"{step:.3g}); build with --origin auto (positions relative to the mesh's centre), or "
+                         f"merge positions that close with --weld {2 * step:.2g}")
+    note = float32_rounding_note(source.positions, face_pos)
+    if note is not None:
+        source.notes.append(note)
 
 
 @nb.njit(cache=True, nogil=True)

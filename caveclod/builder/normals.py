@@ -86,6 +86,7 @@ def add_crease_normals(source: SourceMesh, crease_angle_deg: float, topo: Topolo
         notes=source.notes + ["computed smooth normals" if crease_angle_deg >= 180.0 else
                               f"computed normals with a {crease_angle_deg:g} degree crease angle"],
         crease_angle=crease_angle_deg,
+        origin=source.origin,
     )
 
 

@@ -82,6 +82,7 @@ class SourceMesh:
     vertex_color: np.ndarray | None = None
     notes: list[str] = field(default_factory=list)
     crease_angle: float = 30.0
+    origin: tuple[float, float, float] | None = None   # subtracted from the input's positions (builder/origin.py)
 
     @property
     def face_positions(self) -> np.ndarray:

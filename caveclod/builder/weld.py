@@ -68,7 +68,7 @@ def weld_positions(source: SourceMesh, tolerance: float) -> SourceMesh:
                      faces=new_v[faces].astype(np.int64), face_material=material.astype(np.int32),
                      materials=list(source.materials), vertex_normal=pick(source.vertex_normal),
                      vertex_uv=pick(source.vertex_uv), vertex_color=pick(source.vertex_color), notes=notes,
-                     crease_angle=source.crease_angle)
+                     crease_angle=source.crease_angle, origin=source.origin)
     out.validate()
     return out
 
