@@ -32,6 +32,7 @@ from __future__ import annotations
 import hashlib
 import itertools
 import json
+import math
 import os
 import struct
 from dataclasses import dataclass, field
@@ -209,6 +210,13 @@ class StaticMesh:
             fill_vertex_positions(start, ids)
             self.__dict__["_vertex_position_ids"] = ids
         return ids
+
+    @property
+    def origin(self) -> tuple[float, float, float] | None:
+        """The point a build with ``--origin`` subtracted from every position (add it back to place
+        the mesh in the world), or None."""
+        origin = self.info.get("origin")
+        return None if origin is None else (float(origin[0]), float(origin[1]), float(origin[2]))
 
     def bounds(self) -> tuple[np.ndarray, np.ndarray]:
         """(lo, hi) float64 (3,) corners of the axis-aligned bounding box of the positions.
@@ -475,6 +483,11 @@ def _parse_header(path: Path, blob: bytes) -> dict:
     info = header.setdefault("info", {})
     if not isinstance(info, dict) or _depth(info) > MAX_INFO_DEPTH:
         raise damaged_error(path, "the header's build report (info) is not a JSON object of sane depth")
+    origin = info.get("origin")
+    if origin is not None and not (isinstance(origin, list) and len(origin) == 3
+                                   and all(isinstance(v, (int, float)) and not isinstance(v, bool)
+                                           and math.isfinite(v) for v in origin)):
+        raise damaged_error(path, "the header's origin (info) is not three finite numbers")
     return header
 
 

@@ -354,12 +354,15 @@ def read_vertex_payload(fmt: pb.VertexFormat, payload) -> dict:
 
 def mesh_info(name: str, *, faces: int, vertices: int, positions: int, nodes: int, base_faces: int,
               surface_group_ids: int, materials: list, bounds, content_hash: str,
-              vertex_buffer_hash: str) -> pb.MeshInfo:
-    """A MeshInfo; ``materials`` are names in id order, ``bounds`` (lo, hi) (3,) arrays."""
+              vertex_buffer_hash: str, origin=None) -> pb.MeshInfo:
+    """A MeshInfo; ``materials`` are names in id order, ``bounds`` (lo, hi) (3,) arrays, ``origin``
+    (3,) or None (StaticMesh.origin)."""
     lo, hi = bounds
     info = pb.MeshInfo(name=name, faces=faces, vertices=vertices, positions=positions, nodes=nodes,
                        base_faces=base_faces, surface_group_ids=surface_group_ids, bounds_min=vec3(lo),
                        bounds_max=vec3(hi), content_hash=content_hash, vertex_buffer_hash=vertex_buffer_hash)
+    if origin is not None:
+        info.origin.CopyFrom(vec3(origin))
     for i, m in enumerate(materials):
         info.materials.add(id=i, name=str(m))
     return info

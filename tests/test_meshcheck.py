@@ -103,6 +103,16 @@ def test_a_build_report_nested_too_deep_is_refused(terrain_path, tmp_path):
     refused_in_one_line(damaged_copy(terrain_path, tmp_path / "info.cvc", deep_info), "sane depth")
 
 
+@pytest.mark.parametrize("origin", [[1, 2], [0, "x", 0], [0, float("nan"), 0], [True, 0, 0], {"x": 1}])
+def test_a_build_report_origin_that_is_not_three_numbers_is_refused(terrain_path, tmp_path, origin):
+    """The server sends info origin to clients as a Vec3 (MeshInfo.origin)."""
+    def bad_origin(data, layout):
+        header = dict(layout.header)
+        header["info"] = {**header.get("info", {}), "origin": origin}
+        return with_header(data, layout, json.dumps(header).encode())[0]
+    refused_in_one_line(damaged_copy(terrain_path, tmp_path / "origin.cvc", bad_origin), "origin")
+
+
 @pytest.mark.parametrize("count", [2 ** 62, 2 ** 31, -1])
 def test_an_array_too_big_for_the_file_is_one_line(terrain_path, tmp_path, count):
     """A shape whose bytes overflow was numpy's ``ValueError: array is too big``."""

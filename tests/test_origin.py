@@ -90,3 +90,17 @@ def test_tile_jobs_and_their_merge_carry_the_origin(tmp_path):
         caveclod.build_tiles("rough", tmp_path / "tiles", job, size=64, tiles=4, origin="auto")
     merged = caveclod.build("rough", size=64, tiles=4, packed=False, origin="auto", tiles_dir=tmp_path / "tiles")
     assert merged.content_hash == whole.content_hash and merged.info["origin"] == whole.info["origin"]
+
+
+def test_clients_learn_the_origin_from_list_meshes(tmp_path, make_server, terrain_path):
+    from caveclod.client import Client
+    path = tmp_path / "tank.obj"
+    _far_sphere(path, 30.0, 2)
+    caveclod.build(str(path), origin="auto").save(tmp_path / "tank.cvc")
+    server = make_server(meshes=[tmp_path / "tank.cvc", terrain_path])
+    with Client(f"127.0.0.1:{server.port}", cache_dir=False) as client:
+        meshes = {m.name: m for m in client.list_meshes()}
+    tank, terrain = meshes["tank"], meshes["terrain"]
+    assert tank.HasField("origin") and (tank.origin.x, tank.origin.y, tank.origin.z) == (500123.0, 4100234.0, 312.0)
+    assert not terrain.HasField("origin")
+    assert tank.bounds_max.x < 40.0               # bounds are in the mesh's own coordinates

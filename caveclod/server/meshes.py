@@ -92,7 +92,7 @@ class ServedMesh:
                     self.name, faces=m.n_faces, vertices=m.n_vertices, positions=m.n_positions,
                     nodes=m.n_nodes, base_faces=len(m.arrays["base_faces"]), surface_group_ids=m.n_sgids,
                     materials=list(m.materials), bounds=m.bounds(), content_hash=m.content_hash,
-                    vertex_buffer_hash=m.vertex_buffer_hash)
+                    vertex_buffer_hash=m.vertex_buffer_hash, origin=m.origin)
             return self._info
 
     def vertex_chunks(self, max_bytes: int = wire.MAX_CHUNK_BYTES):

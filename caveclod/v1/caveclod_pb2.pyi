@@ -285,7 +285,7 @@ class VertexPacking(_message.Message):
     def __init__(self, encoding: _Optional[_Union[VertexEncoding, str]] = ..., packed_bytes: _Optional[int] = ..., packed_crc32: _Optional[int] = ..., vertex_buffer_hash: _Optional[str] = ..., position_bits: _Optional[int] = ..., position_origin: _Optional[_Union[Vec3, _Mapping]] = ..., position_step: _Optional[float] = ..., normal_bits: _Optional[int] = ..., texcoord_step: _Optional[float] = ..., max_position_error: _Optional[float] = ..., max_normal_degrees: _Optional[float] = ...) -> None: ...
 
 class MeshInfo(_message.Message):
-    __slots__ = ("name", "faces", "vertices", "positions", "nodes", "base_faces", "surface_group_ids", "materials", "bounds_min", "bounds_max", "content_hash", "vertex_buffer_hash")
+    __slots__ = ("name", "faces", "vertices", "positions", "nodes", "base_faces", "surface_group_ids", "materials", "bounds_min", "bounds_max", "content_hash", "vertex_buffer_hash", "origin")
     NAME_FIELD_NUMBER: _ClassVar[int]
     FACES_FIELD_NUMBER: _ClassVar[int]
     VERTICES_FIELD_NUMBER: _ClassVar[int]
@@ -298,6 +298,7 @@ class MeshInfo(_message.Message):
     BOUNDS_MAX_FIELD_NUMBER: _ClassVar[int]
     CONTENT_HASH_FIELD_NUMBER: _ClassVar[int]
     VERTEX_BUFFER_HASH_FIELD_NUMBER: _ClassVar[int]
+    ORIGIN_FIELD_NUMBER: _ClassVar[int]
     name: str
     faces: int
     vertices: int
@@ -310,7 +311,8 @@ class MeshInfo(_message.Message):
     bounds_max: Vec3
     content_hash: str
     vertex_buffer_hash: str
-    def __init__(self, name: _Optional[str] = ..., faces: _Optional[int] = ..., vertices: _Optional[int] = ..., positions: _Optional[int] = ..., nodes: _Optional[int] = ..., base_faces: _Optional[int] = ..., surface_group_ids: _Optional[int] = ..., materials: _Optional[_Iterable[_Union[Material, _Mapping]]] = ..., bounds_min: _Optional[_Union[Vec3, _Mapping]] = ..., bounds_max: _Optional[_Union[Vec3, _Mapping]] = ..., content_hash: _Optional[str] = ..., vertex_buffer_hash: _Optional[str] = ...) -> None: ...
+    origin: Vec3
+    def __init__(self, name: _Optional[str] = ..., faces: _Optional[int] = ..., vertices: _Optional[int] = ..., positions: _Optional[int] = ..., nodes: _Optional[int] = ..., base_faces: _Optional[int] = ..., surface_group_ids: _Optional[int] = ..., materials: _Optional[_Iterable[_Union[Material, _Mapping]]] = ..., bounds_min: _Optional[_Union[Vec3, _Mapping]] = ..., bounds_max: _Optional[_Union[Vec3, _Mapping]] = ..., content_hash: _Optional[str] = ..., vertex_buffer_hash: _Optional[str] = ..., origin: _Optional[_Union[Vec3, _Mapping]] = ...) -> None: ...
 
 class Material(_message.Message):
     __slots__ = ("id", "name")

@@ -1867,6 +1867,7 @@
                 MeshInfo.prototype.boundsMax = null;
                 MeshInfo.prototype.contentHash = "";
                 MeshInfo.prototype.vertexBufferHash = "";
+                MeshInfo.prototype.origin = null;
     
                 MeshInfo.encode = function (message, writer, _depth) {
                     if (!writer)
@@ -1900,6 +1901,8 @@
                         writer.uint32(90).string(message.contentHash);
                     if (message.vertexBufferHash != null && $Object.hasOwnProperty.call(message, "vertexBufferHash") && message.vertexBufferHash !== "")
                         writer.uint32(98).string(message.vertexBufferHash);
+                    if (message.origin != null && $Object.hasOwnProperty.call(message, "origin"))
+                        $root.caveclod.v1.Vec3.encode(message.origin, writer.uint32(106).fork(), _depth + 1).ldelim();
                     if (message.$unknowns != null && $Object.hasOwnProperty.call(message, "$unknowns"))
                         for (var i = 0; i < message.$unknowns.length; ++i)
                             writer.raw(message.$unknowns[i]);
@@ -2032,6 +2035,12 @@
                                     message.vertexBufferHash = value;
                                 else
                                     delete message.vertexBufferHash;
+                                continue;
+                            }
+                        case 13: {
+                                if (wireType !== 2)
+                                    break;
+                                message.origin = $root.caveclod.v1.Vec3.decode(reader, reader.size(), $undefined, _depth + 1, message.origin);
                                 continue;
                             }
                         }
