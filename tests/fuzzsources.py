@@ -2,7 +2,7 @@
 
 :func:`fuzz_sources` makes one small, valid input of every kind the build
 reads (:func:`make_seeds`: OBJ with an .mtl, ASCII and binary PLY, GLB
-(plain and Draco-compressed), glTF, ASCII and binary STL, OFF, .npy heightfields of three dtypes, 16-bit
+(plain, Draco-compressed and quantized), glTF, ASCII and binary STL, OFF, .npy heightfields of three dtypes, 16-bit
 PNG, TIFF, a geographic GeoTIFF and an SRTM .hgt tile), mutates a copy per case (:func:`mutate`: lines, numbers,
 indices, header counts and fields, node transforms, bits, bytes,
 truncation, and whole-geometry edits: scaled, offset, flattened, snapped,
@@ -105,6 +105,8 @@ def make_seeds(rng: np.random.Generator) -> list[Seed]:
         Seed("ply-binary", "seed.ply", ply.export_ply(sphere, encoding="binary", vertex_normal=True), "ply"),
         Seed("glb", "seed.glb", _two_part_scene(rng).export(file_type="glb"), "glb"),
         Seed("glb-draco", "seed.glb", _draco_glb(_two_part_scene(rng)), "glb"),
+        Seed("glb-quantized", "seed.glb", quantized_quad_glb(transform={"offset": [0.1, 0.2], "scale": [2.0, 3.0],
+                                                                       "rotation": 0.5}), "glb"),
         Seed("gltf", "seed.gltf", _gltf_bytes(_two_part_scene(rng)), "gltf"),
         Seed("stl-ascii", "seed.stl", stl.export_stl_ascii(sphere).encode(), "text"),
         Seed("stl-binary", "seed.stl", stl.export_stl(sphere), "stl"),
@@ -127,6 +129,62 @@ def _draco_glb(scene) -> bytes:
     """``scene`` as a GLB whose geometry is Draco-compressed (KHR_draco_mesh_compression)."""
     from trimesh.exchange.gltf import export_glb
     return export_glb(scene, extension_draco=True)
+
+
+def _glb_bytes(tree: dict, binary: bytes) -> bytes:
+    """A GLB of a glTF tree and its binary chunk."""
+    text = json.dumps(tree).encode()
+    text += b" " * (-len(text) % 4)
+    binary += b"\0" * (-len(binary) % 4)
+    body = struct.pack("<II", len(text), 0x4E4F534A) + text + struct.pack("<II", len(binary), 0x004E4942) + binary
+    return struct.pack("<III", 0x46546C67, 2, 12 + len(body)) + body
+
+
+def quantized_quad_glb(*, uv_type=5123, uv=None, normal=None, transform=None, stride=None, broken=False) -> bytes:
+    """A GLB of a two-triangle quad: int16 positions with a node scale, uv (4, 2) stored as ``uv_type``
+    normalized, int8 normals, the base colour texture's KHR_texture_transform ``transform``, as
+    gltfpack writes them (``stride``: the texture coordinates interleaved; ``broken``: their accessor
+    claims more items than its bufferView holds)."""
+    pos = np.array([[0, 0, 0], [1000, 0, 0], [1000, 1000, 0], [0, 1000, 0]], "<i2")
+    uv = np.array([[0, 0], [65535, 0], [65535, 65535], [0, 65535]]) if uv is None else uv
+    dtype = {5121: "<u1", 5123: "<u2", 5120: "<i1", 5122: "<i2"}[uv_type]
+    uvb = np.asarray(uv).astype(dtype).tobytes()
+    if stride:                                       # interleave padding after each uv
+        item = np.dtype(dtype).itemsize * 2
+        uvb = b"".join(uvb[i:i + item] + b"\xee" * (stride - item) for i in range(0, len(uvb), item))
+    nrm = (np.array([[0, 0, 127]] * 4, "<i1") if normal is None else normal).tobytes()
+    idx = np.array([0, 1, 2, 0, 2, 3], "<u2").tobytes()
+    parts, views = [pos.tobytes(), uvb, nrm, idx], []
+    blob = b""
+    for k, part in enumerate(parts):
+        blob += b"\0" * (-len(blob) % 4)
+        view = {"buffer": 0, "byteOffset": len(blob), "byteLength": len(part)}
+        if k == 1 and stride:
+            view["byteStride"] = stride
+        views.append(view)
+        blob += part
+    accessors = [
+        {"bufferView": 0, "componentType": 5122, "count": 4, "type": "VEC3", "min": [0, 0, 0],
+         "max": [1000, 1000, 0]},
+        {"bufferView": 1, "componentType": uv_type, "normalized": True, "count": 99 if broken else 4, "type": "VEC2"},
+        {"bufferView": 2, "componentType": 5120, "normalized": True, "count": 4, "type": "VEC3"},
+        {"bufferView": 3, "componentType": 5123, "count": 6, "type": "SCALAR"},
+    ]
+    texture_info = {"index": 0}
+    if transform is not None:
+        texture_info["extensions"] = {"KHR_texture_transform": transform}
+    tree = {
+        "asset": {"version": "2.0"}, "scene": 0, "scenes": [{"nodes": [0]}],
+        "extensionsUsed": ["KHR_mesh_quantization", "KHR_texture_transform"],
+        "extensionsRequired": ["KHR_mesh_quantization"],
+        "nodes": [{"mesh": 0, "scale": [0.001, 0.001, 0.001]}],
+        "meshes": [{"primitives": [{"attributes": {"POSITION": 0, "TEXCOORD_0": 1, "NORMAL": 2}, "indices": 3,
+                                    "material": 0}]}],
+        "materials": [{"pbrMetallicRoughness": {"baseColorTexture": texture_info}}],
+        "textures": [{}],
+        "accessors": accessors, "bufferViews": views, "buffers": [{"byteLength": len(blob)}],
+    }
+    return _glb_bytes(tree, blob)
 
 
 def _have_tifffile() -> bool:

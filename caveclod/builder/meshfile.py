@@ -24,6 +24,7 @@ Everything is vectorised numpy: no Python loop runs per face or per vertex.
 
 from __future__ import annotations
 
+import io
 import os
 from dataclasses import dataclass
 from pathlib import Path
@@ -179,13 +180,19 @@ def _read_scene(path: Path, file_type: str):
 
     from .gltfcodecs import UndecodedWatch, refuse_undecodable
 
+    from .gltfquant import dequantized_gltf
+
     refuse_undecodable(path, file_type)           # compressed glTF geometry nothing here decodes
+    rewritten = dequantized_gltf(path, file_type)  # quantized glTF attributes, which trimesh reads raw
+    source, kind = (str(path), file_type) if rewritten is None else (io.BytesIO(rewritten), "glb")
     try:
         with quiet_reading("trimesh"), UndecodedWatch() as watch:
             if hasattr(trimesh, "load_scene"):  # trimesh >= 4.6
-                scene = trimesh.load_scene(str(path), file_type=file_type, process=False)
+                scene = trimesh.load_scene(source, file_type=kind, process=False,
+                                           resolver=trimesh.resolvers.FilePathResolver(str(path)))
             else:
-                scene = trimesh.load(str(path), file_type=file_type, process=False, force="scene")
+                scene = trimesh.load(source, file_type=kind, process=False, force="scene",
+                                     resolver=trimesh.resolvers.FilePathResolver(str(path)))
     except ImportError as exc:
         # trimesh imports optional modules lazily; for text formats it only
         # reaches for a charset detector when the bytes are not UTF-8, which

@@ -1,0 +1,225 @@
+"""Quantized glTF: integer vertex attributes and texture transforms, applied before trimesh reads.
+
+gltfpack, the usual glTF optimizer, quantizes by default
+(``KHR_mesh_quantization``): positions become integers scaled back by the
+node's transform, normals and texture coordinates *normalized* integers
+(an int8 of 127 is 1.0, a uint16 of 65535 is 1.0), and each texture's
+coordinates are moved back into place by ``KHR_texture_transform`` on the
+material. trimesh reads the integers as they are and ignores the
+transform: positions come out right (the node's transform applies), but a
+quantized file's texture coordinates came out as 0 to 65535 instead of
+their true values, silently.
+
+:func:`dequantized_gltf` rewrites such a file in memory before trimesh
+sees it: each normalized attribute a primitive uses becomes float32 per
+the glTF specification (``max(c / (2**(b-1) - 1), -1)`` signed, ``c /
+(2**b - 1)`` unsigned), and the texture coordinates that a material's base
+colour texture reads through a ``KHR_texture_transform`` take the
+transform (offset, rotation, scale), baked per primitive. The result is
+one GLB with every buffer in its binary chunk; a file that needs neither
+is read as it is.
+"""
+
+from __future__ import annotations
+
+import base64
+import json
+import math
+import struct
+from pathlib import Path
+from urllib.parse import unquote
+
+import numpy as np
+
+from ..errors import InputError
+from .source import FLOAT32_MAX
+
+_GLB_MAGIC, _JSON_CHUNK, _BIN_CHUNK = 0x46546C67, 0x4E4F534A, 0x004E4942
+_COMPONENTS = {"SCALAR": 1, "VEC2": 2, "VEC3": 3, "VEC4": 4}
+_DTYPES = {5120: np.int8, 5121: np.uint8, 5122: np.int16, 5123: np.uint16, 5125: np.uint32, 5126: np.float32}
+_FLOAT = 5126
+_DEQUANTIZED = ("POSITION", "NORMAL", "TANGENT", "TEXCOORD_", "COLOR_")
+
+
+def dequantized_gltf(path: Path, file_type: str) -> bytes | None:
+    """``path`` as GLB bytes with its normalized attributes and texture transforms applied, or
+    None when it has neither (or is not glTF, or does not parse: trimesh then reads it and reports)."""
+    if file_type not in ("glb", "gltf"):
+        return None
+    try:
+        tree, buffers = _read(path, file_type)
+    except Exception:       # any damage: left to trimesh, whose error the loader turns into one line
+        return None
+    try:
+        out = bytearray()
+        if not _rewrite(tree, buffers, out):
+            return None
+    except Exception as exc:    # a damaged tree, whatever shape its damage takes
+        raise InputError(f"{path}: its quantized vertex attributes do not decode ({type(exc).__name__}: "
+                         f"{' '.join(str(exc).split())[:200]}); the file is damaged: export it again") from None
+    return _glb(tree, bytes(out))
+
+
+# ------------------------------------------------------------------ reading and writing
+
+
+def _read(path: Path, file_type: str) -> tuple[dict, list]:
+    """(JSON tree, [bytes of each buffer, or None where it cannot be had])."""
+    data = path.read_bytes()
+    binary = None
+    if file_type == "glb":
+        magic, _, _ = struct.unpack_from("<III", data, 0)
+        if magic != _GLB_MAGIC:
+            raise ValueError("not a GLB")
+        at, chunks = 12, {}
+        while at + 8 <= len(data):
+            length, kind = struct.unpack_from("<II", data, at)
+            chunks.setdefault(kind, data[at + 8:at + 8 + length])
+            at += 8 + length + (-length % 4)
+        tree = json.loads(chunks[_JSON_CHUNK])
+        binary = chunks.get(_BIN_CHUNK)
+    else:
+        tree = json.loads(data)
+    if not isinstance(tree, dict):
+        raise ValueError("not a glTF object")
+    buffers = []
+    for i, b in enumerate(tree.get("buffers", [])):
+        uri = b.get("uri")
+        if uri is None:
+            buffers.append(binary if i == 0 else None)
+        elif uri.startswith("data:"):
+            buffers.append(base64.b64decode(uri.split(",", 1)[1]))
+        else:
+            target = (path.parent / unquote(uri)).resolve()      # glTF URIs are percent-encoded
+            buffers.append(target.read_bytes() if target.is_file() else None)
+    return tree, buffers
+
+
+def _glb(tree: dict, binary: bytes) -> bytes:
+    text = json.dumps(tree, separators=(",", ":")).encode()
+    text += b" " * (-len(text) % 4)
+    binary += b"\0" * (-len(binary) % 4)
+    body = struct.pack("<II", len(text), _JSON_CHUNK) + text + struct.pack("<II", len(binary), _BIN_CHUNK) + binary
+    return struct.pack("<III", _GLB_MAGIC, 2, 12 + len(body)) + body
+
+
+# ------------------------------------------------------------------ the rewrite
+
+
+def _rewrite(tree: dict, buffers: list, out: bytearray) -> bool:
+    """Rewrite ``tree`` in place to one binary buffer (written to ``out``); False if nothing needed it."""
+    accessors, views = tree.get("accessors", []), tree.get("bufferViews", [])
+    todo = []                                    # (primitive, attribute name, accessor index, transform or None)
+    for mesh in tree.get("meshes", []):
+        for prim in mesh.get("primitives", []):
+            transform, tex_coord = _base_colour_transform(tree, prim)
+            for name, index in prim.get("attributes", {}).items():
+                acc = accessors[index]
+                quantized = acc.get("normalized") and name.startswith(_DEQUANTIZED)
+                moved = transform is not None and name == f"TEXCOORD_{tex_coord}"
+                if (quantized or moved) and "bufferView" in acc and "sparse" not in acc:
+                    todo.append((prim, name, index, transform if moved else None))
+    if not todo:
+        return False
+    # One buffer: the file's buffers one after another, then the new arrays.
+    starts = []
+    for b in buffers:
+        starts.append(len(out))
+        if b is not None:
+            out += b + b"\0" * (-len(b) % 4)
+    for view in views:
+        if buffers[view["buffer"]] is None:
+            raise ValueError(f"buffer {view['buffer']} of a bufferView could not be read")
+        view["byteOffset"] = starts[view["buffer"]] + view.get("byteOffset", 0)
+        view["buffer"] = 0
+    made = {}
+    for prim, name, index, transform in todo:
+        key = (index, transform)
+        if key not in made:
+            values = _values(accessors[index], views, out)
+            if transform is not None:
+                values = _transformed(values, transform)
+            made[key] = _append(tree, accessors, views, out, accessors[index], values)
+        prim["attributes"][name] = made[key]
+    tree["buffers"] = [{"byteLength": len(out)}]
+    _drop_extension(tree, "KHR_mesh_quantization")
+    if any(t is not None for _, _, _, t in todo):
+        for material in tree.get("materials", []):
+            info = material.get("pbrMetallicRoughness", {}).get("baseColorTexture", {})
+            info.get("extensions", {}).pop("KHR_texture_transform", None)
+    return True
+
+
+def _base_colour_transform(tree: dict, prim: dict) -> tuple[tuple | None, int]:
+    """(the KHR_texture_transform of the primitive's base colour texture as (ox, oy, rotation, sx, sy),
+    or None; the texture coordinate set it reads)."""
+    materials = tree.get("materials", [])
+    m = prim.get("material")
+    if m is None or not 0 <= m < len(materials):
+        return None, 0
+    info = materials[m].get("pbrMetallicRoughness", {}).get("baseColorTexture")
+    if not isinstance(info, dict):
+        return None, 0
+    t = info.get("extensions", {}).get("KHR_texture_transform")
+    if not isinstance(t, dict):
+        return None, int(info.get("texCoord", 0))
+    offset, scale = t.get("offset", [0.0, 0.0]), t.get("scale", [1.0, 1.0])
+    numbers = (float(offset[0]), float(offset[1]), float(t.get("rotation", 0.0)), float(scale[0]), float(scale[1]))
+    if not all(math.isfinite(v) for v in numbers):
+        raise ValueError("a KHR_texture_transform holds a non-finite number")
+    return numbers, int(t.get("texCoord", info.get("texCoord", 0)))
+
+
+def _values(acc: dict, views: list, data: bytearray) -> np.ndarray:
+    """(count, k) float64 values of an accessor, normalized integers mapped per the glTF spec."""
+    dtype = np.dtype(_DTYPES[acc["componentType"]]).newbyteorder("<")
+    k, count = _COMPONENTS[acc["type"]], int(acc["count"])
+    view = views[acc["bufferView"]]
+    stride = view.get("byteStride") or k * dtype.itemsize
+    if not isinstance(stride, int) or stride < k * dtype.itemsize:
+        raise ValueError(f"a bufferView's byteStride {stride!r} is shorter than its items")
+    start = view["byteOffset"] + acc.get("byteOffset", 0)
+    end = start + (count - 1) * stride + k * dtype.itemsize if count else start
+    if count < 0 or end > view["byteOffset"] + view["byteLength"] or end > len(data):
+        raise ValueError(f"an accessor of {count} items reaches past its bufferView")
+    # A copy of the bytes: a view would pin ``data``, which grows as accessors are appended.
+    raw = np.ndarray((count, k), dtype, buffer=bytes(data[start:end]), strides=(stride, dtype.itemsize)) if count \
+        else np.zeros((0, k), dtype)
+    values = raw.astype(np.float64)
+    if acc.get("normalized") and dtype.kind in "iu":
+        top = float(np.iinfo(dtype).max)
+        values = np.maximum(values / top, -1.0)
+    return values
+
+
+def _transformed(uv: np.ndarray, t: tuple) -> np.ndarray:
+    """KHR_texture_transform's ``translation * rotation * scale`` applied to (n, 2) ``uv``."""
+    ox, oy, r, sx, sy = t
+    c, s = math.cos(r), math.sin(r)
+    u, v = uv[:, 0] * sx, uv[:, 1] * sy
+    return np.stack([c * u + s * v + ox, -s * u + c * v + oy], axis=1)
+
+
+def _append(tree: dict, accessors: list, views: list, out: bytearray, like: dict, values: np.ndarray) -> int:
+    """A new float32 accessor (and bufferView) of ``values`` in ``out``, shaped like ``like``; its index."""
+    if not (np.abs(values) <= FLOAT32_MAX).all():
+        raise ValueError("an attribute's texture transform takes it beyond float32 (or to NaN)")
+    values32 = np.ascontiguousarray(values, "<f4")
+    out += b"\0" * (-len(out) % 4)
+    views.append({"buffer": 0, "byteOffset": len(out), "byteLength": values32.nbytes})
+    out += values32.tobytes()
+    acc = {key: v for key, v in like.items() if key not in ("normalized", "byteOffset", "min", "max", "sparse")}
+    acc.update(bufferView=len(views) - 1, componentType=_FLOAT)
+    if len(values32):
+        acc.update(min=values32.min(axis=0).tolist(), max=values32.max(axis=0).tolist())
+    tree["bufferViews"] = views
+    accessors.append(acc)
+    return len(accessors) - 1
+
+
+def _drop_extension(tree: dict, name: str) -> None:
+    for key in ("extensionsUsed", "extensionsRequired"):
+        if name in tree.get(key, []):
+            tree[key] = [n for n in tree[key] if n != name]
+            if not tree[key]:
+                del tree[key]
