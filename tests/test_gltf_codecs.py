@@ -5,6 +5,7 @@ from __future__ import annotations
 import json
 import logging
 import struct
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -16,6 +17,8 @@ from caveclod.builder import gltfcodecs
 from caveclod.builder.meshfile import load_mesh_file
 from caveclod.errors import InputError
 from fuzzsources import build_here as build_cli
+
+DATA = Path(__file__).parent / "data"
 
 
 def _textured_sphere() -> trimesh.Trimesh:
@@ -75,20 +78,16 @@ def test_damaged_draco_data_is_named_not_called_degenerate(tmp_path, capsys):
     assert status == 2 and "degenerate" not in err
 
 
-def test_meshopt_compression_is_refused_with_what_to_do(tmp_path):
-    tree, binary = _glb_parts(export_glb(trimesh.Scene(_textured_sphere())))
-    tree["extensionsUsed"] = tree["extensionsRequired"] = ["EXT_meshopt_compression"]
-    (tmp_path / "packed.glb").write_bytes(_glb(tree, binary))
-    with pytest.raises(InputError, match=r"EXT_meshopt_compression .*gltfpack without -c"):
-        load_mesh_file(tmp_path / "packed.glb")
-
-
-def test_without_dracopy_the_message_says_to_install_it(tmp_path, monkeypatch):
+@pytest.mark.parametrize("name, package, advice", [
+    ("draco.glb", "DracoPy", "pip install DracoPy"),
+    ("sphere-gltfpack-c.glb", "meshoptimizer", "pip install --pre meshoptimizer")])
+def test_without_its_decoder_the_message_says_what_to_install(tmp_path, monkeypatch, name, package, advice):
     (tmp_path / "draco.glb").write_bytes(export_glb(trimesh.Scene(_textured_sphere()), extension_draco=True))
+    path = tmp_path / name if name == "draco.glb" else DATA / name
     real = gltfcodecs.importlib.util.find_spec
-    monkeypatch.setattr(gltfcodecs.importlib.util, "find_spec", lambda name: None if name == "DracoPy" else real(name))
-    with pytest.raises(InputError, match="pip install DracoPy"):
-        load_mesh_file(tmp_path / "draco.glb")
+    monkeypatch.setattr(gltfcodecs.importlib.util, "find_spec", lambda n: None if n == package else real(n))
+    with pytest.raises(InputError, match=advice.replace("+", "\\+")):
+        load_mesh_file(path)
 
 
 @pytest.mark.parametrize("data", [b"", b"glTF", b"glTF\x02\0\0\0" + b"\xff" * 12, b"not json"])

@@ -3,12 +3,19 @@
 ``tests/data/sphere-gltfpack.glb`` is ``gltfpack 0.22 -i sphere.glb -o
 sphere-gltfpack.glb`` (npm's gltfpack, default options: positions uint16
 with the node's transform, texture coordinates normalized uint16 with a
-texture transform); ``sphere.glb`` is its input, written by trimesh.
+texture transform, normals normalized int8); ``-c.glb`` adds ``-c``
+(EXT_meshopt_compression), ``-cc.glb`` ``-cc`` (and the octahedral
+filter on normals), ``-cc-vpf.glb`` ``-cc -vpf -vtf`` (float positions and
+texture coordinates through the exponential filter). ``sphere.glb`` is
+their input, an icosphere with normals and texture coordinates written
+by trimesh.
 """
 
 from __future__ import annotations
 
+import json
 import math
+import struct
 from pathlib import Path
 
 import numpy as np
@@ -23,22 +30,25 @@ DATA = Path(__file__).parent / "data"
 
 
 def _by_position(source):
-    """(positions, uvs) of each vertex, sorted by position."""
+    """(positions, uvs, normals) of each vertex, sorted by position."""
     p = source.positions[source.vertex_position]
-    order = np.lexsort(np.round(p, 4).T)
-    return p[order], source.vertex_uv[order]
+    order = np.lexsort(np.round(p, 3).T)
+    return p[order], source.vertex_uv[order], source.vertex_normal[order]
 
 
-def test_gltfpacks_output_reads_as_its_input():
-    plain, packed = load_mesh_file(DATA / "sphere.glb"), load_mesh_file(DATA / "sphere-gltfpack.glb")
+@pytest.mark.parametrize("name", ["sphere-gltfpack", "sphere-gltfpack-c", "sphere-gltfpack-cc",
+                                  "sphere-gltfpack-cc-vpf"])
+def test_gltfpacks_output_reads_as_its_input(name):
+    plain, packed = load_mesh_file(DATA / "sphere.glb"), load_mesh_file(DATA / f"{name}.glb")
     assert len(plain.faces) == len(packed.faces) == 320
-    p0, uv0 = _by_position(plain)
-    p1, uv1 = _by_position(packed)
+    p0, uv0, n0 = _by_position(plain)
+    p1, uv1, n1 = _by_position(packed)
     extent = np.ptp(p0, axis=0).max()
     assert np.abs(p0 - p1).max() <= extent * 2.0 ** -13          # 14-bit positions by default
     # texture coordinates: 12 bits by default, over the chart's range (the transform scales them back)
     assert np.abs(uv0 - uv1).max() <= 2.0 ** -11
     assert uv1.min() > -1e-3 and uv1.max() < 1.001                # not 0 .. 65535, as trimesh alone reads them
+    assert np.abs(n0 - n1).max() <= 0.02                         # 8-bit normals (octahedral with -cc)
 
 
 def test_a_plain_file_is_read_as_it_is():
@@ -90,6 +100,38 @@ def test_the_texture_transform_is_baked_in(tmp_path):
 def test_an_interleaved_attribute_is_read_with_its_stride(tmp_path):
     source = load_mesh_file(_quad(tmp_path / "q.glb", stride=12))
     assert np.allclose(_uv_at(source, 1, 0), [1.0, 0.0]) and np.allclose(_uv_at(source, 0, 1), [0.0, 1.0])
+
+
+@pytest.mark.parametrize("edit, words", [
+    (lambda e: e.update(count=10 ** 12), "items of"),
+    (lambda e: e.update(byteStride=6), "stride of 6"),
+    (lambda e: e.update(byteLength=e["byteLength"] + 10 ** 6), "reaches past its buffer"),
+    (lambda e: e.update(mode="POINTS"), "compression mode"),
+    (lambda e: e.update(filter="QUATERNION"), "QUATERNION filter on items of 4 bytes"),
+])
+def test_damaged_compressed_views_are_refused_before_decoding(tmp_path, edit, words):
+    data = (DATA / "sphere-gltfpack-c.glb").read_bytes()
+    (length,) = struct.unpack_from("<I", data, 12)
+    tree = json.loads(data[20:20 + length])
+    ext = [v["extensions"]["EXT_meshopt_compression"] for v in tree["bufferViews"]     # the last: 4-byte normals
+           if v.get("extensions", {}).get("EXT_meshopt_compression", {}).get("mode") == "ATTRIBUTES"][-1]
+    edit(ext)
+    text = json.dumps(tree).encode()
+    text += b" " * (-len(text) % 4)
+    path = tmp_path / "damaged.glb"
+    path.write_bytes(data[:12] + struct.pack("<II", len(text), 0x4E4F534A) + text + data[20 + length:])
+    with pytest.raises(InputError, match=words):
+        load_mesh_file(path)
+
+
+def test_garbage_compressed_data_is_an_input_error(tmp_path):
+    data = bytearray((DATA / "sphere-gltfpack-c.glb").read_bytes())
+    (length,) = struct.unpack_from("<I", data, 12)
+    at = 20 + length + 8 + 200                      # inside the compressed streams
+    data[at:at + 64] = bytes(range(64))
+    (tmp_path / "garbage.glb").write_bytes(bytes(data))
+    with pytest.raises(InputError):
+        load_mesh_file(tmp_path / "garbage.glb")
 
 
 def test_an_accessor_past_its_buffer_is_refused_as_damaged(tmp_path):

@@ -2,14 +2,15 @@
 
 Web and photogrammetry pipelines often ship GLB/glTF with the geometry
 compressed. trimesh decodes ``KHR_draco_mesh_compression`` through the
-DracoPy package (Google's Draco, a dependency of ``caveclod[build]``); it
-has no decoder for ``EXT_meshopt_compression`` (gltfpack's ``-c``). Left to
-itself, trimesh logs that an extension "didn't decode" and fills the
-geometry with zeros, which the build then refuses as "every face is
-degenerate": true, but not what the user must change. So the file's JSON
-is read first (:func:`refuse_undecodable`) and the reader's log watched
-while it loads (:class:`UndecodedWatch`); either names the extension and
-what to do.
+DracoPy package (Google's Draco, a dependency of ``caveclod[build]``);
+``EXT_meshopt_compression`` (gltfpack's ``-c``) is decoded before trimesh
+reads the file (:mod:`.gltfquant`) with the ``meshoptimizer`` package.
+Without the package a file needs, trimesh logs that an extension "didn't
+decode" and fills the geometry with zeros, which the build then refuses as
+"every face is degenerate": true, but not what the user must change. So
+the file's JSON is read first (:func:`refuse_undecodable`) and the
+reader's log watched while it loads (:class:`UndecodedWatch`); either
+names the extension and what to do.
 """
 
 from __future__ import annotations
@@ -24,12 +25,14 @@ from ..errors import InputError
 
 CODECS = {
     "KHR_draco_mesh_compression": "Draco",
-    "EXT_meshopt_compression": "meshoptimizer's codec (gltfpack -c)",
+    "EXT_meshopt_compression": "meshoptimizer's codecs, gltfpack -c",
 }
 """glTF extensions that compress geometry, by what they are called in messages."""
 
-DECODABLE_WITH = {"KHR_draco_mesh_compression": "DracoPy"}
-"""Extensions trimesh decodes, and the package it decodes them with."""
+DECODABLE_WITH = {"KHR_draco_mesh_compression": ("DracoPy", "pip install DracoPy (caveclod[build] installs it)"),
+                  "EXT_meshopt_compression": ("meshoptimizer", "pip install --pre meshoptimizer (make installs it)")}
+"""Extensions decoded here (Draco by trimesh, meshopt by :mod:`.gltfquant`), the package each needs
+and how to install it."""
 
 _GLB_MAGIC, _JSON_CHUNK = 0x46546C67, 0x4E4F534A
 _MAX_JSON_BYTES = 64 << 20          # a glTF's JSON larger than this is read by trimesh, unchecked here
@@ -64,15 +67,10 @@ def required_extensions(path: Path, file_type: str) -> set[str]:
 def refuse_undecodable(path: Path, file_type: str) -> None:
     """InputError when ``path`` requires a geometry codec this installation cannot decode."""
     for name in sorted(required_extensions(path, file_type) & set(CODECS)):
-        package = DECODABLE_WITH.get(name)
-        if package is None:
-            raise InputError(f"{path}: its geometry is compressed with {name} ({CODECS[name]}), which caveclod's "
-                             "reader cannot decode; export it again without that compression (gltfpack without "
-                             "-c/-cc, or Blender's glTF exporter with compression off)")
+        package, install = DECODABLE_WITH[name]
         if importlib.util.find_spec(package) is None:
             raise InputError(f"{path}: its geometry is compressed with {name} ({CODECS[name]}), which needs the "
-                             f"{package} package: pip install {package} (caveclod[build] installs it), or export "
-                             "the file without that compression")
+                             f"{package} package: {install}; or export the file without that compression")
 
 
 class UndecodedWatch(logging.Handler):

@@ -1,4 +1,5 @@
-"""Quantized glTF: integer vertex attributes and texture transforms, applied before trimesh reads.
+"""Quantized and meshopt-compressed glTF: integer vertex attributes, texture transforms and
+``EXT_meshopt_compression``, applied before trimesh reads.
 
 gltfpack, the usual glTF optimizer, quantizes by default
 (``KHR_mesh_quantization``): positions become integers scaled back by the
@@ -15,9 +16,15 @@ sees it: each normalized attribute a primitive uses becomes float32 per
 the glTF specification (``max(c / (2**(b-1) - 1), -1)`` signed, ``c /
 (2**b - 1)`` unsigned), and the texture coordinates that a material's base
 colour texture reads through a ``KHR_texture_transform`` take the
-transform (offset, rotation, scale), baked per primitive. The result is
-one GLB with every buffer in its binary chunk; a file that needs neither
-is read as it is.
+transform (offset, rotation, scale), baked per primitive. gltfpack's
+``-c`` also compresses the buffer views (``EXT_meshopt_compression``:
+meshoptimizer's vertex and index codecs, and its octahedral, quaternion
+and exponential filters), which trimesh cannot read at all; they are
+decoded first, with the ``meshoptimizer`` package where it is installed
+(``make`` installs it; :mod:`.gltfcodecs` refuses such a file, saying so,
+where it is not), every size checked before the decoder writes. The
+result is one GLB with every buffer in its binary chunk; a file that
+needs none of this is read as it is.
 """
 
 from __future__ import annotations
@@ -39,6 +46,7 @@ _COMPONENTS = {"SCALAR": 1, "VEC2": 2, "VEC3": 3, "VEC4": 4}
 _DTYPES = {5120: np.int8, 5121: np.uint8, 5122: np.int16, 5123: np.uint16, 5125: np.uint32, 5126: np.float32}
 _FLOAT = 5126
 _DEQUANTIZED = ("POSITION", "NORMAL", "TANGENT", "TEXCOORD_", "COLOR_")
+MAX_DECODED_BYTES = 1 << 31         # largest bufferView decoded (a damaged count must not allocate more)
 
 
 def dequantized_gltf(path: Path, file_type: str) -> bytes | None:
@@ -109,6 +117,8 @@ def _glb(tree: dict, binary: bytes) -> bytes:
 def _rewrite(tree: dict, buffers: list, out: bytearray) -> bool:
     """Rewrite ``tree`` in place to one binary buffer (written to ``out``); False if nothing needed it."""
     accessors, views = tree.get("accessors", []), tree.get("bufferViews", [])
+    decoded = {i: _decompressed(v, buffers) for i, v in enumerate(views)
+               if "EXT_meshopt_compression" in v.get("extensions", {})}
     todo = []                                    # (primitive, attribute name, accessor index, transform or None)
     for mesh in tree.get("meshes", []):
         for prim in mesh.get("primitives", []):
@@ -119,18 +129,23 @@ def _rewrite(tree: dict, buffers: list, out: bytearray) -> bool:
                 moved = transform is not None and name == f"TEXCOORD_{tex_coord}"
                 if (quantized or moved) and "bufferView" in acc and "sparse" not in acc:
                     todo.append((prim, name, index, transform if moved else None))
-    if not todo:
+    if not todo and not decoded:
         return False
-    # One buffer: the file's buffers one after another, then the new arrays.
+    # One buffer: the file's buffers one after another, the decompressed views, then the new arrays.
     starts = []
     for b in buffers:
         starts.append(len(out))
         if b is not None:
             out += b + b"\0" * (-len(b) % 4)
-    for view in views:
-        if buffers[view["buffer"]] is None:
+    for i, view in enumerate(views):
+        if i in decoded:
+            view["byteOffset"], view["byteLength"] = len(out), len(decoded[i])
+            out += decoded[i] + b"\0" * (-len(decoded[i]) % 4)
+            del view["extensions"]["EXT_meshopt_compression"]
+        elif buffers[view["buffer"]] is None:
             raise ValueError(f"buffer {view['buffer']} of a bufferView could not be read")
-        view["byteOffset"] = starts[view["buffer"]] + view.get("byteOffset", 0)
+        else:
+            view["byteOffset"] = starts[view["buffer"]] + view.get("byteOffset", 0)
         view["buffer"] = 0
     made = {}
     for prim, name, index, transform in todo:
@@ -143,11 +158,56 @@ def _rewrite(tree: dict, buffers: list, out: bytearray) -> bool:
         prim["attributes"][name] = made[key]
     tree["buffers"] = [{"byteLength": len(out)}]
     _drop_extension(tree, "KHR_mesh_quantization")
+    _drop_extension(tree, "EXT_meshopt_compression")
     if any(t is not None for _, _, _, t in todo):
         for material in tree.get("materials", []):
             info = material.get("pbrMetallicRoughness", {}).get("baseColorTexture", {})
             info.get("extensions", {}).pop("KHR_texture_transform", None)
     return True
+
+
+MESHOPT_FILTERS = {"OCTAHEDRAL": ("decode_filter_oct", (4, 8)), "QUATERNION": ("decode_filter_quat", (8,)),
+                   "EXPONENTIAL": ("decode_filter_exp", None)}
+"""EXT_meshopt_compression's filters: the meshoptimizer function and the strides it takes (None:
+any multiple of 4)."""
+
+
+def _decompressed(view: dict, buffers: list) -> bytes:
+    """The ``count * byteStride`` bytes an EXT_meshopt_compression bufferView holds, decoded."""
+    import meshoptimizer
+
+    ext = view["extensions"]["EXT_meshopt_compression"]
+    count, stride, mode = int(ext["count"]), int(ext["byteStride"]), ext["mode"]
+    source = buffers[ext["buffer"]]
+    start = int(ext.get("byteOffset", 0))
+    data = None if source is None else source[start:start + int(ext["byteLength"])]
+    if data is None or start < 0 or len(data) != int(ext["byteLength"]):
+        raise ValueError("a compressed bufferView reaches past its buffer")
+    if not 0 < count <= MAX_DECODED_BYTES // max(stride, 1):
+        raise ValueError(f"a compressed bufferView of {count} items of {stride} bytes")
+    if mode == "ATTRIBUTES":
+        if not (0 < stride <= 256 and stride % 4 == 0):
+            raise ValueError(f"a compressed attribute stride of {stride} bytes (a multiple of 4 up to 256)")
+        # dtype None: the wrapper allocates count x stride bytes (as float32 words), what the decoder writes
+        values = meshoptimizer.decode_vertex_buffer(count, stride, data)
+        name = ext.get("filter", "NONE")
+        if name != "NONE":
+            function, strides = MESHOPT_FILTERS[name]
+            if (strides is not None and stride not in strides) or values.nbytes != count * stride:
+                raise ValueError(f"the {name} filter on items of {stride} bytes")
+            values = getattr(meshoptimizer, function)(values, count, stride)
+        raw = values.tobytes()
+    elif mode in ("TRIANGLES", "INDICES"):
+        if stride not in (2, 4) or (mode == "TRIANGLES" and count % 3):
+            raise ValueError(f"compressed indices of {stride} bytes, {count} of them")
+        decode = meshoptimizer.decode_index_buffer if mode == "TRIANGLES" else meshoptimizer.decode_index_sequence
+        # The wrapper allocates 4 bytes an index whatever their size; 2-byte ones fill its first half.
+        raw = decode(count, stride, data).tobytes()
+    else:
+        raise ValueError(f"compression mode {mode!r}")
+    if len(raw) < count * stride:
+        raise ValueError("a compressed bufferView decoded short")
+    return raw[:count * stride]
 
 
 def _base_colour_transform(tree: dict, prim: dict) -> tuple[tuple | None, int]:
