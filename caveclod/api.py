@@ -241,6 +241,9 @@ def to_source(source, *, cell_size=None, z_scale=1.0, materials=None, size=DEFAU
             cell, notes = _cell_size_of(path, heights.shape, cell_size)
             return terrain.raster_to_source(heights, cell_size=cell, z_scale=z_scale, materials=classes, notes=notes)
         _refuse_heightfield_options(f"the mesh file {path.name}", cell_size, z_scale, materials, nodata)
+        if check_memory:
+            from .builder.memory import check_read_memory
+            check_read_memory(path, path.name)
         return meshfile.load_mesh_file(path)
     if isinstance(source, np.ndarray):
         check_grid(_grid_triangles(source.shape))

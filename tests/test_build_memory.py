@@ -96,6 +96,32 @@ def test_meshes_and_built_ins_are_checked_too(monkeypatch):
     assert caveclod.build(box, packed=False, check_memory=False).info["input_triangles"] == 20_480
 
 
+@pytest.mark.parametrize("kind, writer", [
+    ("obj", lambda m, p: m.export(p)), ("off", lambda m, p: m.export(p)), ("glb", lambda m, p: m.export(p)),
+    ("ply", lambda m, p: m.export(p, encoding="binary")), ("ply-ascii", lambda m, p: m.export(p, encoding="ascii")),
+    ("stl", lambda m, p: m.export(p)),
+    ("stl-ascii", lambda m, p: p.write_text(__import__("trimesh").exchange.stl.export_stl_ascii(m)))])
+def test_a_mesh_file_too_large_to_read_is_refused_before_reading(tmp_path, monkeypatch, kind, writer):
+    """trimesh's readers of text formats hold 600-1,400 bytes a triangle, more than the build: a
+    file whose reading would not fit is refused from its size, before it is read."""
+    import trimesh
+    path = tmp_path / f"part.{kind.split('-')[0]}"
+    writer(trimesh.creation.icosphere(subdivisions=3), path)
+    assert memory.mesh_file_kind(path) == kind
+    need = path.stat().st_size * memory.READ_BYTES_PER_FILE_BYTE[kind]
+    read = []
+    from caveclod.builder import meshfile
+    real = meshfile.load_mesh_file
+    monkeypatch.setattr(meshfile, "load_mesh_file", lambda *a: read.append(1) or real(*a))
+    monkeypatch.setattr(memory, "available_bytes", lambda root="/": int(need) - 1)
+    with pytest.raises(InputError, match=rf"part.{kind.split('-')[0]}: reading this .* {kind.upper()} file"):
+        caveclod.build(str(path), packed=False)
+    assert read == []
+    assert caveclod.build(str(path), packed=False, check_memory=False).info["input_triangles"] == 1280
+    monkeypatch.setattr(memory, "available_bytes", lambda root="/": 1 << 40)
+    assert caveclod.build(str(path), packed=False).info["input_triangles"] == 1280
+
+
 def test_the_build_drops_its_input_once_it_has_made_its_own_arrays(monkeypatch):
     """caveclod.build keeps no name on the loaded input: a heightfield's mesh before normals
     (its vertices, faces and UVs, about 20 bytes a triangle) is gone before the collapses start,

@@ -834,3 +834,25 @@ def test_what_trimesh_logs_while_reading_is_silenced(tmp_path, caplog):
         except InputError:
             pass
     assert not [r for r in caplog.records if r.name.startswith("trimesh")], caplog.text
+
+
+@settings(max_examples=60, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+@given(st.integers(0, 2**31), st.integers(1, 300), st.integers(2, 12), st.integers(1, 3))
+def test_duplicate_faces_match_an_obvious_reference(seed, p, e, n_materials):
+    """The hashing kernel against a dictionary: the first face of each (cyclic rotation, material)
+    is kept, a reversed winding is another face; few positions make many repeats."""
+    rng = np.random.default_rng(seed)
+    faces = np.stack([rng.permutation(e)[:3] for _ in range(p)]) if e >= 3 else np.zeros((0, 3), int)
+    material = rng.integers(0, n_materials, len(faces))
+    seen, expected = set(), []
+    for (a, b, c), m in zip(faces.tolist(), material.tolist()):
+        k = min((a, b, c), (b, c, a), (c, a, b)), m
+        expected.append(k not in seen)
+        seen.add(k)
+    assert meshfile._first_of_duplicate_faces(faces, material).tolist() == expected
+
+
+def test_a_million_copies_of_one_triangle_take_linear_time():
+    faces = np.tile([[0, 1, 2], [1, 2, 0], [2, 1, 0]], (400_000, 1))
+    keep = meshfile._first_of_duplicate_faces(faces, np.zeros(len(faces), np.int64))
+    assert keep.sum() == 2 and keep[0] and keep[2]

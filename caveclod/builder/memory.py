@@ -87,6 +87,63 @@ def check_build_memory(triangles: int, what: str, available: int | None = None) 
         "smaller pieces, or for a heightfield take every second sample; --no-memory-check builds anyway")
 
 
+READ_BYTES_PER_FILE_BYTE = {"obj": 9.0, "ply-ascii": 18.0, "ply": 13.0, "stl-ascii": 8.5, "stl": 11.5, "off": 18.0,
+                            "glb": 13.0}
+"""Peak memory of reading a mesh file, per byte of the file, by format: rounded up from
+``load_mesh_file`` on a 2M-triangle mesh (2026-11-29: OBJ with texture coordinates 8.7, ASCII PLY
+17.0, binary PLY 12.2, ASCII STL 7.8, binary STL 10.6, OFF 17.5, GLB 12.6). The text formats'
+readers (trimesh's) hold 600-1,400 bytes a triangle, more than the build's peak."""
+
+
+def mesh_file_kind(path: str | os.PathLike) -> str | None:
+    """The key of :data:`READ_BYTES_PER_FILE_BYTE` for a mesh file (PLY and STL sniffed for
+    ASCII), or None for formats not estimated (glTF with its own buffers, anything else)."""
+    path = Path(path)
+    ext = path.suffix.lower().lstrip(".")
+    if ext not in ("obj", "ply", "stl", "off", "glb"):
+        return None
+    if ext in ("ply", "stl"):
+        try:
+            with open(path, "rb") as f:
+                head = f.read(512)
+                size = os.fstat(f.fileno()).st_size
+        except OSError:
+            return None
+        if ext == "ply":
+            return "ply-ascii" if b"format ascii" in head else "ply"
+        # Binary STL: an 80-byte header, a count, 50 bytes a triangle (a header may begin with "solid" too).
+        count = int.from_bytes(head[80:84], "little") if len(head) >= 84 else -1
+        return "stl" if 84 + 50 * count == size else "stl-ascii"
+    return ext
+
+
+def check_read_memory(path: str | os.PathLike, what: str, available: int | None = None) -> None:
+    """Refuse to read a mesh file whose reading alone would not fit (see
+    :data:`READ_BYTES_PER_FILE_BYTE`), before it starts; ``available`` as for
+    :func:`check_build_memory`."""
+    kind = mesh_file_kind(path)
+    if kind is None:
+        return
+    try:
+        size = os.path.getsize(path)
+    except OSError:
+        return                          # the reader says what is wrong with the path
+    if available is None:
+        available = available_bytes()
+    need = int(size * READ_BYTES_PER_FILE_BYTE[kind])
+    if available is None or need <= available:
+        return
+    gib = 1 << 30
+    lean = min(READ_BYTES_PER_FILE_BYTE[k] for k in ("ply", "glb"))
+    advice = ("convert it to binary PLY or GLB (their readers hold far less a triangle), "
+              if kind not in ("ply", "glb") and READ_BYTES_PER_FILE_BYTE[kind] > lean else "")
+    raise InputError(
+        f"{what}: reading this {size / gib:.1f} GiB {kind.upper()} file takes about {need / gib:.1f} GiB (about "
+        f"{READ_BYTES_PER_FILE_BYTE[kind]:g} times its size) and {available / gib:.1f} GiB are available here; "
+        f"{advice}read it on a machine (or in a container) with more memory, or cut it into smaller pieces; "
+        "--no-memory-check reads it anyway")
+
+
 def give_back_freed_memory() -> None:
     """Give the C heap's free pages back to the system (glibc's ``malloc_trim``).
 

@@ -74,7 +74,7 @@ def load_mesh_file(path: str | os.PathLike) -> SourceMesh:
     label = str(path)
     _check_is_file(path)
     file_type = _file_type_of(path)
-    scene = _read_scene(path, file_type)
+    scene = [_read_scene(path, file_type)]       # a list, so that the conversion can let go of it
     try:
         return _source_from_scene(scene, default_material=path.stem or "mesh", label=label)
     except InputError:
@@ -130,7 +130,7 @@ def source_from_trimesh(mesh_or_scene, name: str = "mesh") -> SourceMesh:
             f"{name}: expected a trimesh.Trimesh or trimesh.Scene, got "
             f"{type(mesh_or_scene).__name__}; load the mesh with trimesh first"
         )
-    return _source_from_scene(scene, default_material=name, label=name)
+    return _source_from_scene([scene], default_material=name, label=name)
 
 
 # --------------------------------------------------------------------------
@@ -259,11 +259,19 @@ class _Soup:
     colors: np.ndarray | None
 
 
-def _source_from_scene(scene, default_material: str, label: str) -> SourceMesh:
-    """Convert a trimesh Scene: collect parts, concatenate, check, clean."""
+def _source_from_scene(holder: list, default_material: str, label: str) -> SourceMesh:
+    """Convert the trimesh Scene in ``holder`` (a one-item list): collect parts, concatenate, check, clean.
+
+    The holder is emptied once the parts are made, and the parts once they
+    are concatenated: read from a file, the scene (about 60 bytes a triangle
+    for a binary PLY) and the parts (about 40) are then gone before the
+    cleaning, which was the load's peak with them alive.
+    """
     notes: list[str] = []
-    parts = _collect_parts(scene, default_material, label, notes)
+    parts = _collect_parts(holder[0], default_material, label, notes)
+    holder.clear()
     soup = _concatenate(parts, notes)
+    del parts
     _refuse_nonfinite_positions(soup, label)
     _refuse_far_positions(soup, label)
     _refuse_nonfinite_uv(soup, label)
@@ -784,16 +792,17 @@ def _first_of_duplicate_faces(face_positions: np.ndarray, face_material: np.ndar
     material. Rotating each face so its smallest position comes first makes
     the three rotations of a face compare equal, while the reversed winding
     (double-sided geometry) stays different and is kept.
+
+    One 64-bit hash a face, sorted; faces with equal hashes are compared
+    exactly (:func:`caveclod.kernels.duplicates.keep_first_faces`). 17 bytes a face where rows of the
+    rotated faces, their words and the grouping's arrays took about 160 (the
+    loading's peak).
     """
-    p = len(face_positions)
-    start = np.argmin(face_positions, axis=1)
-    rotation = (start[:, None] + np.arange(3)) % 3
-    rotated = face_positions[np.arange(p)[:, None], rotation]
-    key = np.column_stack([rotated.astype(np.int64), face_material.astype(np.int64)])
-    _, first = _group_equal_rows(key)
-    keep = np.zeros(p, dtype=bool)
-    keep[first] = True
-    return keep
+    from ..kernels.duplicates import keep_first_faces, rotated_face_hashes
+    fp = np.ascontiguousarray(face_positions, dtype=np.int64)
+    material = np.ascontiguousarray(face_material, dtype=np.int64)
+    key = rotated_face_hashes(fp, material)
+    return keep_first_faces(fp, material, key, np.argsort(key, kind="stable"))
 
 
 def _note_unused(soup: _Soup, kept_faces, n_positions, kept_face_positions, notes) -> None:
