@@ -3,7 +3,7 @@
 :func:`fuzz_sources` makes one small, valid input of every kind the build
 reads (:func:`make_seeds`: OBJ with an .mtl, ASCII and binary PLY, GLB
 (plain, Draco-compressed, quantized and gltfpack -cc's), glTF, ASCII and binary STL, OFF, .npy heightfields of three dtypes, 16-bit
-PNG, TIFF, a geographic GeoTIFF and an SRTM .hgt tile), mutates a copy per case (:func:`mutate`: lines, numbers,
+PNG, TIFF (and an LZW GeoTIFF), a geographic GeoTIFF and an SRTM .hgt tile), mutates a copy per case (:func:`mutate`: lines, numbers,
 indices, header counts and fields, node transforms, bits, bytes,
 truncation, and whole-geometry edits: scaled, offset, flattened, snapped,
 holed, recast), sometimes with odd numeric options or a (mutated) material
@@ -124,6 +124,9 @@ def make_seeds(rng: np.random.Generator) -> list[Seed]:
         grids.append(("geotiff", "seed.tif", "tiff", _heights(rng, holes=True).astype(np.float32), _geotiff_bytes))
     for kind, name, family, grid, encode in grids:
         seeds.append(Seed(kind, name, encode(grid), family, grid_shape=grid.shape))
+    if _have_tifffile():    # LZW with a predictor, read through Pillow's libtiff without imagecodecs (tests/data)
+        seeds.append(Seed("tiff-lzw", "seed.tif", (Path(__file__).parent / "data" / "dem-lzw-int16-voids.tif")
+                          .read_bytes(), "tiff", grid_shape=(48, 64)))
     return seeds
 
 

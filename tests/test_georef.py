@@ -246,3 +246,32 @@ def test_float32_lowest_is_refused_with_the_nodata_hint(tmp_path, capsys):
     assert status == 2 and "--nodata=-3.4028234663852886e+38" in err
     status, err = build_cli(capsys, path, "--nodata=-3.4028234663852886e+38")   # as the hint writes it
     assert status == 0, err
+
+
+# ------------------------------------------------------------- compressed GeoTIFFs
+
+DATA = __import__("pathlib").Path(__file__).parent / "data"
+
+
+def _fixture_dem(seed=7, shape=(48, 64)) -> np.ndarray:
+    """The relief tests/data/dem-lzw-*.tif hold (written by tifffile with imagecodecs)."""
+    rng = np.random.default_rng(seed)
+    return rng.normal(size=shape).cumsum(0).cumsum(1) * 0.5 + 800
+
+
+def test_lzw_geotiffs_read_without_imagecodecs():
+    """Real elevation GeoTIFFs are mostly LZW or deflate with a predictor, tiled or in strips;
+    tifffile decodes LZW only with the imagecodecs package, so Pillow's libtiff reads them."""
+    from caveclod.builder.terrain import load_heightfield
+    floats = load_heightfield(DATA / "dem-lzw-float-predictor.tif")          # LZW, predictor 3, 16 x 16 tiles
+    assert np.array_equal(floats, _fixture_dem().astype(np.float32).astype(np.float64))
+    ints = load_heightfield(DATA / "dem-lzw-int16-voids.tif")                # LZW, predictor 2, int16
+    expected = np.round(_fixture_dem())
+    expected[10:14, 20:25] = np.nan                                           # SRTM's -32768: holes
+    assert np.array_equal(ints, expected, equal_nan=True)
+
+
+def test_an_lzw_geotiff_builds_at_its_pixel_scale_with_its_voids(tmp_path):
+    source = to_source(str(DATA / "dem-lzw-int16-voids.tif"))
+    assert tuple(np.ptp(source.positions[:, :2], axis=0)) == (63 * 30.0, 47 * 30.0)
+    assert any("dropped 30 cells" in n for n in source.notes)

@@ -200,7 +200,40 @@ def _read_tiff(path: str, what: str) -> np.ndarray:
         if held < needed:
             raise InputError(f"{what} {path} is damaged: it holds {held} of the {needed} strips or tiles its "
                              f"{page.imagewidth}x{page.imagelength} pixels need; check that the file is intact")
-        return np.squeeze(tif.asarray())
+        try:
+            return np.squeeze(tif.asarray())
+        except (ValueError, ImportError) as exc:
+            # tifffile names imagecodecs in a ValueError, or fails importing a codec module of its own.
+            if not isinstance(exc, ImportError) and "imagecodecs" not in str(exc):
+                raise
+            dtype, compression = page.dtype, getattr(page.compression, "name", page.compression)
+    return _tiff_through_pillow(path, what, dtype, compression)
+
+
+def _tiff_through_pillow(path: str, what: str, dtype, compression) -> np.ndarray:
+    """A TIFF whose compression tifffile decodes only with the imagecodecs package (LZW, the usual
+    compression of real elevation GeoTIFFs, zstd, predictors), read through Pillow's libtiff instead,
+    as ``dtype`` (tifffile's reading of the header: Pillow widens int16 to int32, which would hide
+    SRTM's -32768 voids)."""
+    from PIL import Image
+
+    limit = Image.MAX_IMAGE_PIXELS
+    try:
+        image = Image.open(path)
+    except Image.DecompressionBombError:
+        raise _too_many_pixels(what, path, limit) from None
+    with image:
+        if limit and image.width * image.height > limit:
+            raise _too_many_pixels(what, path, limit)
+        if image.mode not in ("F", "I", "L") and not image.mode.startswith("I;16"):
+            raise InputError(f"{what} {path} is a {image.mode} image compressed with {compression}; save it "
+                             "as one band of numbers, or install the imagecodecs package (pip install imagecodecs)")
+        array = np.array(image)
+    if dtype is not None and array.dtype != dtype and np.can_cast(dtype, array.dtype):
+        narrowed = array.astype(dtype)
+        if np.array_equal(narrowed, array):
+            array = narrowed
+    return array
 
 
 def _read_hgt(path: str, what: str) -> np.ndarray:
