@@ -2,9 +2,10 @@
 
 :func:`fuzz_sources` makes one small, valid input of every kind the build
 reads (:func:`make_seeds`: OBJ with an .mtl, ASCII and binary PLY, GLB
-(plain, Draco-compressed, quantized and gltfpack -cc's), glTF, ASCII and binary STL, OFF, .npy heightfields of three dtypes, 16-bit
-PNG, TIFF (and an LZW GeoTIFF), a geographic GeoTIFF and an SRTM .hgt tile), mutates a copy per case (:func:`mutate`: lines, numbers,
-indices, header counts and fields, node transforms, bits, bytes,
+(plain, Draco-compressed, quantized and gltfpack -cc's), glTF, ASCII and
+binary STL, OFF, .npy heightfields of three dtypes, 16-bit PNG, TIFF (and
+an LZW GeoTIFF), a geographic GeoTIFF and an SRTM .hgt tile), mutates a
+copy per case (:func:`mutate`: lines, numbers, indices, header counts and fields, node transforms, bits, bytes,
 truncation, and whole-geometry edits: scaled, offset, flattened, snapped,
 holed, recast), sometimes with odd numeric options or a (mutated) material
 map, and builds it in a :class:`fuzzing.CliWorker`, which survives crashes
@@ -108,7 +109,8 @@ def make_seeds(rng: np.random.Generator) -> list[Seed]:
         Seed("glb-quantized", "seed.glb", quantized_quad_glb(transform={"offset": [0.1, 0.2], "scale": [2.0, 3.0],
                                                                        "rotation": 0.5}), "glb"),
         # gltfpack -cc's output: EXT_meshopt_compression's codecs and the octahedral filter (tests/data)
-        Seed("glb-meshopt", "seed.glb", (Path(__file__).parent / "data" / "sphere-gltfpack-cc.glb").read_bytes(), "glb"),
+        Seed("glb-meshopt", "seed.glb", (Path(__file__).parent / "data" / "sphere-gltfpack-cc.glb").read_bytes(),
+             "glb"),
         Seed("gltf", "seed.gltf", _gltf_bytes(_two_part_scene(rng)), "gltf"),
         Seed("stl-ascii", "seed.stl", stl.export_stl_ascii(sphere).encode(), "text"),
         Seed("stl-binary", "seed.stl", stl.export_stl(sphere), "stl"),
