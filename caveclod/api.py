@@ -12,7 +12,7 @@ from .builder.source import SourceMesh
 from .staticmesh import StaticMesh
 from .staticmesh import load as _load_file
 
-HEIGHTFIELD_SUFFIXES = {".npy", ".png", ".tif", ".tiff", ".hgt"}
+HEIGHTFIELD_SUFFIXES = {".npy", ".png", ".tif", ".tiff", ".hgt", ".asc"}
 DEFAULT_SIZE = 256
 
 
@@ -29,7 +29,7 @@ def build(source, *, cell_size: float | None = None, z_scale: float = 1.0, mater
             a field of many small parts; see
             :mod:`caveclod.builder.builtin`), a path to a
             mesh file (anything trimesh loads) or a heightfield (``.npy``,
-            16-bit ``.png``/``.tif``, an SRTM ``.hgt``) or a heightfield
+            16-bit ``.png``/``.tif``, an SRTM ``.hgt``, an ESRI ``.asc``) or a heightfield
             array, a ``trimesh.Trimesh``/``Scene``, or a
             :class:`~caveclod.builder.source.SourceMesh`. A heightfield is
             a raster: its first row is the north edge (the largest y).
@@ -177,7 +177,7 @@ def _refuse_heightfield_options(what: str, cell_size, z_scale, materials, nodata
                                        ("--materials", materials is not None), ("--nodata", nodata is not None))
              if unused]
     if given:
-        raise InputError(f"{', '.join(given)} only apply to heightfields (.npy, .png, .tif, .hgt), not to {what}; "
+        raise InputError(f"{', '.join(given)} only apply to heightfields (.npy, .png, .tif, .hgt, .asc), not to {what}; "
                          "drop them, or give a heightfield")
 
 

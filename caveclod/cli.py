@@ -71,7 +71,7 @@ def _parser() -> argparse.ArgumentParser:
 
     b = sub.add_parser("build", help="build a static CAVECLOD mesh (.cvc) from a mesh, a heightfield or a built-in")
     b.add_argument("input", help="mesh file (OBJ, PLY, GLB/glTF, STL, OFF), heightfield (.npy, 16-bit .png/.tif, "
-                                 "SRTM .hgt; its first row is the north) or a "
+                                 "SRTM .hgt, ESRI .asc; its first row is the north) or a "
                                  "built-in: 'default' (smooth terrain), 'rough' (rough terrain with no-data holes), "
                                  "'scan' (a range scan), 'debris' (20 x --size small parts)")
     b.add_argument("-o", "--output", help="the .cvc file to write (required but with --tile-job)")
@@ -80,7 +80,8 @@ def _parser() -> argparse.ArgumentParser:
                                                          "triangles of the default terrain)")
     b.add_argument("--seed", type=int, help="seed of a built-in")
     b.add_argument("--cell-size", type=float, help="heightfield grid spacing (default: what a GeoTIFF's or an SRTM "
-                                                   ".hgt tile's georeference states, in metres for degrees; else 1)")
+                                                   ".hgt tile's or an .asc grid's georeference states, in metres for "
+                                                   "degrees; else 1)")
     b.add_argument("--z-scale", type=float, default=1.0, help="heightfield height scale")
     b.add_argument("--materials", help="heightfield material map (.npy, one integer class per cell)")
     b.add_argument("--nodata", type=float, help="heightfield value marking missing samples, which become holes "

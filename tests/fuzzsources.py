@@ -4,7 +4,8 @@
 reads (:func:`make_seeds`: OBJ with an .mtl, ASCII and binary PLY, GLB
 (plain, Draco-compressed, quantized and gltfpack -cc's), glTF, ASCII and
 binary STL, OFF, .npy heightfields of three dtypes, 16-bit PNG, TIFF (and
-an LZW GeoTIFF), a geographic GeoTIFF and an SRTM .hgt tile), mutates a
+an LZW GeoTIFF), a geographic GeoTIFF, an SRTM .hgt tile and an ESRI ASCII
+grid), mutates a
 copy per case (:func:`mutate`: lines, numbers, indices, header counts and fields, node transforms, bits, bytes,
 truncation, and whole-geometry edits: scaled, offset, flattened, snapped,
 holed, recast), sometimes with odd numeric options or a (mutated) material
@@ -81,13 +82,13 @@ class Seed:
     kind: str                    # what it is, for the report: "obj", "ply-binary", ...
     name: str
     data: bytes
-    family: str                  # text, gltf, glb, ply, stl, npy, png, tiff or hgt
+    family: str                  # text, gltf, glb, ply, stl, npy, png, tiff, hgt or asc
     companions: dict = field(default_factory=dict)   # name -> bytes (an OBJ's .mtl)
     grid_shape: tuple | None = None                  # a heightfield's (rows, cols)
 
     @property
     def heightfield(self) -> bool:
-        return self.family in ("npy", "png", "tiff", "hgt")
+        return self.family in ("npy", "png", "tiff", "hgt", "asc")
 
 
 # ------------------------------------------------------------------ seeds
@@ -120,7 +121,8 @@ def make_seeds(rng: np.random.Generator) -> list[Seed]:
              ("npy-f64", "seed.npy", "npy", _heights(rng, holes=True), _npy_bytes),
              ("npy-i16", "seed.npy", "npy", _int16_heights(rng), _npy_bytes),
              ("png16", "seed.png", "png", _uint16_heights(rng), _png_bytes),
-             ("hgt", "N46E007.hgt", "hgt", _square(_int16_heights(rng)), _hgt_bytes)]
+             ("hgt", "N46E007.hgt", "hgt", _square(_int16_heights(rng)), _hgt_bytes),
+             ("asc", "seed.asc", "asc", _heights(rng, holes=True), _asc_bytes)]
     if _have_tifffile():
         grids.append(("tiff", "seed.tif", "tiff", _heights(rng, holes=True).astype(np.float32), _tiff_bytes))
         grids.append(("geotiff", "seed.tif", "tiff", _heights(rng, holes=True).astype(np.float32), _geotiff_bytes))
@@ -306,6 +308,15 @@ def _square(grid: np.ndarray) -> np.ndarray:
     """The largest square of ``grid`` from its first row and column (an SRTM tile is square)."""
     side = min(grid.shape)
     return grid[:side, :side]
+
+
+def _asc_bytes(grid: np.ndarray) -> bytes:
+    """An ESRI ASCII grid: its header, then the rows (NaN written as the NODATA_value)."""
+    rows, cols = grid.shape
+    text = [f"ncols {cols}", f"nrows {rows}", "xllcorner 500000", "yllcorner 4100000", "cellsize 25",
+            "NODATA_value -9999"]
+    text += [" ".join("-9999" if np.isnan(v) else f"{v:.4f}" for v in row) for row in grid]
+    return ("\n".join(text) + "\n").encode()
 
 
 def _hgt_bytes(grid: np.ndarray) -> bytes:
@@ -1147,6 +1158,8 @@ MUTATORS = {
     "tiff": (tiff_tag, tiff_tag, tiff_description, tiff_image, tiff_image, tiff_image, geotiff_double, truncate,
              bit_flips, poke_bytes),
     "hgt": (truncate, truncate, bit_flips, poke_bytes, poke_bytes),
+    "asc": (delete_line, duplicate_line, swap_lines, insert_junk_line, replace_number, replace_number, truncate,
+            bit_flips),
 }
 
 

@@ -275,3 +275,58 @@ def test_an_lzw_geotiff_builds_at_its_pixel_scale_with_its_voids(tmp_path):
     source = to_source(str(DATA / "dem-lzw-int16-voids.tif"))
     assert tuple(np.ptp(source.positions[:, :2], axis=0)) == (63 * 30.0, 47 * 30.0)
     assert any("dropped 30 cells" in n for n in source.notes)
+
+
+# ------------------------------------------------------------------ ESRI ASCII grids
+
+
+def _write_asc(path, heights, *, cellsize="30", nodata=-9999, header_extra=""):
+    rows, cols = heights.shape
+    lines = [f"ncols {cols}", f"nrows {rows}", "xllcorner 350000.0", "yllcorner 5100000.0",
+             f"cellsize {cellsize}"] + ([f"NODATA_value {nodata}"] if nodata is not None else [])
+    body = "\n".join(" ".join(f"{v:g}" for v in row) for row in heights)
+    path.write_text("\n".join(lines) + "\n" + header_extra + body + "\n")
+    return path
+
+
+def test_an_esri_ascii_grid_builds_north_up_at_its_cellsize_with_its_voids(tmp_path):
+    h = _raster(7, 9)
+    h[3, 4] = -9999
+    source = to_source(str(_write_asc(tmp_path / "dem.asc", h)))
+    assert tuple(np.ptp(source.positions[:, :2], axis=0)) == (8 * 30.0, 6 * 30.0)
+    assert tuple(_sample_xy(source, h[0, 0])) == (0.0, 6 * 30.0)             # the first row is the north
+    assert not (source.positions[:, 2] == -9999).any()
+    assert any("dropped 4 cells" in n for n in source.notes)
+    assert any("ESRI ASCII grid's header" in n for n in source.notes)
+
+
+def test_an_ascii_grid_with_dx_and_dy(tmp_path):
+    h = _raster(4, 5)
+    path = tmp_path / "dem.asc"
+    path.write_text("NCOLS 5\nNROWS 4\nXLLCENTER 0\nYLLCENTER 0\nDX 2.5\nDY 5\n"
+                    + "\n".join(" ".join(f"{v:g}" for v in row) for row in h))
+    source = to_source(str(path))
+    assert tuple(np.ptp(source.positions[:, :2], axis=0)) == (4 * 2.5, 3 * 5.0)
+
+
+@pytest.mark.parametrize("edit, words", [
+    (lambda t: t.replace("ncols 9", "ncols 10"), "holds 63 samples after its header"),
+    (lambda t: t.replace("nrows 7", "nrows seven"), "nrows is"),
+    (lambda t: t.replace("ncols 9\n", ""), "needs ncols"),
+    (lambda t: t.replace("100.5", "100,5", 1), "'.' decimals"),
+    (lambda t: t.replace("cellsize 30", "cellsize 30 m"), "is not a line of an ESRI ASCII grid's header"),
+])
+def test_a_damaged_ascii_grid_is_refused_saying_what(tmp_path, capsys, edit, words):
+    h = _raster(7, 9)
+    h[0, 0] = 100.5
+    path = _write_asc(tmp_path / "dem.asc", h)
+    path.write_text(edit(path.read_text()))
+    status, err = build_cli(capsys, path)
+    assert status == 2 and words in err, err
+
+
+def test_a_large_ascii_grid_is_parsed_in_blocks(tmp_path):
+    h = np.round(_fixture_dem(shape=(300, 400)), 3)                        # about 2.5 MB of text
+    source = to_source(str(_write_asc(tmp_path / "dem.asc", h, nodata=None)))
+    assert len(source.positions) == 300 * 400
+    assert np.array_equal(np.sort(source.positions[:, 2]), np.sort(h.ravel()))

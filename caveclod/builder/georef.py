@@ -4,7 +4,8 @@ model is built at its own scale without ``--cell-size``.
 Elevation models say how far apart their samples are: a GeoTIFF in its
 ``ModelPixelScale`` (or ``ModelTransformation``) tag, in the units of its
 coordinate system (metres for a projected one, degrees for a geographic
-one), and an SRTM ``.hgt`` tile in its name and size (one degree of
+one), an ESRI ASCII grid in its header's ``cellsize``, and an SRTM
+``.hgt`` tile in its name and size (one degree of
 latitude and longitude, 1201 or 3601 samples a side). Heights are metres.
 Built with a cell size of 1 instead, a 30 m grid would come out thirty
 times steeper than it is.
@@ -59,7 +60,7 @@ def grid_spacing(path: str | os.PathLike, shape: tuple[int, int]) -> tuple[Spaci
     """The sample spacing a heightfield file states, and why none when it states none usable.
 
     Args:
-        path: a ``.tif``/``.tiff`` or ``.hgt`` heightfield (other types state none).
+        path: a ``.tif``/``.tiff``, ``.hgt`` or ``.asc`` heightfield (other types state none).
         shape: (rows, cols) of its grid.
 
     Returns:
@@ -71,7 +72,20 @@ def grid_spacing(path: str | os.PathLike, shape: tuple[int, int]) -> tuple[Spaci
         return _hgt_spacing(path, shape)
     if ext in (".tif", ".tiff"):
         return _geotiff_spacing(path, shape)
+    if ext == ".asc":
+        return _ascii_grid_spacing(path)
     return None, None
+
+
+def _ascii_grid_spacing(path) -> tuple[Spacing | None, str | None]:
+    """An ESRI ASCII grid's ``cellsize`` (or ``dx`` and ``dy``), in its coordinate system's units."""
+    from .terrain import ascii_grid_header
+    header = ascii_grid_header(path)
+    dx, dy = header.get("dx", header.get("cellsize")), header.get("dy", header.get("cellsize"))
+    if dx is None or dy is None or not (math.isfinite(dx) and math.isfinite(dy) and dx > 0 and dy > 0):
+        return None, "the ESRI ASCII grid's header gives no usable cellsize: give --cell-size"
+    return Spacing(dx, dy, f"cell size {dx:g} x {dy:g} (in the units of the file's coordinate system) from the "
+                           "ESRI ASCII grid's header"), None
 
 
 def _hgt_spacing(path, shape) -> tuple[Spacing | None, str | None]:

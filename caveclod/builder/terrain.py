@@ -59,8 +59,9 @@ def load_heightfield(path: str | os.PathLike, nodata: float | None = None) -> np
 
     ``.npy`` (any real 2-D array), ``.png`` (16- or 8-bit greyscale, read with
     Pillow), ``.tif``/``.tiff`` (integer or float greyscale, read with
-    tifffile) and ``.hgt`` (an SRTM tile: big-endian int16, 1201 or 3601
-    samples a side). Values come back as stored (0..65535 for a 16-bit image): pass
+    tifffile), ``.hgt`` (an SRTM tile: big-endian int16, 1201 or 3601
+    samples a side) and ``.asc`` (an ESRI ASCII grid, whose header's
+    ``NODATA_value`` marks voids). Values come back as stored (0..65535 for a 16-bit image): pass
     ``z_scale`` to :func:`heightfield_to_source` to turn them into heights.
 
     Missing samples become NaN (holes): NaN itself, ``nodata`` when given,
@@ -76,6 +77,10 @@ def load_heightfield(path: str | os.PathLike, nodata: float | None = None) -> np
         voids += _tiff_nodata(path)
     if array.dtype == np.int16:
         voids.append(SRTM_VOID)
+    if os.path.splitext(os.fspath(path))[1].lower() == ".asc":
+        nodata_value = ascii_grid_header(path).get("nodata_value")
+        if nodata_value is not None:
+            voids.append(nodata_value)
     heights = _as_float64(array)
     for value in voids:
         heights[heights == value] = np.nan
@@ -128,7 +133,7 @@ def load_material_map(path: str | os.PathLike) -> np.ndarray:
 
 
 def _read_grid(path: str | os.PathLike, what: str, palette: bool = False) -> np.ndarray:
-    """The 2-D array stored in ``path`` (.npy, .png, .tif/.tiff, .hgt).
+    """The 2-D array stored in ``path`` (.npy, .png, .tif/.tiff, .hgt, .asc).
 
     ``palette``: accept palette PNGs (their indices are classes, not heights).
     """
@@ -148,8 +153,10 @@ def _read_grid(path: str | os.PathLike, what: str, palette: bool = False) -> np.
                 array = _read_tiff(path, what)
             elif ext == ".hgt" and not palette:
                 array = _read_hgt(path, what)
+            elif ext == ".asc":
+                array = _read_ascii_grid(path, what)
             else:
-                raise InputError(f"{what} {path}: unknown file type {ext!r}; use .npy, .png, .tif or .tiff"
+                raise InputError(f"{what} {path}: unknown file type {ext!r}; use .npy, .png, .tif, .tiff or .asc"
                                  + ("" if palette else " (or an SRTM .hgt)"))
     except InputError:
         raise
@@ -245,6 +252,74 @@ def _read_hgt(path: str, what: str) -> np.ndarray:
         raise InputError(f"{what} {path} holds {size:,} bytes, not a square of 16-bit samples as an SRTM .hgt "
                          "tile does (1201 x 1201 or 3601 x 3601); check that the file is whole")
     return np.fromfile(path, dtype=">i2").reshape(side, side).astype(np.int16)
+
+
+ASCII_GRID_KEYS = ("ncols", "nrows", "xllcorner", "yllcorner", "xllcenter", "yllcenter", "cellsize", "dx", "dy",
+                   "nodata_value")
+MAX_ASCII_GRID_SAMPLES = 1 << 31
+
+
+def ascii_grid_header(path) -> dict[str, float]:
+    """The header of an ESRI ASCII grid (``.asc``): lower-case keys (``ncols``, ``nrows``,
+    ``cellsize`` or ``dx``/``dy``, ``xllcorner``..., ``nodata_value``) and their numbers, plus
+    ``_data_at``, the byte offset of the first sample. InputError when it is not one."""
+    header: dict[str, float] = {}
+    with open(path, "rb") as f:
+        while len(header) < len(ASCII_GRID_KEYS):
+            at = f.tell()
+            line = f.readline(256)
+            words = line.split()
+            if not words or not words[0][:1].isalpha():
+                f.seek(at)
+                break
+            key = words[0].decode("ascii", "replace").lower()
+            if key not in ASCII_GRID_KEYS or len(words) != 2:
+                raise InputError(f"heightfield {path}: {line[:60]!r} is not a line of an ESRI ASCII grid's header "
+                                 f"(keys {', '.join(ASCII_GRID_KEYS)}); check the file")
+            try:
+                header[key] = float(words[1])
+            except ValueError:
+                raise InputError(f"heightfield {path}: the header's {key} is {words[1][:30]!r}, not a number") from None
+        header["_data_at"] = f.tell()
+    for key in ("ncols", "nrows"):
+        value = header.get(key)
+        if value is None or value != int(value) or not 2 <= value <= MAX_ASCII_GRID_SAMPLES:
+            raise InputError(f"heightfield {path}: an ESRI ASCII grid's header needs {key} (a whole number from 2), "
+                             f"got {value}; check the file")
+    return header
+
+
+def _read_ascii_grid(path: str, what: str) -> np.ndarray:
+    """An ESRI ASCII grid's samples, (nrows, ncols) float64, rows from north to south."""
+    header = ascii_grid_header(path)
+    rows, cols = int(header["nrows"]), int(header["ncols"])
+    if rows * cols > MAX_ASCII_GRID_SAMPLES:
+        raise InputError(f"{what} {path}: {rows:,} x {cols:,} samples are more than this reader takes; "
+                         "convert it to a GeoTIFF")
+    with open(path, "rb") as f:
+        f.seek(int(header["_data_at"]))
+        text = f.read()
+    try:
+        values = np.array(text.split(), dtype=np.float64) if len(text) < (1 << 20) else _parse_numbers(text)
+    except ValueError as exc:
+        raise InputError(f"{what} {path} holds a sample that is not a number ({_one_line(exc)[:80]}); an ESRI "
+                         "ASCII grid writes them with '.' decimals, separated by spaces") from None
+    if len(values) != rows * cols:
+        raise InputError(f"{what} {path} holds {len(values):,} samples after its header, which says nrows {rows} x "
+                         f"ncols {cols} = {rows * cols:,}; check that the file is whole (and uses '.' decimals)")
+    return values.reshape(rows, cols)
+
+
+def _parse_numbers(text: bytes) -> np.ndarray:
+    """Whitespace-separated numbers, in blocks of lines (a list of every token of a large grid at once
+    would hold about 60 bytes a sample)."""
+    out, start, block = [], 0, 1 << 24
+    while start < len(text):
+        end = text.find(b"\n", start + block)
+        end = len(text) if end < 0 else end + 1
+        out.append(np.array(text[start:end].split(), dtype=np.float64))
+        start = end
+    return np.concatenate(out) if out else np.zeros(0)
 
 
 def _too_many_pixels(what: str, path: str, limit: int) -> InputError:
