@@ -143,17 +143,30 @@ def _check_workers(workers) -> None:
         raise InputError(f"--workers must be a whole number from 1 to 256, got {workers!r}")
 
 
-def _cell_size_of(path: Path, shape, cell_size) -> tuple:
-    """The cell size to build heightfield ``path`` with, and notes for the report: ``cell_size``
-    when given, else what the file's georeference states, else 1."""
+def _raster_file_to_source(path: Path, heights, classes, cell_size, z_scale) -> SourceMesh:
+    """A heightfield file's mesh at the cell size given (``cell_size``), else the one its
+    georeference states (and then where it lies: ``origin``), else 1; notes say which."""
+    from .builder import terrain
     from .builder.georef import grid_spacing
-    spacing, why_not = grid_spacing(path, shape)
+    spacing, why_not = grid_spacing(path, heights.shape)
+    north_first = spacing is None or spacing.north_first
+    origin = None
     if cell_size is not None:
-        return cell_size, [] if spacing is None else [f"--cell-size {cell_size:g} given; the file states "
-                                                      + spacing.note.replace("cell size ", "", 1)]
-    if spacing is None:
-        return 1.0, [] if why_not is None else [why_not + "; built with cell size 1"]
-    return (spacing.x, spacing.y), [spacing.note]
+        cell, notes = cell_size, [] if spacing is None else [f"--cell-size {cell_size:g} given; the file states "
+                                                            + spacing.note.replace("cell size ", "", 1)]
+    elif spacing is None:
+        cell, notes = 1.0, [] if why_not is None else [why_not + "; built with cell size 1"]
+    else:
+        cell, notes, origin = (spacing.x, spacing.y), [spacing.note], spacing.origin
+    if not north_first:
+        notes.append("the file's rows run northwards (its transformation says so): read as they are")
+    source = terrain.raster_to_source(heights, cell_size=cell, z_scale=z_scale, materials=classes, notes=notes,
+                                      north_first=north_first)
+    if origin is not None:
+        source.origin = origin
+        source.notes.append(f"its south-west sample lies at ({origin[0]:.10g}, {origin[1]:.10g}) in the file's "
+                            "coordinates (info origin); positions are relative to it")
+    return source
 
 
 def _check_options(crease_angle, cell_size, z_scale) -> None:
@@ -238,8 +251,7 @@ def to_source(source, *, cell_size=None, z_scale=1.0, materials=None, size=DEFAU
             if materials is not None:
                 classes = terrain.load_material_map(materials) if isinstance(materials, (str, os.PathLike)) \
                     else np.asarray(materials)
-            cell, notes = _cell_size_of(path, heights.shape, cell_size)
-            return terrain.raster_to_source(heights, cell_size=cell, z_scale=z_scale, materials=classes, notes=notes)
+            return _raster_file_to_source(path, heights, classes, cell_size, z_scale)
         _refuse_heightfield_options(f"the mesh file {path.name}", cell_size, z_scale, materials, nodata)
         if check_memory:
             from .builder.memory import check_read_memory

@@ -330,3 +330,69 @@ def test_a_large_ascii_grid_is_parsed_in_blocks(tmp_path):
     source = to_source(str(_write_asc(tmp_path / "dem.asc", h, nodata=None)))
     assert len(source.positions) == 300 * 400
     assert np.array_equal(np.sort(source.positions[:, 2]), np.sort(h.ravel()))
+
+
+# ------------------------------------------------------------------ where a projected grid lies
+
+
+def _world_of(source, r, c, h):
+    """World (x, y) of raster sample (r, c), found by its height: the position plus the origin."""
+    x, y = _sample_xy(source, h[r, c])
+    return x + source.origin[0], y + source.origin[1]
+
+
+@pytest.mark.parametrize("point", [False, True])
+def test_a_geotiffs_tie_point_places_its_samples(tmp_path, point):
+    """PixelIsArea (the default): a sample is its pixel's centre, half a pixel from the tie point's
+    corner; PixelIsPoint: the sample is the point."""
+    h = _raster(6, 8)
+    keys = [1, 1, 0, 2, 1024, 0, 1, 1, 1025, 0, 1, 2 if point else 1]        # projected, PixelIsPoint/Area
+    path = tmp_path / "dem.tif"
+    _write_geotiff(path, h.astype(np.float32), scale=(25.0, 30.0), tie=(350000.0, 5100000.0), geokeys=keys)
+    source = to_source(str(path))
+    half = 0.0 if point else 0.5
+    for r, c in [(0, 0), (5, 0), (2, 7)]:
+        assert _world_of(source, r, c, h) == (350000.0 + (c + half) * 25.0, 5100000.0 - (r + half) * 30.0)
+    assert source.positions[:, :2].min() == 0.0 and source.positions[:, :2].max() < 1000.0      # local
+
+
+def test_a_south_up_transformation_is_read_as_it_runs(tmp_path):
+    """A ModelTransformation whose rows run northwards (a positive y scale): the first row is the
+    south, not mirrored by the north-first rule."""
+    h = _raster(5, 4)
+    m = (10.0, 0, 0, 1000.0, 0, 10.0, 0, 2000.0, 0, 0, 0, 0, 0, 0, 0, 1)
+    path = tmp_path / "dem.tif"
+    tifffile.imwrite(path, h.astype(np.float32), extratags=[(34264, 12, 16, m)])
+    source = to_source(str(path))
+    assert tuple(_sample_xy(source, h[0, 0])) == (0.0, 0.0)
+    assert _world_of(source, 4, 3, h) == (1000.0 + 3.5 * 10.0, 2000.0 + 4.5 * 10.0)
+    assert any("rows run northwards" in n for n in source.notes)
+
+
+@pytest.mark.parametrize("corner", [True, False])
+def test_an_ascii_grid_is_placed_by_its_lower_left_corner_or_centre(tmp_path, corner):
+    h = _raster(4, 5)
+    ll = ("XLLCORNER 1000\nYLLCORNER 2000" if corner else "XLLCENTER 1000\nYLLCENTER 2000")
+    path = tmp_path / "dem.asc"
+    path.write_text(f"NCOLS 5\nNROWS 4\n{ll}\nCELLSIZE 10\n" + "\n".join(" ".join(f"{v:g}" for v in row) for row in h))
+    source = to_source(str(path))
+    shift = 5.0 if corner else 0.0
+    assert _world_of(source, 3, 0, h) == (1000.0 + shift, 2000.0 + shift)          # the south-west sample
+    assert _world_of(source, 0, 4, h) == (1040.0 + shift, 2030.0 + shift)
+
+
+def test_no_origin_without_the_files_scale_and_origins_add_up(tmp_path):
+    h = _raster(6, 8)
+    path = tmp_path / "dem.tif"
+    _write_geotiff(path, h.astype(np.float32), scale=(30.0, 30.0), tie=(350000.0, 5100000.0))
+    assert to_source(str(path), cell_size=1.0).origin is None             # another scale: no world position
+    mesh = caveclod.build(str(path), packed=False, origin="auto")
+    plain = to_source(str(path))
+    centre = np.round((plain.positions.min(axis=0) + plain.positions.max(axis=0)) / 2)
+    assert mesh.info["origin"] == [a + b for a, b in zip(plain.origin, centre.tolist())]
+
+
+def test_geographic_grids_record_no_origin(tmp_path):
+    path = tmp_path / "N46E007.hgt"
+    np.full((5, 5), 100, ">i2").tofile(path)
+    assert to_source(str(path)).origin is None

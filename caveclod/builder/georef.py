@@ -35,7 +35,8 @@ _HGT_NAME = re.compile(r"^([NS])(\d{1,2})([EW])(\d{1,3})", re.IGNORECASE)
 
 # GeoTIFF tag and key numbers (GeoTIFF 1.1, OGC 19-008r4).
 _PIXEL_SCALE, _TIEPOINT, _TRANSFORMATION, _GEOKEYS = 33550, 33922, 34264, 34735
-_MODEL_TYPE, _ANGULAR_UNITS, _LINEAR_UNITS = 1024, 2054, 3076
+_MODEL_TYPE, _RASTER_TYPE, _ANGULAR_UNITS, _LINEAR_UNITS = 1024, 1025, 2054, 3076
+_PIXEL_IS_POINT = 2
 _PROJECTED, _GEOGRAPHIC = 1, 2
 _LINEAR_NAMES = {9001: "metres", 9002: "feet", 9003: "US survey feet"}   # ProjLinearUnitsGeoKey values
 _DEGREE, _RADIAN = 9102, 9101
@@ -49,11 +50,17 @@ class Spacing:
         x: between neighbouring columns.
         y: between neighbouring rows.
         note: where the figures came from, for the build's report.
+        origin: for a projected grid that says where it lies, the world (x, y, 0) of its
+            south-west sample, which the build puts at (0, 0): the mesh's ``info["origin"]``.
+        north_first: the grid's first row is its north edge (False: a GeoTIFF whose
+            transformation runs rows northwards).
     """
 
     x: float
     y: float
     note: str
+    origin: tuple[float, float, float] | None = None
+    north_first: bool = True
 
 
 def grid_spacing(path: str | os.PathLike, shape: tuple[int, int]) -> tuple[Spacing | None, str | None]:
@@ -84,8 +91,12 @@ def _ascii_grid_spacing(path) -> tuple[Spacing | None, str | None]:
     dx, dy = header.get("dx", header.get("cellsize")), header.get("dy", header.get("cellsize"))
     if dx is None or dy is None or not (math.isfinite(dx) and math.isfinite(dy) and dx > 0 and dy > 0):
         return None, "the ESRI ASCII grid's header gives no usable cellsize: give --cell-size"
+    # The samples are cells: the lower-left corner is half a cell from the south-west sample.
+    x0 = header["xllcenter"] if "xllcenter" in header else header.get("xllcorner", math.nan) + dx / 2
+    y0 = header["yllcenter"] if "yllcenter" in header else header.get("yllcorner", math.nan) + dy / 2
+    origin = (x0, y0, 0.0) if math.isfinite(x0) and math.isfinite(y0) else None
     return Spacing(dx, dy, f"cell size {dx:g} x {dy:g} (in the units of the file's coordinate system) from the "
-                           "ESRI ASCII grid's header"), None
+                           "ESRI ASCII grid's header", origin), None
 
 
 def _hgt_spacing(path, shape) -> tuple[Spacing | None, str | None]:
@@ -130,7 +141,32 @@ def _geotiff_spacing(path, shape) -> tuple[Spacing | None, str | None]:
                           "give --cell-size")
         return _degrees_to_metres(sx, sy, lat, f"GeoTIFF pixel scale {sx:.9g} x {sy:.9g} degrees"), None
     units = _LINEAR_NAMES.get(keys.get(_LINEAR_UNITS), "in the units of the file's coordinate system")
-    return Spacing(sx, sy, f"cell size {sx:g} x {sy:g} ({units}) from the GeoTIFF's pixel scale"), None
+    origin, north_first = _projected_origin(values, keys, shape, sx, sy)
+    return Spacing(sx, sy, f"cell size {sx:g} x {sy:g} ({units}) from the GeoTIFF's pixel scale", origin,
+                   north_first), None
+
+
+def _projected_origin(values: dict, keys: dict, shape, sx: float, sy: float):
+    """(world (x, y, 0) of the south-west sample or None, whether the first row is the north).
+
+    From the first tie point (raster point (i, j) at model (X, Y)) with the pixel scale, or from
+    an axis-aligned ModelTransformation. A pixel's sample is its centre (raster point c + 0.5, r +
+    0.5) unless the GeoKey GTRasterType says PixelIsPoint."""
+    half = 0.0 if keys.get(_RASTER_TYPE) == _PIXEL_IS_POINT else 0.5
+    rows = shape[0]
+    tie, m = values.get(_TIEPOINT), values.get(_TRANSFORMATION)
+    if tie is not None and len(tie) >= 6 and _PIXEL_SCALE in values:
+        i, j, x, y = float(tie[0]), float(tie[1]), float(tie[3]), float(tie[4])
+        origin, north_first = (x + (half - i) * sx, y - (rows - 1 + half - j) * sy), True
+    elif m is not None and len(m) >= 8 and float(m[1]) == 0.0 and float(m[4]) == 0.0 and float(m[5]) != 0.0:
+        north_first = float(m[5]) < 0.0        # rows run southwards, as GDAL writes them
+        south_row = rows - 1 if north_first else 0
+        origin = (float(m[3]) + half * float(m[0]), float(m[7]) + (south_row + half) * float(m[5]))
+    else:
+        return None, True
+    if not all(math.isfinite(v) for v in origin):
+        return None, north_first
+    return (origin[0], origin[1], 0.0), north_first
 
 
 def _pixel_scale(values: dict) -> tuple[float, float] | None:

@@ -49,6 +49,8 @@ def move_to_origin(source: SourceMesh, origin) -> SourceMesh:
     p = source.positions
     if origin == "auto":
         origin = tuple(float(v) for v in np.round((p.min(axis=0) + p.max(axis=0)) / 2.0))
+    # A heightfield that said where it lies already has an origin: the two add up.
+    recorded = tuple(float(a) + float(b) for a, b in zip(source.origin or (0.0, 0.0, 0.0), origin))
     with np.errstate(over="ignore", invalid="ignore"):
         moved = p - np.asarray(origin, np.float64)
     n_far = int(out_of_range_rows(moved).sum())
@@ -56,9 +58,9 @@ def move_to_origin(source: SourceMesh, origin) -> SourceMesh:
         raise InputError(f"--origin {origin[0]:g},{origin[1]:g},{origin[2]:g} puts {n_far:,} positions beyond "
                          f"+-{MAX_COORDINATE:.2g}, too far for the .cvc's float32; give a point near the mesh, or auto")
     source.positions = moved
-    source.origin = origin
-    source.notes.append(f"positions are relative to the origin ({origin[0]:.10g}, {origin[1]:.10g}, "
-                        f"{origin[2]:.10g}) (info origin): add it back to place the mesh in the world")
+    source.origin = recorded
+    source.notes.append(f"positions are relative to the origin ({recorded[0]:.10g}, {recorded[1]:.10g}, "
+                        f"{recorded[2]:.10g}) (info origin): add it back to place the mesh in the world")
     return source
 
 

@@ -360,7 +360,8 @@ def _cell_slope_deg(a, b, c, d, cell: tuple[float, float]) -> np.ndarray:
 
 
 def raster_to_source(heights: np.ndarray, cell_size: float | tuple[float, float] = 1.0, z_scale: float = 1.0,
-                     materials: np.ndarray | None = None, notes: Sequence[str] = ()) -> SourceMesh:
+                     materials: np.ndarray | None = None, notes: Sequence[str] = (),
+                     north_first: bool = True) -> SourceMesh:
     """:func:`heightfield_to_source` of a raster, whose first row is the north edge.
 
     The rows of ``heights`` (and of ``materials``) are taken in reverse, so
@@ -368,13 +369,15 @@ def raster_to_source(heights: np.ndarray, cell_size: float | tuple[float, float]
     (see the module's docstring). A per-sample material map gives each cell
     the class of its first sample in raster order (its north-west corner).
     ``notes`` (say, where the cell size came from) lead the mesh's notes.
+    ``north_first`` False: a raster whose rows run northwards (a GeoTIFF can
+    say so), read as :func:`heightfield_to_source` reads rows.
     """
     classes = None if materials is None else np.asarray(materials)
     if classes is not None and classes.ndim == 2:       # other shapes are refused, as they are, below
         if classes.shape == np.shape(heights):
             classes = classes[:-1, :-1]          # per cell, in raster order, before the rows turn
-        classes = classes[::-1]
-    if np.ndim(heights) == 2:
+        classes = classes[::-1] if north_first else classes
+    if np.ndim(heights) == 2 and north_first:
         heights = np.asarray(heights)[::-1]
     source = heightfield_to_source(heights, cell_size=cell_size, z_scale=z_scale, materials=classes)
     source.notes[:0] = list(notes) + _sentinel_notes(heights)
