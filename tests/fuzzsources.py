@@ -140,15 +140,6 @@ def _draco_glb(scene) -> bytes:
     return export_glb(scene, extension_draco=True)
 
 
-def _glb_bytes(tree: dict, binary: bytes) -> bytes:
-    """A GLB of a glTF tree and its binary chunk."""
-    text = json.dumps(tree).encode()
-    text += b" " * (-len(text) % 4)
-    binary += b"\0" * (-len(binary) % 4)
-    body = struct.pack("<II", len(text), 0x4E4F534A) + text + struct.pack("<II", len(binary), 0x004E4942) + binary
-    return struct.pack("<III", 0x46546C67, 2, 12 + len(body)) + body
-
-
 def quantized_quad_glb(*, uv_type=5123, uv=None, normal=None, transform=None, stride=None, broken=False) -> bytes:
     """A GLB of a two-triangle quad: int16 positions with a node scale, uv (4, 2) stored as ``uv_type``
     normalized, int8 normals, the base colour texture's KHR_texture_transform ``transform``, as
@@ -193,7 +184,8 @@ def quantized_quad_glb(*, uv_type=5123, uv=None, normal=None, transform=None, st
         "textures": [{}],
         "accessors": accessors, "bufferViews": views, "buffers": [{"byteLength": len(blob)}],
     }
-    return _glb_bytes(tree, blob)
+    from caveclod.builder.gltfquant import glb_bytes
+    return glb_bytes(tree, blob)
 
 
 def _have_tifffile() -> bool:
@@ -848,22 +840,26 @@ _TIFF_TAGS = {256: "width", 257: "length", 258: "bits", 259: "compression", 262:
 _TIFF_VALUES = (0, 1, 2, 3, 5, 7, 8, 16, 32, 64, 65535, 100000, 2 ** 31 - 1, 2 ** 32 - 1)
 
 
-def tiff_tag(data, rng):
-    """Set the value of one of the first IFD's image-layout tags."""
+def _ifd_entries(data) -> list[tuple[int, int, int, int, int]]:
+    """(offset, tag, type, count, value or offset) of the first IFD's entries (up to 64) of a
+    little-endian TIFF; empty for anything else."""
     if len(data) < 8 or data[:4] != b"II*\0":
-        return bit_flips(data, rng)
+        return []
     ifd = struct.unpack_from("<I", data, 4)[0]
     if ifd + 2 > len(data):
-        return bit_flips(data, rng)
-    count = struct.unpack_from("<H", data, ifd)[0]
+        return []
     entries = []
-    for i in range(min(count, 64)):
+    for i in range(min(struct.unpack_from("<H", data, ifd)[0], 64)):
         at = ifd + 2 + 12 * i
         if at + 12 > len(data):
             break
-        tag, kind = struct.unpack_from("<HH", data, at)
-        if tag in _TIFF_TAGS and kind in (3, 4):
-            entries.append((at, tag, kind))
+        entries.append((at, *struct.unpack_from("<HHII", data, at)))
+    return entries
+
+
+def tiff_tag(data, rng):
+    """Set the value of one of the first IFD's image-layout tags."""
+    entries = [(at, tag, kind) for at, tag, kind, _, _ in _ifd_entries(data) if tag in _TIFF_TAGS and kind in (3, 4)]
     if not entries:
         return bit_flips(data, rng)
     at, tag, kind = rng.choice(entries)
@@ -878,19 +874,8 @@ _GEO_VALUES = (0.0, -1.0, 1e-300, 1e300, float("inf"), float("nan"), 91.0, -1e9,
 
 def geotiff_double(data, rng):
     """Set one double of a GeoTIFF's pixel scale or tie point (a stored, little-endian TIFF)."""
-    if len(data) < 8 or data[:4] != b"II*\0":
-        return bit_flips(data, rng)
-    ifd = struct.unpack_from("<I", data, 4)[0]
-    if ifd + 2 > len(data):
-        return bit_flips(data, rng)
-    entries = []
-    for i in range(min(struct.unpack_from("<H", data, ifd)[0], 64)):
-        at = ifd + 2 + 12 * i
-        if at + 12 > len(data):
-            break
-        tag, kind, count, offset = struct.unpack_from("<HHII", data, at)
-        if tag in _GEO_TAGS and kind == 12 and 0 < count and offset + 8 * count <= len(data):
-            entries.append((tag, count, offset))
+    entries = [(tag, count, offset) for _, tag, kind, count, offset in _ifd_entries(data)
+               if tag in _GEO_TAGS and kind == 12 and 0 < count and offset + 8 * count <= len(data)]
     if not entries:
         return tiff_tag(data, rng)
     tag, count, offset = rng.choice(entries)

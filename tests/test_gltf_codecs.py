@@ -14,6 +14,7 @@ from trimesh.exchange.gltf import export_glb
 from trimesh.visual import TextureVisuals
 
 from caveclod.builder import gltfcodecs
+from caveclod.builder.gltfquant import glb_bytes
 from caveclod.builder.meshfile import load_mesh_file
 from caveclod.errors import InputError
 from fuzzsources import build_here as build_cli
@@ -36,14 +37,6 @@ def _glb_parts(data: bytes) -> tuple[dict, bytes]:
     bin_at = 20 + json_len
     (bin_len,) = struct.unpack_from("<I", data, bin_at)
     return tree, data[bin_at + 8:bin_at + 8 + bin_len]
-
-
-def _glb(tree: dict, binary: bytes) -> bytes:
-    text = json.dumps(tree).encode()
-    text += b" " * (-len(text) % 4)
-    binary += b"\0" * (-len(binary) % 4)
-    body = struct.pack("<II", len(text), 0x4E4F534A) + text + struct.pack("<II", len(binary), 0x004E4942) + binary
-    return struct.pack("<III", 0x46546C67, 2, 12 + len(body)) + body
 
 
 def test_a_draco_glb_builds_as_its_uncompressed_twin(tmp_path):
@@ -71,7 +64,7 @@ def test_damaged_draco_data_is_named_not_called_degenerate(tmp_path, capsys):
     view = tree["meshes"][0]["primitives"][0]["extensions"]["KHR_draco_mesh_compression"]["bufferView"]
     at = tree["bufferViews"][view].get("byteOffset", 0)
     broken = binary[:at] + b"\xff" * 16 + binary[at + 16:]          # the Draco header itself
-    (tmp_path / "broken.glb").write_bytes(_glb(tree, broken))
+    (tmp_path / "broken.glb").write_bytes(glb_bytes(tree, broken))
     with pytest.raises(InputError, match="compressed with KHR_draco_mesh_compression, and decoding it failed"):
         load_mesh_file(tmp_path / "broken.glb")
     status, err = build_cli(capsys, tmp_path / "broken.glb")

@@ -65,7 +65,7 @@ def dequantized_gltf(path: Path, file_type: str) -> bytes | None:
     except Exception as exc:    # a damaged tree, whatever shape its damage takes
         raise InputError(f"{path}: its quantized vertex attributes do not decode ({type(exc).__name__}: "
                          f"{' '.join(str(exc).split())[:200]}); the file is damaged: export it again") from None
-    return _glb(tree, bytes(out))
+    return glb_bytes(tree, bytes(out))
 
 
 # ------------------------------------------------------------------ reading and writing
@@ -103,7 +103,8 @@ def _read(path: Path, file_type: str) -> tuple[dict, list]:
     return tree, buffers
 
 
-def _glb(tree: dict, binary: bytes) -> bytes:
+def glb_bytes(tree: dict, binary: bytes) -> bytes:
+    """A GLB of a glTF ``tree`` and its binary chunk (padded as the format wants)."""
     text = json.dumps(tree, separators=(",", ":")).encode()
     text += b" " * (-len(text) % 4)
     binary += b"\0" * (-len(binary) % 4)

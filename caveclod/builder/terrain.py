@@ -173,6 +173,14 @@ def _read_png(path: str, what: str, palette: bool) -> np.ndarray:
     Images beyond Pillow's decompression-bomb limit are refused (Pillow only
     warns up to twice the limit, a warning the caller silences).
     """
+    # "I;16*" is 16-bit greyscale, "I" the 32-bit mode older Pillows use for it.
+    modes = ("L", "I", "F", "P") if palette else ("L", "I", "F")
+    return _pillow_pixels(path, what, modes, "save it as 8- or 16-bit greyscale")
+
+
+def _pillow_pixels(path: str, what: str, modes: tuple, advice: str) -> np.ndarray:
+    """The pixels of a greyscale image Pillow opens, refused beyond its decompression-bomb limit (Pillow
+    only warns up to twice it, a warning the caller silences) or in a mode not in ``modes`` (nor I;16*)."""
     from PIL import Image
 
     limit = Image.MAX_IMAGE_PIXELS     # None when an application turned the check off
@@ -183,10 +191,8 @@ def _read_png(path: str, what: str, palette: bool) -> np.ndarray:
     with image:
         if limit and image.width * image.height > limit:
             raise _too_many_pixels(what, path, limit)
-        # "I;16*" is 16-bit greyscale, "I" the 32-bit mode older Pillows use for it.
-        modes = ("L", "I", "F", "P") if palette else ("L", "I", "F")
         if image.mode not in modes and not image.mode.startswith("I;16"):
-            raise InputError(f"{what} {path} is a {image.mode} image; save it as 8- or 16-bit greyscale")
+            raise InputError(f"{what} {path} is a {image.mode} image; {advice}")
         return np.array(image)
 
 
@@ -222,20 +228,8 @@ def _tiff_through_pillow(path: str, what: str, dtype, compression) -> np.ndarray
     compression of real elevation GeoTIFFs, zstd, predictors), read through Pillow's libtiff instead,
     as ``dtype`` (tifffile's reading of the header: Pillow widens int16 to int32, which would hide
     SRTM's -32768 voids)."""
-    from PIL import Image
-
-    limit = Image.MAX_IMAGE_PIXELS
-    try:
-        image = Image.open(path)
-    except Image.DecompressionBombError:
-        raise _too_many_pixels(what, path, limit) from None
-    with image:
-        if limit and image.width * image.height > limit:
-            raise _too_many_pixels(what, path, limit)
-        if image.mode not in ("F", "I", "L") and not image.mode.startswith("I;16"):
-            raise InputError(f"{what} {path} is a {image.mode} image compressed with {compression}; save it "
-                             "as one band of numbers, or install the imagecodecs package (pip install imagecodecs)")
-        array = np.array(image)
+    array = _pillow_pixels(path, what, ("F", "I", "L"), f"compressed with {compression}, it must be one band of "
+                           "numbers here: save it so, or install the imagecodecs package (pip install imagecodecs)")
     if dtype is not None and array.dtype != dtype and np.can_cast(dtype, array.dtype):
         narrowed = array.astype(dtype)
         if np.array_equal(narrowed, array):
