@@ -130,7 +130,7 @@ def _prepared_source(source, *, cell_size, z_scale, materials, crease_angle, siz
                     nodata=nodata, check_memory=check_memory)
     if check_memory:
         check_build_memory(len(src.faces), _input_name(source, size))
-    move_to_origin(src, origin)
+    src = move_to_origin(src, origin)
     if weld is not None:
         from .builder.weld import weld_positions
         src = weld_positions(src, weld)
@@ -152,8 +152,10 @@ def _raster_file_to_source(path: Path, heights, classes, cell_size, z_scale) -> 
     north_first = spacing is None or spacing.north_first
     origin = None
     if cell_size is not None:
-        cell, notes = cell_size, [] if spacing is None else [f"--cell-size {cell_size:g} given; the file states "
-                                                            + spacing.note.replace("cell size ", "", 1)]
+        cell = terrain.cell_xy(cell_size)                 # checked here too: to_source may be called alone
+        given = f"{cell[0]:g}" if cell[0] == cell[1] else f"{cell[0]:g} x {cell[1]:g}"
+        notes = [] if spacing is None else [f"--cell-size {given} given; the file states "
+                                            + spacing.note.replace("cell size ", "", 1)]
     elif spacing is None:
         cell, notes = 1.0, [] if why_not is None else [why_not + "; built with cell size 1"]
     else:
@@ -190,8 +192,8 @@ def _refuse_heightfield_options(what: str, cell_size, z_scale, materials, nodata
                                        ("--materials", materials is not None), ("--nodata", nodata is not None))
              if unused]
     if given:
-        raise InputError(f"{', '.join(given)} only apply to heightfields (.npy, .png, .tif, .hgt, .asc), not to {what}; "
-                         "drop them, or give a heightfield")
+        raise InputError(f"{', '.join(given)} only apply to heightfields (.npy, .png, .tif, .hgt, .asc), not to "
+                         f"{what}; drop them, or give a heightfield")
 
 
 def load(path: str | os.PathLike) -> StaticMesh:

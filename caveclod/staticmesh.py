@@ -485,10 +485,19 @@ def _parse_header(path: Path, blob: bytes) -> dict:
         raise damaged_error(path, "the header's build report (info) is not a JSON object of sane depth")
     origin = info.get("origin")
     if origin is not None and not (isinstance(origin, list) and len(origin) == 3
-                                   and all(isinstance(v, (int, float)) and not isinstance(v, bool)
-                                           and math.isfinite(v) for v in origin)):
+                                   and all(_finite_number(v) for v in origin)):
         raise damaged_error(path, "the header's origin (info) is not three finite numbers")
     return header
+
+
+def _finite_number(v) -> bool:
+    """A JSON number (not a boolean) that is a finite float (a 400-digit integer is not)."""
+    if isinstance(v, bool) or not isinstance(v, (int, float)):
+        return False
+    try:
+        return math.isfinite(float(v))
+    except OverflowError:
+        return False
 
 
 def _checked_materials(path: Path, names) -> list:

@@ -129,9 +129,10 @@ def test_a_geographic_geotiff_gets_metres_at_its_latitude(tmp_path):
     path = tmp_path / "dem.tif"
     rows, cols = 11, 9
     arcsec = 1.0 / 3600.0
-    # Tie point: raster (0, 0) at longitude 7, latitude 46.5 + 5 rows; the middle row at 46.5.
+    # Tie point: raster point (0, 0), the north-west pixel's corner, at longitude 7, latitude 46.5 +
+    # 5.5 pixels; the grid's middle (raster point 5.5 of 11 rows) at 46.5.
     _write_geotiff(path, _raster(rows, cols).astype(np.float32), scale=(arcsec, arcsec),
-                   tie=(7.0, 46.5 + 5 * arcsec), geokeys=_geographic_keys())
+                   tie=(7.0, 46.5 + 5.5 * arcsec), geokeys=_geographic_keys())
     spacing, why_not = grid_spacing(path, (rows, cols))
     assert why_not is None
     assert spacing.y == pytest.approx(arcsec * METRES_PER_DEGREE)          # about 30.9 m
@@ -396,3 +397,97 @@ def test_geographic_grids_record_no_origin(tmp_path):
     path = tmp_path / "N46E007.hgt"
     np.full((5, 5), 100, ">i2").tofile(path)
     assert to_source(str(path)).origin is None
+
+
+# ------------------------------------------------------------------ what the review found
+
+
+@pytest.mark.parametrize("prj, degrees", [(None, True), ('GEOGCS["WGS 84",DATUM["WGS_1984"]]', True),
+                                          ('PROJCS["UTM 32N",GEOGCS["WGS 84"]]', False)])
+def test_a_geographic_ascii_grid_gets_metres(tmp_path, prj, degrees):
+    h = _raster(5, 6)
+    path = tmp_path / "dem.asc"
+    path.write_text("ncols 6\nnrows 5\nxllcorner 7\nyllcorner 46\ncellsize 0.000833333333\n"
+                    + "\n".join(" ".join(f"{v:g}" for v in row) for row in h))
+    if prj is not None:
+        (tmp_path / "dem.prj").write_text(prj)
+    spacing, _ = grid_spacing(path, (5, 6))
+    if degrees:
+        lat = 46 + 0.000833333333 / 2 + 2 * 0.000833333333
+        assert spacing.y == pytest.approx(0.000833333333 * METRES_PER_DEGREE)
+        assert spacing.x == pytest.approx(spacing.y * math.cos(math.radians(lat)), rel=1e-9)
+        assert spacing.origin is None                          # degrees are no world position in metres
+    else:
+        assert (spacing.x, spacing.y) == (0.000833333333, 0.000833333333)
+
+
+def test_an_ascii_grid_whose_first_sample_is_nan_reads(tmp_path):
+    h = _raster(4, 5)
+    path = tmp_path / "dem.asc"
+    rows = [" ".join(f"{v:g}" for v in row) for row in h]
+    rows[0] = "nan " + rows[0].split(" ", 1)[1]
+    path.write_text("ncols 5\nnrows 4\nxllcorner 0\nyllcorner 0\ncellsize 10\nNODATA_value nan\n" + "\n".join(rows))
+    source = to_source(str(path))
+    assert any("dropped 1 cells" in n for n in source.notes)
+
+
+def test_building_a_source_mesh_with_an_origin_leaves_it_as_it_was(tmp_path):
+    import caveclod.builder.meshfile as meshfile_module
+    path = tmp_path / "tank.obj"
+    mesh = __import__("trimesh").creation.icosphere(subdivisions=2, radius=30.0)
+    mesh.vertices += [500000.0, 4100000.0, 0.0]
+    path.write_text(__import__("trimesh").exchange.obj.export_obj(mesh, digits=6))
+    source = meshfile_module.load_mesh_file(path)
+    before = source.positions.copy()
+    first = caveclod.build(source, packed=False, origin="500000,4100000,0")
+    second = caveclod.build(source, packed=False, origin="500000,4100000,0")
+    assert np.array_equal(source.positions, before) and source.origin is None
+    assert first.content_hash == second.content_hash and second.info["origin"] == [500000.0, 4100000.0, 0.0]
+
+
+def test_an_explicit_origin_is_a_world_point_for_a_placed_heightfield(tmp_path):
+    h = _raster(6, 8)
+    path = tmp_path / "dem.tif"
+    _write_geotiff(path, h.astype(np.float32), scale=(30.0, 30.0), tie=(350000.0, 5100000.0))
+    mesh = caveclod.build(str(path), packed=False, origin="350000,5099000,0")
+    assert mesh.info["origin"] == [350000.0, 5099000.0, 0.0]
+    plain = to_source(str(path))
+    shift = np.array(plain.origin) - [350000.0, 5099000.0, 0.0]
+    assert np.allclose(np.sort(np.asarray(mesh.positions)[:, 1]),
+                       np.sort((plain.positions[:, 1] + shift[1]).astype(np.float32)))
+
+
+def test_a_geographic_geotiff_with_rows_northwards_is_not_mirrored(tmp_path):
+    h = _raster(5, 4)
+    arcsec = 1.0 / 3600.0
+    m = (arcsec, 0, 0, 7.0, 0, arcsec, 0, 46.0, 0, 0, 0, 0, 0, 0, 0, 1)
+    path = tmp_path / "dem.tif"
+    tifffile.imwrite(path, h.astype(np.float32), extratags=[(34264, 12, 16, m),
+                                                           (34735, 3, 12, tuple(_geographic_keys()))])
+    source = to_source(str(path))
+    assert tuple(_sample_xy(source, h[0, 0])) == (0.0, 0.0)                  # the first row is the south
+    assert any("latitude 46.00" in n for n in source.notes)
+
+
+def test_epsg_4326s_own_degree_unit_is_degrees(tmp_path):
+    path = tmp_path / "dem.tif"
+    keys = [1, 1, 0, 2, 1024, 0, 1, 2, 2054, 0, 1, 9122]
+    _write_geotiff(path, _raster().astype(np.float32), scale=(1 / 3600, 1 / 3600), tie=(7.0, 46.0), geokeys=keys)
+    assert grid_spacing(path, (5, 7))[0] is not None
+
+
+def test_an_hgt_name_past_the_pole_is_not_used(tmp_path):
+    path = tmp_path / "N90E000.hgt"
+    np.full((5, 5), 10, ">i2").tofile(path)
+    source = to_source(str(path))
+    assert np.ptp(source.positions[:, 0]) == 4.0 and any("outside -90 to 89" in n for n in source.notes)
+
+
+def test_to_source_checks_a_given_cell_size_itself(tmp_path):
+    path = tmp_path / "dem.tif"
+    _write_geotiff(path, _raster().astype(np.float32), scale=(30.0, 30.0))
+    source = to_source(str(path), cell_size=(2.0, 3.0))
+    assert tuple(np.ptp(source.positions[:, :2], axis=0)) == (12.0, 12.0)
+    assert any(n.startswith("--cell-size 2 x 3 given") for n in source.notes)
+    with pytest.raises(InputError, match="cell_size"):
+        to_source(str(path), cell_size="wide")

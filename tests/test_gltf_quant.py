@@ -6,7 +6,8 @@ with the node's transform, texture coordinates normalized uint16 with a
 texture transform, normals normalized int8); ``-c.glb`` adds ``-c``
 (EXT_meshopt_compression), ``-cc.glb`` ``-cc`` (and the octahedral
 filter on normals), ``-cc-vpf.glb`` ``-cc -vpf -vtf`` (float positions and
-texture coordinates through the exponential filter). ``sphere.glb`` is
+texture coordinates through the exponential filter), ``-cf.glb`` ``-cf``
+(compressed, with uncompressed copies in ``-cf.fallback.bin``). ``sphere.glb`` is
 their input, an icosphere with normals and texture coordinates written
 by trimesh.
 """
@@ -135,5 +136,21 @@ def test_garbage_compressed_data_is_an_input_error(tmp_path):
 
 
 def test_an_accessor_past_its_buffer_is_refused_as_damaged(tmp_path):
-    with pytest.raises(InputError, match="quantized vertex attributes do not decode"):
+    with pytest.raises(InputError, match="compressed or quantized glTF buffers do not decode"):
         load_mesh_file(_quad(tmp_path / "q.glb", broken=True))
+
+
+def test_a_file_with_meshopt_fallbacks_reads_without_the_decoder(monkeypatch):
+    """gltfpack -cf keeps uncompressed copies (EXT_meshopt_compression in extensionsUsed only, the
+    fallback in sphere-gltfpack-cf.fallback.bin): read from them where meshoptimizer is missing, and
+    decoded where it is, the same mesh."""
+    import caveclod.builder.gltfquant as gq
+    decoded = load_mesh_file(DATA / "sphere-gltfpack-cf.glb")
+    real = gq.importlib.util.find_spec
+    monkeypatch.setattr(gq.importlib.util, "find_spec", lambda n: None if n == "meshoptimizer" else real(n))
+    fallback = load_mesh_file(DATA / "sphere-gltfpack-cf.glb")
+    p0, uv0, n0 = _by_position(decoded)
+    p1, uv1, n1 = _by_position(fallback)
+    assert np.array_equal(p0, p1) and np.array_equal(uv0, uv1) and np.array_equal(n0, n1)
+    with pytest.raises(InputError, match="pip install --pre meshoptimizer"):       # no fallback to read
+        gq.dequantized_gltf(DATA / "sphere-gltfpack-c.glb", "glb")

@@ -103,7 +103,8 @@ def test_a_build_report_nested_too_deep_is_refused(terrain_path, tmp_path):
     refused_in_one_line(damaged_copy(terrain_path, tmp_path / "info.cvc", deep_info), "sane depth")
 
 
-@pytest.mark.parametrize("origin", [[1, 2], [0, "x", 0], [0, float("nan"), 0], [True, 0, 0], {"x": 1}])
+@pytest.mark.parametrize("origin", [[1, 2], [0, "x", 0], [0, float("nan"), 0], [True, 0, 0], {"x": 1},
+                                    [10 ** 400, 2, 3]])
 def test_a_build_report_origin_that_is_not_three_numbers_is_refused(terrain_path, tmp_path, origin):
     """The server sends info origin to clients as a Vec3 (MeshInfo.origin)."""
     def bad_origin(data, layout):

@@ -26,7 +26,7 @@ from __future__ import annotations
 import math
 import os
 import re
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 EARTH_RADIUS_M = 6_371_008.8
 """Mean radius of the Earth (IUGG), metres."""
@@ -40,6 +40,7 @@ _PIXEL_IS_POINT = 2
 _PROJECTED, _GEOGRAPHIC = 1, 2
 _LINEAR_NAMES = {9001: "metres", 9002: "feet", 9003: "US survey feet"}   # ProjLinearUnitsGeoKey values
 _DEGREE, _RADIAN = 9102, 9101
+_DEGREES = (9102, 9122)      # degree, and "degree (supplier to define representation)": EPSG:4326's own
 
 
 @dataclass(frozen=True)
@@ -85,7 +86,8 @@ def grid_spacing(path: str | os.PathLike, shape: tuple[int, int]) -> tuple[Spaci
 
 
 def _ascii_grid_spacing(path) -> tuple[Spacing | None, str | None]:
-    """An ESRI ASCII grid's ``cellsize`` (or ``dx`` and ``dy``), in its coordinate system's units."""
+    """An ESRI ASCII grid's ``cellsize`` (or ``dx`` and ``dy``): in its coordinate system's units,
+    or, for a geographic grid (:func:`_ascii_grid_is_geographic`), degrees as metres."""
     from .terrain import ascii_grid_header
     header = ascii_grid_header(path)
     dx, dy = header.get("dx", header.get("cellsize")), header.get("dy", header.get("cellsize"))
@@ -94,9 +96,41 @@ def _ascii_grid_spacing(path) -> tuple[Spacing | None, str | None]:
     # The samples are cells: the lower-left corner is half a cell from the south-west sample.
     x0 = header["xllcenter"] if "xllcenter" in header else header.get("xllcorner", math.nan) + dx / 2
     y0 = header["yllcenter"] if "yllcenter" in header else header.get("yllcorner", math.nan) + dy / 2
+    geographic = _ascii_grid_is_geographic(path, header, x0, y0, dx, dy)
+    if geographic:
+        lat = y0 + (header["nrows"] - 1) * dy / 2.0
+        if not -90.0 <= lat <= 90.0:
+            return None, "the ESRI ASCII grid is geographic but its latitude is out of range: give --cell-size"
+        return _degrees_to_metres(dx, dy, lat, f"the ESRI ASCII grid's {dx:.9g} x {dy:.9g} degrees ({geographic})"), \
+            None
     origin = (x0, y0, 0.0) if math.isfinite(x0) and math.isfinite(y0) else None
     return Spacing(dx, dy, f"cell size {dx:g} x {dy:g} (in the units of the file's coordinate system) from the "
                            "ESRI ASCII grid's header", origin), None
+
+
+GEOGRAPHIC_CELL_LIMIT = 0.1
+"""An ESRI grid with no .prj whose cells are smaller than this and whose extent lies within
+longitudes and latitudes is taken as geographic: no projected DEM has cells of a tenth of a metre
+(or foot) placed within 180 units of its coordinate system's origin."""
+
+
+def _ascii_grid_is_geographic(path, header, x0, y0, dx, dy) -> str | None:
+    """Why an ESRI ASCII grid is in degrees (its ``.prj`` beside it says so, or its cells and
+    extent look it), or None."""
+    prj = os.path.splitext(os.fspath(path))[0] + ".prj"
+    try:
+        with open(prj, "rb") as f:
+            text = f.read(1 << 16).upper()
+    except OSError:
+        text = None
+    if text is not None:
+        if b"PROJCS" in text or b"PROJCRS" in text:
+            return None
+        return "its .prj is geographic" if (b"GEOGCS" in text or b"GEOGCRS" in text) else None
+    x1, y1 = x0 + (header["ncols"] - 1) * dx, y0 + (header["nrows"] - 1) * dy
+    inside = -180.0 <= x0 and x1 <= 360.0 and -90.0 <= y0 and y1 <= 90.0
+    return "no .prj; its cells and extent are those of degrees" if max(dx, dy) < GEOGRAPHIC_CELL_LIMIT and inside \
+        else None
 
 
 def _hgt_spacing(path, shape) -> tuple[Spacing | None, str | None]:
@@ -108,6 +142,9 @@ def _hgt_spacing(path, shape) -> tuple[Spacing | None, str | None]:
         return None, ("the .hgt file's name does not give its latitude (SRTM tiles are named like N46E007.hgt): "
                       "its spacing is unknown, give --cell-size in metres")
     lat = int(match.group(2)) * (1 if match.group(1).upper() == "N" else -1)
+    if not -90 <= lat <= 89:
+        return None, (f"the .hgt file's name gives latitude {lat}, outside -90 to 89 (a tile's south edge): its "
+                      "spacing is unknown, give --cell-size in metres")
     return _degrees_to_metres(seconds / 3600.0, seconds / 3600.0, lat + 0.5,
                               f"SRTM tile {match.group(0).upper()}, {seconds:g} arc-seconds"), None
 
@@ -131,15 +168,17 @@ def _geotiff_spacing(path, shape) -> tuple[Spacing | None, str | None]:
     keys = _geokeys(values.get(_GEOKEYS))
     if keys.get(_MODEL_TYPE) == _GEOGRAPHIC:
         unit = keys.get(_ANGULAR_UNITS, _DEGREE)
-        if unit not in (_DEGREE, _RADIAN):
+        if unit not in _DEGREES + (_RADIAN,):
             return None, f"the GeoTIFF's angular unit (EPSG {unit}) is not degrees or radians: give --cell-size"
         if unit == _RADIAN:
             sx, sy = math.degrees(sx), math.degrees(sy)
-        lat = _middle_latitude(values, shape, sy, unit)
+        north_first = _north_first(values)
+        lat = _middle_latitude(values, shape, sy, unit, north_first)
         if lat is None:
             return None, ("the GeoTIFF is geographic (degrees) but has no tie point to give its latitude: "
                           "give --cell-size")
-        return _degrees_to_metres(sx, sy, lat, f"GeoTIFF pixel scale {sx:.9g} x {sy:.9g} degrees"), None
+        spacing = _degrees_to_metres(sx, sy, lat, f"GeoTIFF pixel scale {sx:.9g} x {sy:.9g} degrees")
+        return replace(spacing, north_first=north_first), None
     units = _LINEAR_NAMES.get(keys.get(_LINEAR_UNITS), "in the units of the file's coordinate system")
     origin, north_first = _projected_origin(values, keys, shape, sx, sy)
     return Spacing(sx, sy, f"cell size {sx:g} x {sy:g} ({units}) from the GeoTIFF's pixel scale", origin,
@@ -159,7 +198,7 @@ def _projected_origin(values: dict, keys: dict, shape, sx: float, sy: float):
         i, j, x, y = float(tie[0]), float(tie[1]), float(tie[3]), float(tie[4])
         origin, north_first = (x + (half - i) * sx, y - (rows - 1 + half - j) * sy), True
     elif m is not None and len(m) >= 8 and float(m[1]) == 0.0 and float(m[4]) == 0.0 and float(m[5]) != 0.0:
-        north_first = float(m[5]) < 0.0        # rows run southwards, as GDAL writes them
+        north_first = _north_first(values)
         south_row = rows - 1 if north_first else 0
         origin = (float(m[3]) + half * float(m[0]), float(m[7]) + (south_row + half) * float(m[5]))
     else:
@@ -196,9 +235,18 @@ def _geokeys(directory) -> dict[int, int]:
     return keys
 
 
-def _middle_latitude(values: dict, shape, sy_degrees: float, unit: int) -> float | None:
-    """Latitude (degrees) of the grid's middle row, from its first tie point (raster i, j to
-    model x, y; rows go south)."""
+def _north_first(values: dict) -> bool:
+    """Whether the first row is the north: always with a pixel scale (its y runs south by the
+    GeoTIFF spec), with a transformation when its y scale is negative (as GDAL writes them)."""
+    m = values.get(_TRANSFORMATION)
+    if _PIXEL_SCALE in values or m is None or len(m) < 8:
+        return True
+    return not float(m[5]) > 0.0
+
+
+def _middle_latitude(values: dict, shape, sy_degrees: float, unit: int, north_first: bool = True) -> float | None:
+    """Latitude (degrees) of the grid's middle, from its first tie point (raster i, j to model x,
+    y) or its transformation; rows run south unless ``north_first`` is False."""
     tie = values.get(_TIEPOINT)
     if tie is None or len(tie) < 6:
         t = values.get(_TRANSFORMATION)
@@ -209,7 +257,7 @@ def _middle_latitude(values: dict, shape, sy_degrees: float, unit: int) -> float
         j, y = float(tie[1]), float(tie[4])
     if unit == _RADIAN:
         y = math.degrees(y)
-    lat = y - ((shape[0] - 1) / 2.0 - j) * sy_degrees
+    lat = y + (1.0 if not north_first else -1.0) * (shape[0] / 2.0 - j) * sy_degrees
     return lat if math.isfinite(lat) and -90.0 <= lat <= 90.0 else None
 
 

@@ -30,6 +30,7 @@ needs none of this is read as it is.
 from __future__ import annotations
 
 import base64
+import importlib.util
 import json
 import math
 import struct
@@ -62,8 +63,10 @@ def dequantized_gltf(path: Path, file_type: str) -> bytes | None:
         out = bytearray()
         if not _rewrite(tree, buffers, out):
             return None
+    except InputError as exc:
+        raise InputError(f"{path}: {exc}") from None
     except Exception as exc:    # a damaged tree, whatever shape its damage takes
-        raise InputError(f"{path}: its quantized vertex attributes do not decode ({type(exc).__name__}: "
+        raise InputError(f"{path}: its compressed or quantized glTF buffers do not decode ({type(exc).__name__}: "
                          f"{' '.join(str(exc).split())[:200]}); the file is damaged: export it again") from None
     return glb_bytes(tree, bytes(out))
 
@@ -118,8 +121,15 @@ def glb_bytes(tree: dict, binary: bytes) -> bytes:
 def _rewrite(tree: dict, buffers: list, out: bytearray) -> bool:
     """Rewrite ``tree`` in place to one binary buffer (written to ``out``); False if nothing needed it."""
     accessors, views = tree.get("accessors", []), tree.get("bufferViews", [])
-    decoded = {i: _decompressed(v, buffers) for i, v in enumerate(views)
-               if "EXT_meshopt_compression" in v.get("extensions", {})}
+    compressed = [i for i, v in enumerate(views) if "EXT_meshopt_compression" in v.get("extensions", {})]
+    if compressed and importlib.util.find_spec("meshoptimizer") is None:
+        # Without the decoder, views whose own buffer holds the fallback data (extensionsUsed
+        # only) are read as they are; a view without it cannot be.
+        if any(buffers[views[i]["buffer"]] is None for i in compressed):
+            raise InputError("its geometry is compressed with EXT_meshopt_compression, which needs the "
+                             "meshoptimizer package: pip install --pre meshoptimizer (make installs it)")
+        compressed = []
+    decoded = {i: _decompressed(views[i], buffers) for i in compressed}
     todo = []                                    # (primitive, attribute name, accessor index, transform or None)
     for mesh in tree.get("meshes", []):
         for prim in mesh.get("primitives", []):

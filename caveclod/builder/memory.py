@@ -92,7 +92,9 @@ READ_BYTES_PER_FILE_BYTE = {"obj": 9.0, "ply-ascii": 18.0, "ply": 13.0, "stl-asc
 """Peak memory of reading a mesh file, per byte of the file, by format: rounded up from
 ``load_mesh_file`` on a 2M-triangle mesh (2026-11-29: OBJ with texture coordinates 8.7, ASCII PLY
 17.0, binary PLY 12.2, ASCII STL 7.8, binary STL 10.6, OFF 17.5, GLB 12.6). The text formats'
-readers (trimesh's) hold 600-1,400 bytes a triangle, more than the build's peak."""
+readers (trimesh's) hold 600-1,400 bytes a triangle, more than the build's peak. A compressed GLB
+(Draco, meshopt) decodes to several times its size: for those the estimate is low, and the build's
+own check, after reading, is what holds."""
 
 
 def mesh_file_kind(path: str | os.PathLike) -> str | None:

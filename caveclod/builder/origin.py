@@ -15,6 +15,7 @@ coordinates.
 from __future__ import annotations
 
 import math
+from dataclasses import replace
 
 import numpy as np
 
@@ -41,27 +42,33 @@ def parse_origin(value) -> str | tuple[float, float, float] | None:
 
 
 def move_to_origin(source: SourceMesh, origin) -> SourceMesh:
-    """Subtract ``origin`` (see :func:`parse_origin`; ``"auto"``: the bounding box's centre, rounded
-    to whole units) from ``source``'s positions, in place; records it in ``source.origin`` and a note."""
+    """``source`` with ``origin`` (see :func:`parse_origin`) as the world point its positions start
+    from: a new SourceMesh (the caller's is not changed), or ``source`` itself for None.
+
+    ``"auto"``: the bounding box's centre, rounded to whole units. A point
+    (x, y, z) is in world coordinates: for a heightfield that already said
+    where it lies (``source.origin``, its south-west sample), positions
+    move by the difference, so that the recorded origin is the point given.
+    """
     origin = parse_origin(origin)
     if origin is None:
         return source
     p = source.positions
+    known = np.asarray(source.origin or (0.0, 0.0, 0.0), np.float64)
     if origin == "auto":
-        origin = tuple(float(v) for v in np.round((p.min(axis=0) + p.max(axis=0)) / 2.0))
-    # A heightfield that said where it lies already has an origin: the two add up.
-    recorded = tuple(float(a) + float(b) for a, b in zip(source.origin or (0.0, 0.0, 0.0), origin))
+        shift = np.round((p.min(axis=0) + p.max(axis=0)) / 2.0)
+        recorded = tuple(float(v) for v in known + shift)
+    else:
+        shift, recorded = np.asarray(origin, np.float64) - known, origin
     with np.errstate(over="ignore", invalid="ignore"):
-        moved = p - np.asarray(origin, np.float64)
+        moved = p - shift
     n_far = int(out_of_range_rows(moved).sum())
     if n_far:
-        raise InputError(f"--origin {origin[0]:g},{origin[1]:g},{origin[2]:g} puts {n_far:,} positions beyond "
+        raise InputError(f"--origin {recorded[0]:g},{recorded[1]:g},{recorded[2]:g} puts {n_far:,} positions beyond "
                          f"+-{MAX_COORDINATE:.2g}, too far for the .cvc's float32; give a point near the mesh, or auto")
-    source.positions = moved
-    source.origin = recorded
-    source.notes.append(f"positions are relative to the origin ({recorded[0]:.10g}, {recorded[1]:.10g}, "
-                        f"{recorded[2]:.10g}) (info origin): add it back to place the mesh in the world")
-    return source
+    note = (f"positions are relative to the origin ({recorded[0]:.10g}, {recorded[1]:.10g}, {recorded[2]:.10g}) "
+            "(info origin): add it back to place the mesh in the world")
+    return replace(source, positions=moved, origin=recorded, notes=[*source.notes, note])
 
 
 def float32_rounding_note(positions: np.ndarray, face_pos: np.ndarray) -> str | None:

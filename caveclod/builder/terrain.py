@@ -263,11 +263,11 @@ def ascii_grid_header(path) -> dict[str, float]:
             at = f.tell()
             line = f.readline(256)
             words = line.split()
-            if not words or not words[0][:1].isalpha():
+            key = words[0].decode("ascii", "replace").lower() if words else ""
+            if key not in ASCII_GRID_KEYS:     # the samples begin (GDAL writes voids as nan, so not "a letter")
                 f.seek(at)
                 break
-            key = words[0].decode("ascii", "replace").lower()
-            if key not in ASCII_GRID_KEYS or len(words) != 2:
+            if len(words) != 2:
                 raise InputError(f"heightfield {path}: {line[:60]!r} is not a line of an ESRI ASCII grid's header "
                                  f"(keys {', '.join(ASCII_GRID_KEYS)}); check the file")
             try:
@@ -361,8 +361,8 @@ def raster_to_source(heights: np.ndarray, cell_size: float | tuple[float, float]
     The rows of ``heights`` (and of ``materials``) are taken in reverse, so
     that raster row ``r`` of ``rows`` lies at ``y = (rows - 1 - r) * cell_y``
     (see the module's docstring). A per-sample material map gives each cell
-    the class of its first sample in raster order (its north-west corner).
-    ``notes`` (say, where the cell size came from) lead the mesh's notes.
+    the class of its first sample in raster order (its north-west corner; the
+    south-west one where the rows run northwards). ``notes`` (say, where the cell size came from) lead the mesh's notes.
     ``north_first`` False: a raster whose rows run northwards (a GeoTIFF can
     say so), read as :func:`heightfield_to_source` reads rows.
     """
