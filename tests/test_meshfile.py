@@ -7,7 +7,6 @@ exporters.
 
 from __future__ import annotations
 
-import os
 from pathlib import Path
 
 import numpy as np
@@ -856,3 +855,27 @@ def test_a_million_copies_of_one_triangle_take_linear_time():
     faces = np.tile([[0, 1, 2], [1, 2, 0], [2, 1, 0]], (400_000, 1))
     keep = meshfile._first_of_duplicate_faces(faces, np.zeros(len(faces), np.int64))
     assert keep.sum() == 2 and keep[0] and keep[2]
+
+
+@pytest.mark.parametrize("uv, mtl, words", [
+    (True, False, "takes them as one material"), (False, False, "names them after its geometries"),
+    (True, True, None)])
+def test_an_obj_whose_materials_are_not_defined_says_so(tmp_path, uv, mtl, words):
+    """Without its .mtl, trimesh reads an OBJ's usemtl materials with texture coordinates as one
+    (the seam between them lost): the report says so and what to do."""
+    lines = ["v 0 0 0", "v 1 0 0", "v 0 1 0", "v 1 1 0"]
+    if uv:
+        lines += ["vt 0 0", "vt 1 0", "vt 0 1", "vt 1 1"]
+    if mtl:
+        lines.insert(0, "mtllib m.mtl")
+        (tmp_path / "m.mtl").write_text("newmtl red\nKd 1 0 0\nnewmtl blue\nKd 0 0 1\n")
+    corner = (lambda i: f"{i}/{i}") if uv else str
+    lines += ["usemtl red", f"f {corner(1)} {corner(2)} {corner(3)}", "usemtl blue", f"f {corner(2)} {corner(4)} "
+              f"{corner(3)}"]
+    (tmp_path / "x.obj").write_text("\n".join(lines) + "\n")
+    source = load_mesh_file(tmp_path / "x.obj")
+    notes = [n for n in source.notes if "not defined" in n]
+    if words is None:
+        assert not notes and sorted(source.materials) == ["blue", "red"]
+    else:
+        assert len(notes) == 1 and words in notes[0] and "2 of its 2 materials (blue, red)" in notes[0]

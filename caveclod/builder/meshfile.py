@@ -76,7 +76,10 @@ def load_mesh_file(path: str | os.PathLike) -> SourceMesh:
     file_type = _file_type_of(path)
     scene = [_read_scene(path, file_type)]       # a list, so that the conversion can let go of it
     try:
-        return _source_from_scene(scene, default_material=path.stem or "mesh", label=label)
+        source = _source_from_scene(scene, default_material=path.stem or "mesh", label=label)
+        if file_type == "obj":
+            source.notes.extend(_undefined_obj_materials(path, len(source.materials)))
+        return source
     except InputError:
         raise
     except Exception as exc:  # a trimesh object in a state we did not foresee
@@ -84,6 +87,50 @@ def load_mesh_file(path: str | os.PathLike) -> SourceMesh:
             f"{label}: could not convert the loaded {file_type.upper()} data "
             f"({_describe(exc)}); check the file in a mesh viewer and export it again"
         ) from None
+
+
+def _undefined_obj_materials(path: Path, n_materials: int) -> list[str]:
+    """A note when an OBJ's ``usemtl`` names materials its ``mtllib`` files do not define (or it has
+    none): trimesh then reads those with texture coordinates as one unnamed material, with no seam
+    between them, and names the others after its geometries; the note says which happened (from
+    ``n_materials``, the materials read) and what to do. Read in blocks, as a line scan of the text."""
+    used, libraries = set(), []
+    rest = b""
+    with open(path, "rb") as f:
+        while True:
+            block = f.read(1 << 24)
+            if not block:
+                break
+            lines = (rest + block).split(b"\n")
+            rest = lines.pop()
+            for line in lines:
+                if line.startswith(b"usemtl") or line.startswith(b"mtllib"):
+                    words = line.split(None, 1)
+                    if len(words) == 2 and words[0] in (b"usemtl", b"mtllib"):
+                        (used.add if words[0] == b"usemtl" else libraries.append)(words[1].strip())
+    if rest.startswith(b"usemtl") or rest.startswith(b"mtllib"):
+        words = rest.split(None, 1)
+        if len(words) == 2 and words[0] in (b"usemtl", b"mtllib"):
+            (used.add if words[0] == b"usemtl" else libraries.append)(words[1].strip())
+    if len(used) < 2:
+        return []                     # one material or none: nothing to tell apart
+    defined = set()
+    for name in libraries:
+        try:
+            text = (path.parent / name.decode("utf-8", "replace")).read_bytes()
+        except (OSError, ValueError):     # missing, unreadable, or a name no path can hold (a NUL)
+            continue
+        defined.update(line.split(None, 1)[1].strip() for line in text.splitlines()
+                       if line.startswith(b"newmtl") and len(line.split(None, 1)) == 2)
+    missing = sorted(used - defined)
+    if not missing:
+        return []
+    shown = ", ".join(m.decode("utf-8", "replace") for m in missing[:5]) + (", ..." if len(missing) > 5 else "")
+    where = "its .mtl does not define them" if libraries else "it names no .mtl (mtllib)"
+    what = ("takes them as one material, with no seam between them" if n_materials < len(used)
+            else "names them after its geometries, not their usemtl names")
+    return [f"{len(missing)} of its {len(used)} materials ({shown}) are not defined ({where}): the reader "
+            f"{what}; put the .mtl file beside the .obj"]
 
 
 def source_from_trimesh(mesh_or_scene, name: str = "mesh") -> SourceMesh:
