@@ -26,6 +26,7 @@ from __future__ import annotations
 
 import io
 import os
+import re
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -89,6 +90,9 @@ def load_mesh_file(path: str | os.PathLike) -> SourceMesh:
         ) from None
 
 
+_MATERIAL_LINE = re.compile(rb"^(usemtl|mtllib)[ \t]+([^\r\n]+)", re.MULTILINE)
+
+
 def _undefined_obj_materials(path: Path, n_materials: int) -> list[str]:
     """A note when an OBJ's ``usemtl`` names materials its ``mtllib`` files do not define (or it has
     none): trimesh then reads those with texture coordinates as one unnamed material, with no seam
@@ -99,19 +103,13 @@ def _undefined_obj_materials(path: Path, n_materials: int) -> list[str]:
     with open(path, "rb") as f:
         while True:
             block = f.read(1 << 24)
+            text = rest + block
+            cut = text.rfind(b"\n") + 1 if block else len(text)    # whole lines; the last block all of it
+            for key, name in _MATERIAL_LINE.findall(text, 0, cut):
+                (used.add if key == b"usemtl" else libraries.append)(name.strip())
+            rest = text[cut:]
             if not block:
                 break
-            lines = (rest + block).split(b"\n")
-            rest = lines.pop()
-            for line in lines:
-                if line.startswith(b"usemtl") or line.startswith(b"mtllib"):
-                    words = line.split(None, 1)
-                    if len(words) == 2 and words[0] in (b"usemtl", b"mtllib"):
-                        (used.add if words[0] == b"usemtl" else libraries.append)(words[1].strip())
-    if rest.startswith(b"usemtl") or rest.startswith(b"mtllib"):
-        words = rest.split(None, 1)
-        if len(words) == 2 and words[0] in (b"usemtl", b"mtllib"):
-            (used.add if words[0] == b"usemtl" else libraries.append)(words[1].strip())
     if len(used) < 2:
         return []                     # one material or none: nothing to tell apart
     defined = set()
