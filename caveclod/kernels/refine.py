@@ -675,6 +675,18 @@ def _fan_start(f0, p, face_map, rec_tri, vpos):
     return r, corner_at(rec_tri, vpos, r, p)
 
 
+@nb.njit(cache=True, nogil=True, inline="always")
+def _fan_next(r, k, way, f0, p, face_map, rec_tri, rec_nbr, vpos):
+    """One step round position ``p`` from record ``r`` (corner ``k``): forward (``way`` 0) or
+    backward. Returns (the next face, -1 at an open end; its record and its corner at ``p``, -1
+    where it has none: damage), records not looked up at an end or back at ``f0``."""
+    f = rec_nbr[r, k] if way == 0 else rec_nbr[r, (k + 2) % 3]
+    if f < 0 or f == f0:
+        return f, -1, -1
+    r = fm_get(face_map, f)
+    return f, r, (corner_at(rec_tri, vpos, r, p) if r >= 0 else -1)
+
+
 @nb.njit(cache=True, nogil=True)
 def strict_collapse_faces(x, e, links, npos, parent, pos_top, vpos, face_map, rec_tri, rec_nbr):
     """Whether undoing the split of ``x`` keeps the strict bound: no position
@@ -709,11 +721,9 @@ def strict_collapse_faces(x, e, links, npos, parent, pos_top, vpos, face_map, re
                             q = vpos[rec_tri[r, (k + d) % 3]]
                             if q != px and q != pu and _gone_before(parent, pos_top, q, x):
                                 return -1
-                f = rec_nbr[r, k] if way == 0 else rec_nbr[r, (k + 2) % 3]
+                f, r, k = _fan_next(r, k, way, f0, p, face_map, rec_tri, rec_nbr, vpos)
                 if f < 0 or f == f0:
                     break
-                r = fm_get(face_map, f)
-                k = corner_at(rec_tri, vpos, r, p) if r >= 0 else -1
                 steps -= 1
                 if k < 0 or steps < 0:
                     return -2
@@ -765,11 +775,9 @@ def _push_beside(x, e, parent, links, npos, pos_top, state, vpos, face_map, rec_
                     b = lo if s == ACTIVE else _active_from(lo, c, parent, pos_top, state)
                     if b >= 0 and parent[b] > x:
                         q = _push(parent[b], e, state, queue, q)
-            f = rec_nbr[r, k] if way == 0 else rec_nbr[r, (k + 2) % 3]
+            f, r, k = _fan_next(r, k, way, f0, px, face_map, rec_tri, rec_nbr, vpos)
             if f < 0 or f == f0:
                 break
-            r = fm_get(face_map, f)
-            k = corner_at(rec_tri, vpos, r, px) if r >= 0 else -1
             steps -= 1
             if k < 0 or steps < 0:
                 return q
