@@ -10,7 +10,8 @@ from hypothesis import strategies as st
 import caveclod
 from caveclod.builder.hierarchy import build_static_mesh, prepare_source
 from caveclod.builder.surfaces import corner_vertices
-from caveclod.builder.builtin import default_terrain
+from caveclod.builder.builtin import default_terrain, range_scan, rough_heights
+from caveclod.builder.source import SourceMesh
 
 from meshes import holey_scan, noisy_box, random_heightfield, random_scan, replay_collapses, uv_sphere, with_bad_topology
 
@@ -349,3 +350,52 @@ def test_a_built_mesh_s_vertex_positions_follow_its_csr():
     mesh = caveclod.build(holey_scan(), packed=False)
     start = np.asarray(mesh.pos_vstart)
     assert np.array_equal(mesh.vertex_position_ids, np.repeat(np.arange(len(start) - 1), np.diff(start)))
+
+
+def _rough_mesh(n: int) -> SourceMesh:
+    """The rough terrain's relief as a plain mesh without normals (a scan or photogrammetry of it): the
+    default crease angle for meshes (30 degrees) applies."""
+    h = np.nan_to_num(rough_heights(n), nan=0.0)
+    k = h.shape[0]
+    ys, xs = np.mgrid[0:k, 0:k]
+    idx = np.arange(k * k).reshape(k, k)
+    a, b, c, d = idx[:-1, :-1].ravel(), idx[:-1, 1:].ravel(), idx[1:, :-1].ravel(), idx[1:, 1:].ravel()
+    faces = np.r_[np.c_[a, b, d], np.c_[a, d, c]].astype(np.int32)
+    return SourceMesh(positions=np.c_[xs.ravel() * 10.0, ys.ravel() * 10.0, h.ravel()],
+                      vertex_position=np.arange(k * k), faces=faces, face_material=np.zeros(len(faces), np.int32), materials=["ground"])
+
+
+def test_report_names_the_crease_angle_when_roughness_pins_the_base_mesh():
+    """On rough relief the default 30 degree crease angle cuts normal seams everywhere, and their
+    corners never move: the report says so, with the count smooth normals would leave (exactly what a
+    build at 180 degrees has), and what to pass."""
+    mesh = build_static_mesh(_rough_mesh(48))
+    smooth = build_static_mesh(_rough_mesh(48), crease_angle=180.0)
+    base = mesh.info["base_mesh"]
+    assert base["rigid_positions"] >= 100 and base["large"]
+    assert base["rigid_positions_smooth"] == smooth.class_tally()["rigid"] == 0
+    assert "--crease-angle 180" in base["why"] and base["why"] in mesh.info["notes"]
+    assert len(smooth.base_faces) < len(mesh.base_faces) / 10
+
+
+@pytest.mark.parametrize("make", [lambda: range_scan(32), lambda: holey_scan(seed=2), noisy_box, uv_sphere,
+                                  lambda: with_bad_topology(holey_scan(seed=3)), lambda: random_scan(4, 0.8)])
+def test_smooth_normals_rigid_count_is_what_a_smooth_build_makes(make):
+    """The report's count of RIGID positions with smooth normals is the smooth build's own, on meshes
+    with UV seams, materials, holes, slivers and non-manifold edges (an input vertex shared by faces
+    that do not meet around it is two vertices with smooth normals)."""
+    def without_normals():
+        src = make()
+        src.vertex_normal, src.crease_angle = None, 30.0      # heightfields among them: as a mesh's
+        return src
+    mesh = build_static_mesh(without_normals())
+    smooth = build_static_mesh(without_normals(), crease_angle=180.0)
+    assert mesh.info["base_mesh"]["rigid_positions_smooth"] == smooth.class_tally()["rigid"]
+    assert smooth.info["base_mesh"]["rigid_positions_smooth"] is None      # a crease angle given: not counted
+
+
+def test_no_crease_count_for_heightfields_or_given_normals():
+    assert build_static_mesh(holey_scan(seed=1)).info["base_mesh"]["rigid_positions_smooth"] is None   # smooth already
+    src, _ = prepare_source(uv_sphere())                   # with the normals a build gave it
+    assert src.vertex_normal is not None
+    assert build_static_mesh(src).info["base_mesh"]["rigid_positions_smooth"] is None

@@ -26,12 +26,12 @@ from ..kernels.fans import collect_fan
 from ..kernels.simplify import gather_candidates, init_leaves, perform_collapses, rank_collapses
 from ..kernels.surfacegap import star_lists
 from .memory import give_back_freed_memory
-from .normals import add_crease_normals, face_weights
+from .normals import add_crease_normals, face_weights, smooth_wedges
 from .origin import float32_rounding_note
 from ..progress import Progress, stage
 from .source import SourceMesh
 from ..staticmesh import StaticMesh
-from .surfaces import RIGID, SurfaceLayout, corner_vertices, layout_surfaces
+from .surfaces import RIGID, SurfaceLayout, corner_vertices, layout_surfaces, rigid_positions
 from .tiles import positions_left_to_merge, tile_grid, tiles_per_side
 from .tilestore import TileStore, block_level, block_of, block_rows, fingerprint, read_blocks
 from .version import build_code
@@ -58,7 +58,7 @@ def build_static_mesh(source: SourceMesh | Callable[[], SourceMesh], crease_angl
     if callable(source):
         source = source()
     t0 = time.perf_counter()                  # the build's seconds, not the input's loading
-    source, face_pos, topo, lay = _prepare(source, crease_angle, progress)
+    source, face_pos, topo, lay, smooth_rigid = _prepare(source, crease_angle, progress)
     # The file's vertex buffer and face attributes do not depend on the hierarchy: made first, so that the
     # source's vertex arrays and the layout's ids (40 bytes a triangle) are gone before the collapses, whose
     # arrays are the build's peak; what replaces them is the file's compact form (22 bytes).
@@ -70,7 +70,7 @@ def build_static_mesh(source: SourceMesh | Callable[[], SourceMesh], crease_angl
     hier = collapse_all(positions, face_pos, topo, lay, progress, tiles=tiles, workers=workers, store=store)
     give_back_freed_memory()
     with ThreadPoolExecutor(1) as side:         # the report's reasons, meanwhile: they only read
-        reasons = side.submit(_base_mesh_reasons, hier, face_pos, topo, lay, arrays["face_material"])
+        reasons = side.submit(_base_mesh_reasons, hier, face_pos, topo, lay, arrays["face_material"], smooth_rigid)
         arrays.update(node_arrays(positions, hier))
         mesh = StaticMesh(arrays=arrays, materials=materials)
         reasons = reasons.result()
@@ -107,7 +107,7 @@ def build_tile_job(source: SourceMesh | Callable[[], SourceMesh], store: TileSto
     if callable(source):
         source = source()
     t0 = time.perf_counter()
-    source, face_pos, topo, lay = _prepare(source, crease_angle, progress)
+    source, face_pos, topo, lay, _ = _prepare(source, crease_angle, progress)
     positions = source.positions              # a job writes no vertex buffer: the rest of the source can go
     del source
     lay = _for_collapses(lay)
@@ -120,18 +120,26 @@ def build_tile_job(source: SourceMesh | Callable[[], SourceMesh], store: TileSto
 
 
 def _prepare(source: SourceMesh, crease_angle, progress) -> tuple:
-    """(source with normals, face_pos (p, 3) int32, topology, surface layout), checked."""
+    """(source with normals, face_pos (p, 3) int32, topology, surface layout, RIGID positions with
+    smooth normals or None), checked. The last is counted where the build makes normals at the
+    source's default crease angle (below 180 degrees), for the report (:func:`_base_mesh_reasons`)."""
     source.validate()
     face_pos = source.face_positions.astype(np.int32)       # once: 0.2 s a gather at 2M faces
     _check_float32_positions(source, face_pos)
     stage(f"preparing {len(source.faces):,} triangles: normals, topology, surface groups", progress)
+    by_default = crease_angle is None and source.vertex_normal is None and source.crease_angle < 180.0
+    input_faces = source.faces if by_default else None
     source, topo = prepare_source(source, crease_angle, face_pos)
     lay = layout_surfaces(face_pos, source.faces.astype(np.int32), source.face_material, topo.nbrs,
                           topo.nonmanifold, len(source.positions))
     if max(lay.n_sgids, len(source.materials)) > 65535:
         raise InputError(f"{lay.n_sgids:,} surface group ids and {len(source.materials):,} materials: at most "
                          "65,535 of each fit the .cvc format; merge materials before building")
-    return source, face_pos, topo, lay
+    smooth_rigid = None
+    if input_faces is not None:
+        smooth_rigid = rigid_positions(face_pos, smooth_wedges(face_pos, topo.nbrs, input_faces),
+                                       source.face_material, topo.nbrs, topo.nonmanifold)
+    return source, face_pos, topo, lay, smooth_rigid
 
 
 @dataclass
@@ -669,7 +677,8 @@ def node_arrays(positions: np.ndarray, hier: Hierarchy) -> dict:
     }
 
 
-def _base_mesh_reasons(hier: Hierarchy, face_pos: np.ndarray, topo: Topology, lay, face_material) -> dict:
+def _base_mesh_reasons(hier: Hierarchy, face_pos: np.ndarray, topo: Topology, lay, face_material,
+                       smooth_rigid: int | None = None) -> dict:
     """What keeps the base mesh from shrinking further, for the report.
 
     Large means over 1% of the faces or 300, whichever is larger. Every
@@ -678,6 +687,10 @@ def _base_mesh_reasons(hier: Hierarchy, face_pos: np.ndarray, topo: Topology, la
     materials may only be slid along, so every material's region keeps
     faces of its own. ``material_border_faces`` counts the base faces with a
     corner on a border between two materials: what a material map costs.
+    ``smooth_rigid``: the RIGID positions the mesh would have with smooth
+    normals, where the build made normals at the default crease angle
+    (None otherwise): on a scan, creases cut by roughness, not by hard edges,
+    can make most of them.
     """
     p, e = len(face_pos), len(topo.nonmanifold)
     face_material = np.asarray(face_material, np.int32)
@@ -702,15 +715,33 @@ def _base_mesh_reasons(hier: Hierarchy, face_pos: np.ndarray, topo: Topology, la
     if pinned:
         reasons.append(f"{pinned:,} non-manifold positions that never move")
     if rigid:
-        reasons.append(f"{rigid:,} RIGID positions (where {lay.n_groups:,} surface groups' seams meet) that never move")
+        reasons.append(f"{rigid:,} RIGID positions (where {lay.n_groups:,} surface groups' seams meet) that never move"
+                       + _crease_clause(rigid, smooth_rigid))
     if material_faces:
         reasons.append(f"{material_faces:,} base faces ({100 * material_faces / max(base, 1):.0f}% of them) on "
                        "borders between materials, which collapses may only slide along")
     why = f"base mesh is {base:,} faces ({100 * base / p:.1f}% of {p:,})"
     why += ": " + "; ".join(reasons) if reasons else ""
     return {"faces": base, "fraction": round(base / p, 6), "components": components,
-            "nonmanifold_positions": pinned, "rigid_positions": rigid, "surface_groups": lay.n_groups,
+            "nonmanifold_positions": pinned, "rigid_positions": rigid, "rigid_positions_smooth": smooth_rigid,
+            "surface_groups": lay.n_groups,
             "material_border_faces": material_faces, "large": large, "why": why}
+
+
+CREASE_RIGID_NOTE = 100
+"""RIGID positions owed to the default crease angle from which the report names it (and at least half of them)."""
+
+
+def _crease_clause(rigid: int, smooth_rigid: int | None) -> str:
+    """What the base-mesh reason adds when the default crease angle's normal seams make most RIGID positions."""
+    if smooth_rigid is None:
+        return ""
+    owed = rigid - smooth_rigid
+    if owed < CREASE_RIGID_NOTE or 2 * owed < rigid:
+        return ""
+    return (f", {owed:,} of them only because the default crease angle cut normal seams ({smooth_rigid:,} with "
+            "smooth normals): if this is a scan or photogrammetry, whose roughness is not hard edges, build "
+            "with --crease-angle 180")
 
 
 def _check_float32_positions(source: SourceMesh, face_pos: np.ndarray) -> None:

@@ -90,6 +90,14 @@ def add_crease_normals(source: SourceMesh, crease_angle_deg: float, topo: Topolo
     )
 
 
+def smooth_wedges(face_pos: np.ndarray, nbrs: np.ndarray, face_vertex: np.ndarray) -> np.ndarray:
+    """(p, 3) int32 a label per corner, equal where smooth normals (a crease angle of 180 degrees)
+    give the corners one vertex: the corners of one input vertex joined across the edges between
+    them (``face_pos``, ``nbrs`` as the topology's, ``face_vertex`` (p, 3) the input's vertex ids)."""
+    no_crease = -2.0                          # below every cosine: no edge is a crease, nor needs a normal
+    return _wedges(face_pos, nbrs, np.asarray(face_vertex, np.int32), np.zeros((len(face_pos), 3)), no_crease)
+
+
 @nb.njit(cache=True, nogil=True)
 def _corner_angles(positions, face_pos):
     """(p, 3) interior angle at each corner, the weight of that face's normal."""

@@ -90,6 +90,13 @@ def layout_surfaces(face_pos, face_vertex, face_material, nbrs, nonmanifold, n_p
     )
 
 
+def rigid_positions(face_pos, face_vertex, face_material, nbrs, nonmanifold) -> int:
+    """How many positions :func:`layout_surfaces` would make RIGID, arguments as its own (the
+    groups and classes alone: no vertex buffer)."""
+    group = _grow_groups(face_pos, face_vertex, np.asarray(face_material, np.int32), nbrs, len(nonmanifold))
+    return int(np.count_nonzero(_classify(face_pos, group, nbrs, nonmanifold) == RIGID))
+
+
 @nb.njit(cache=True, nogil=True)
 def _group_pairs(face_pos, group, e):
     """The (group, position) pairs in use, as a CSR by position.
