@@ -14,10 +14,7 @@ both ways, and converted to pixels at their distance from the eye as the
 screen-space test converts errors; points outside the view are left out.
 A frame's jump is its largest such distance. Reported per terrain and morph
 duration (0: no morphs, what caveclod drew before): p50, p99 and max of the
-per-frame jumps over all cameras, the share of frames over 0.25 px, and
-how long the display takes to settle: at each frame, the seconds until
-every morph begun by then is over (a cascade's levels morph one after
-another, so this can exceed the duration).
+per-frame jumps over all cameras, and the share of frames over 0.25 px.
 
 Camera motion is not a jump (the surfaces are compared in world space);
 a morphing vertex moves a little every frame, a popping one all at once.
@@ -94,16 +91,15 @@ def frame_jump(prev, cur, view) -> float:
     return max(one_way(V1, T1, ch1, V0, T0, view), one_way(V0, T0, ch0, V1, T1, view))
 
 
-def fly(mesh, targets, duration_ms: float, frames: int) -> tuple[list, list, list]:
-    """(per-frame jumps (px), per-frame client milliseconds of the geomorphs, per-frame seconds until
-    the morphs begun by then are over) of every camera over the flyover."""
+def fly(mesh, targets, duration_ms: float, frames: int) -> tuple[list, list]:
+    """(per-frame jumps (px), per-frame client milliseconds of the geomorphs) of every camera over the flyover."""
     import caveclod
     from caveclod.client.geomorph import Geomorphs, points_of
     from caveclod.paths import flyover
     lo, hi = mesh.bounds()
     points = points_of(mesh.vertex_positions, targets)
     positions = np.asarray(mesh.vertex_positions, np.float64)
-    jumps, cost, lag = [], [], []
+    jumps, cost = [], []
     for c in range(CAMERAS):
         cam = mesh.new_camera()
         morphs = Geomorphs(mesh.vertex_positions, targets, cam.n_materials, duration_ms / 1000,
@@ -126,12 +122,11 @@ def fly(mesh, targets, duration_ms: float, frames: int) -> tuple[list, list, lis
                 morphs.moving(now)
                 if f >= SETTLE_FRAMES:
                     cost.append(1000 * (time.perf_counter() - t0))
-                    lag.append((morphs.settled_by() or now) - now)
             cur = drawn(cam, morphs, positions, now)
             if prev is not None and f >= SETTLE_FRAMES:
                 jumps.append(frame_jump(prev, cur, view))
             prev = cur
-    return jumps, cost, lag
+    return jumps, cost
 
 
 def summary(jumps: list) -> dict:
@@ -174,18 +169,15 @@ def main() -> int:
         targets = morph_targets(mesh)
         for ms in args.durations:
             t0 = time.perf_counter()
-            jumps, cost, lag = fly(mesh, targets, ms, args.frames)
+            jumps, cost = fly(mesh, targets, ms, args.frames)
             row = {"mesh": name, "size": args.size, "morph_ms": ms, **summary(jumps),
                    "client_ms_per_camera_frame": {"p50": round(float(np.percentile(cost, 50)), 3),
                                                   "p99": round(float(np.percentile(cost, 99)), 3)} if cost else None,
-                   "settle_s": {"p50": round(float(np.percentile(lag, 50)), 3),
-                                "p99": round(float(np.percentile(lag, 99)), 3),
-                                "max": round(float(np.max(lag)), 3)} if lag else None,
                    "seconds": round(time.perf_counter() - t0, 1), "jumps_px": [round(x, 5) for x in jumps]}
             results.append(row)
             print(f"{name:8s} morph {ms:6.0f} ms: jump p50 {row['p50_px']:.3f} p99 {row['p99_px']:.3f} "
                   f"max {row['max_px']:.3f} px, {100 * row['over_0_25_px']:.1f} % of frames over 0.25 px; "
-                  f"client {row['client_ms_per_camera_frame']} ms a camera-frame; settled within {row['settle_s']} s",
+                  f"client {row['client_ms_per_camera_frame']} ms a camera-frame",
                   file=sys.stderr)
     args.out.parent.mkdir(parents=True, exist_ok=True)
     args.out.write_text(json.dumps({"tolerance_px": TOLERANCE, "cameras": CAMERAS, "fps": FPS, "results": results},

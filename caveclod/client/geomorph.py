@@ -30,13 +30,6 @@ given time. Hoppe's geomorphs, per camera and incremental:
   point shrinking onto one that starts shrinking too follows it, and one
   that arrives hands its followers on to its own anchor. A going point that
   comes back moves home from where it is.
-* **One level of a cascade moves at a time**: a point that appears out of
-  an anchor still on its way waits (drawn on the anchor) until the anchor
-  is home, and a point that goes while others still shrink onto it waits
-  (where it is) until they have arrived. Overlapping, the levels' motions
-  added up: on the rough terrain at 4 px, morphs of 3 s jumped more a frame
-  than morphs of 2 s. A cascade of k levels takes k durations to settle
-  (:meth:`Geomorphs.settled_by`).
 
 Where a frame only splits, the surface drawn at its instant is the surface
 drawn just before (tests/test_geomorph.py checks every frame of zooms);
@@ -169,10 +162,6 @@ class Geomorphs:
         rows = np.array([slot.get(int(p), -1) for p in points], np.int64)
         return np.where((rows < 0)[:, None], own, where[np.maximum(rows, 0)]) if len(points) else own
 
-    def settled_by(self) -> float | None:
-        """When every morph begun so far is over (None: none is on): the display is then the logical buffers."""
-        return max((m.t0 + self.duration for m in self.active.values()), default=None)
-
     def drawn_positions(self, now: float) -> np.ndarray:
         """(d, 3) float64 every vertex where it is drawn at ``now`` (for measuring; renderers use :meth:`moving`)."""
         out = self.positions.astype(np.float64)
@@ -226,13 +215,8 @@ class Geomorphs:
         going = changed[(before[changed] > 0) & (self.point_refs[changed] == 0)].tolist()
         for p in appear:
             self._appear(p, before, now)
-        # When the points shrinking onto each point arrive: a point that goes waits for them.
-        arrivals: dict[int, float] = {}
-        for m in self.active.values():
-            if m.end is not None:
-                arrivals[m.end] = max(arrivals.get(m.end, now), m.t0 + self.duration)
         for p in going:
-            self._go(p, now, arrivals.get(p, now))
+            self._go(p, now)
         self._replace(lost_display, new_at)
         self._emit(out, surfaces)
         return out
@@ -299,18 +283,16 @@ class Geomorphs:
             return
         anchor = self._anchor(p, before)
         if anchor >= 0:
-            leader = self.active.get(anchor)         # still on its way: this one starts once it is home
-            start = now if leader is None else max(now, leader.t0 + self.duration)
-            self.active[p] = _Morph(start, anchor, None, None)
+            self.active[p] = _Morph(now, anchor, None, None)
         self._moved.add(p)
 
-    def _go(self, p: int, now: float, start: float) -> None:
+    def _go(self, p: int, now: float) -> None:
         anchor = self._anchor(p, self.point_refs)
         if anchor < 0:
             self.active.pop(p, None)         # nothing to shrink onto: it goes at once
             self._moved.add(p)
             return
-        self.active[p] = _Morph(start, None, self.point_at(p, now), anchor)
+        self.active[p] = _Morph(now, None, self.point_at(p, now), anchor)
 
     def _anchor_vertex(self, v: int, end: int) -> int:
         """The vertex that takes vertex ``v``'s place when its point arrives on point ``end``: along

@@ -134,12 +134,7 @@ export class Geomorphs {
     }
     const changed = [...touched].sort((a, b) => a - b);
     for (const p of changed) if (before[p] === 0 && this.pointRefs[p] > 0) this.appear(p, before, now);
-    // When the points shrinking onto each point arrive: a point that goes waits for them.
-    const arrivals = new Map();
-    for (const m of this.active.values()) {
-      if (m.end >= 0) arrivals.set(m.end, Math.max(arrivals.get(m.end) ?? now, m.t0 + this.duration));
-    }
-    for (const p of changed) if (before[p] > 0 && this.pointRefs[p] === 0) this.go(p, now, arrivals.get(p) ?? now);
+    for (const p of changed) if (before[p] > 0 && this.pointRefs[p] === 0) this.go(p, now);
     this.replace(lost, newAt);
     this.emit(out, surfaces, new Set());
     return out;
@@ -205,17 +200,14 @@ export class Geomorphs {
       return;
     }
     const a = this.anchor(p, before);
-    if (a < 0) { this.moved.add(p); return; }
-    const leader = this.active.get(a); // still on its way: this one starts once it is home
-    const start = leader === undefined ? now : Math.max(now, leader.t0 + this.duration);
-    this.active.set(p, { t0: start, start: a, fixed: null, end: -1 });
+    if (a >= 0) this.active.set(p, { t0: now, start: a, fixed: null, end: -1 });
     this.moved.add(p);
   }
 
-  go(p, now, start) {
+  go(p, now) {
     const a = this.anchor(p, this.pointRefs);
     if (a < 0) { this.active.delete(p); this.moved.add(p); return; }
-    this.active.set(p, { t0: start, start: -1, fixed: this.pointAt(p, now), end: a });
+    this.active.set(p, { t0: now, start: -1, fixed: this.pointAt(p, now), end: a });
   }
 
   anchorVertex(v, end) {
