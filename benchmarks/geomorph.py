@@ -15,11 +15,14 @@ screen-space test converts errors; points outside the view are left out.
 A frame's jump is its largest such distance. Reported per terrain and morph
 duration (0: no morphs, what caveclod drew before): p50, p99 and max of the
 per-frame jumps over all cameras, and the share of frames over 0.25 px.
+``--speeds``: also morphs timed by their path on screen at these pixels a
+second (each at most ``--longest`` ms), with how long they took.
 
 Camera motion is not a jump (the surfaces are compared in world space);
 a morphing vertex moves a little every frame, a popping one all at once.
 
-    .venv/bin/python benchmarks/geomorph.py [--size 708] [--frames 300] [--durations 0 250 500 1000] [--out F]
+    .venv/bin/python benchmarks/geomorph.py [--size 708] [--frames 300] [--durations 0 250 500 1000]
+                                            [--speeds PX ...] [--longest 8000] [--out F]
 
 Writes benchmarks/results/geomorph.json (or ``--out``) and a .png beside it.
 """
@@ -28,6 +31,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import math
 import sys
 import time
 from pathlib import Path
@@ -91,19 +95,21 @@ def frame_jump(prev, cur, view) -> float:
     return max(one_way(V1, T1, ch1, V0, T0, view), one_way(V0, T0, ch0, V1, T1, view))
 
 
-def fly(mesh, targets, duration_ms: float, frames: int) -> tuple[list, list]:
-    """(per-frame jumps (px), per-frame client milliseconds of the geomorphs) of every camera over the flyover."""
+def fly(mesh, targets, duration_ms: float, frames: int, speed: float | None = None) -> tuple[list, list, list]:
+    """(per-frame jumps (px), per-frame client milliseconds of the geomorphs, seconds each morph took)
+    of every camera over the flyover; with ``speed`` (pixels a second) morphs last their path on
+    screen over it, at most ``duration_ms``."""
     import caveclod
     from caveclod.client.geomorph import Geomorphs, points_of
     from caveclod.paths import flyover
     lo, hi = mesh.bounds()
     points = points_of(mesh.vertex_positions, targets)
     positions = np.asarray(mesh.vertex_positions, np.float64)
-    jumps, cost = [], []
+    jumps, cost, spans = [], [], []
     for c in range(CAMERAS):
         cam = mesh.new_camera()
         morphs = Geomorphs(mesh.vertex_positions, targets, cam.n_materials, duration_ms / 1000,
-                           points) if duration_ms > 0 else None
+                           points, speed=speed) if duration_ms > 0 else None
         # The session's frame 1: a keyframe refined for the first pose (not morphed).
         cam.update(caveclod.View.from_pose(flyover(lo, hi, c, 3.0 * c), tolerance_px=TOLERANCE))
         if morphs is not None:
@@ -118,15 +124,17 @@ def fly(mesh, targets, duration_ms: float, frames: int) -> tuple[list, list]:
             if morphs is not None:           # what a client does a frame: end morphs, apply, move
                 t0 = time.perf_counter()
                 morphs.tick(now)
+                morphs.look_from(view.eye, view.height / (2 * math.tan(math.radians(view.fov_y) / 2)))
                 morphs.apply([_Surface(m, d) for m, d in delta.surfaces.items()], False, now)
                 morphs.moving(now)
                 if f >= SETTLE_FRAMES:
                     cost.append(1000 * (time.perf_counter() - t0))
+                    spans.extend(m.span for m in morphs.active.values() if m.t0 == now)
             cur = drawn(cam, morphs, positions, now)
             if prev is not None and f >= SETTLE_FRAMES:
                 jumps.append(frame_jump(prev, cur, view))
             prev = cur
-    return jumps, cost
+    return jumps, cost, spans
 
 
 def summary(jumps: list) -> dict:
@@ -144,7 +152,8 @@ def plot(results: list, out: Path) -> None:
     for r in results:
         j = np.sort(np.asarray(r["jumps_px"]))
         ax.semilogx(np.maximum(j, 1e-4), np.linspace(0, 1, len(j)),
-                    label=f"{r['mesh']}, {'no morphs' if r['morph_ms'] == 0 else str(r['morph_ms']) + ' ms'}")
+                    label=f"{r['mesh']}, " + ("no morphs" if r['morph_ms'] == 0 else f"{r['morph_ms']:g} ms"
+                                              if r.get('morph_px_s') is None else f"{r['morph_px_s']:g} px/s"))
     ax.axvline(0.25, ls=":", c="k")
     ax.set(xlabel="per-frame jump of the drawn surface, px", ylabel="share of frames",
            title=f"popping on the flyover at {TOLERANCE:g} px, {CAMERAS} cameras")
@@ -157,7 +166,10 @@ def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--size", type=int, default=708)
     ap.add_argument("--frames", type=int, default=300)
-    ap.add_argument("--durations", type=float, nargs="+", default=[0, 250, 500, 1000], help="morph ms (0: none)")
+    ap.add_argument("--durations", type=float, nargs="*", default=[0, 250, 500, 1000], help="morph ms (0: none)")
+    ap.add_argument("--speeds", type=float, nargs="*", default=[],
+                    help="also morphs at these pixels a second (each at most --longest ms)")
+    ap.add_argument("--longest", type=float, default=8000, help="the longest a morph at a speed takes, ms")
     ap.add_argument("--meshes", nargs="+", default=["default", "rough"])
     ap.add_argument("--out", type=Path, default=RESULTS / "geomorph.json", help="the JSON to write (and a .png beside)")
     args = ap.parse_args()
@@ -167,15 +179,19 @@ def main() -> int:
     for name in args.meshes:
         mesh = caveclod.load(built(name, args.size))
         targets = morph_targets(mesh)
-        for ms in args.durations:
+        for ms, speed in [(ms, None) for ms in args.durations] + [(args.longest, v) for v in args.speeds]:
             t0 = time.perf_counter()
-            jumps, cost = fly(mesh, targets, ms, args.frames)
-            row = {"mesh": name, "size": args.size, "morph_ms": ms, **summary(jumps),
+            jumps, cost, spans = fly(mesh, targets, ms, args.frames, speed)
+            row = {"mesh": name, "size": args.size, "morph_ms": ms, "morph_px_s": speed, **summary(jumps),
+                   "morph_seconds": {"p50": round(float(np.percentile(spans, 50)), 3),
+                                     "p99": round(float(np.percentile(spans, 99)), 3)} if spans else None,
                    "client_ms_per_camera_frame": {"p50": round(float(np.percentile(cost, 50)), 3),
                                                   "p99": round(float(np.percentile(cost, 99)), 3)} if cost else None,
                    "seconds": round(time.perf_counter() - t0, 1), "jumps_px": [round(x, 5) for x in jumps]}
             results.append(row)
-            print(f"{name:8s} morph {ms:6.0f} ms: jump p50 {row['p50_px']:.3f} p99 {row['p99_px']:.3f} "
+            how = f"{ms:6.0f} ms" if speed is None else \
+                f"{speed:g} px/s (<= {ms:.0f} ms, took {row['morph_seconds']} s)"
+            print(f"{name:8s} morph {how}: jump p50 {row['p50_px']:.3f} p99 {row['p99_px']:.3f} "
                   f"max {row['max_px']:.3f} px, {100 * row['over_0_25_px']:.1f} % of frames over 0.25 px; "
                   f"client {row['client_ms_per_camera_frame']} ms a camera-frame",
                   file=sys.stderr)

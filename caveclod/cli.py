@@ -313,6 +313,10 @@ def morph_argument(p: argparse.ArgumentParser) -> None:
                    help=f"geomorphs: a vertex a split brings in grows out of the surface over MS milliseconds "
                         f"instead of popping in (default {DEFAULT_MORPH_MS:g}; 0: off). Needs the packed "
                         "vertex download")
+    p.add_argument("--morph-speed", type=float, metavar="PX_PER_S",
+                   help="geomorphs move at this many pixels a second on screen: each morph lasts its path "
+                        "over it, at most --morph-ms (give a long one, e.g. 8000); 5 keeps a 4 px "
+                        "tolerance's per-frame jumps under a quarter pixel (README, Rendering)")
 
 
 def _cache_arguments(p: argparse.ArgumentParser, more: str = "") -> None:

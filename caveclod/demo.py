@@ -175,12 +175,14 @@ def fly(target: str, mesh: str, out: Path, size: tuple, args) -> tuple[dict, lis
                 summary, frames = record(session, out / "frames", size=size, trajectory="flyover",
                                          frames=args.frames, wireframe=args.wireframe, keep_every=args.keep_every,
                                          animation=out / "animation.gif", animation_width=args.animation_width,
-                                         wireframe_still=out / "wireframe.png", morph_ms=args.morph_ms)
+                                         wireframe_still=out / "wireframe.png", morph_ms=args.morph_ms,
+                                         morph_speed=args.morph_speed)
     except SessionEnded as exc:
         raise CaveclodError(f"the session ended: {exc}; see the server log {out / 'server.log'}") from None
     except FlightError as exc:
         raise CaveclodError(str(exc)) from None
     summary["morph_ms"] = args.morph_ms
+    summary["morph_speed"] = args.morph_speed
     summary["vertex_download"] = {
         "float32_bytes": info.vertex_format.payload_bytes,
         "packed_bytes": packed.packed_bytes if packed is not None else None,

@@ -98,6 +98,46 @@ def test_a_split_starts_inside_the_surface_drawn_before_and_ends_at_the_mesh_sen
     assert np.array_equal(morphs.drawn_positions(now + 0.5), mesh.vertex_positions.astype(np.float64))
 
 
+def test_morphs_at_a_speed_last_their_path_on_screen():
+    """With a speed, a morph takes its path's length on screen (from the camera look_from gave, at
+    the nearer end) over the speed, at most the duration; the new surface still starts in the old one,
+    and once the longest morph is over the display is the mesh sent."""
+    import math
+    mesh = _mesh("rough")
+    ext = float(np.linalg.norm(np.ptp(mesh.vertex_positions, axis=0)))
+    cam = mesh.new_camera()
+    duration, speed = 1.5, 40.0
+    morphs = Geomorphs(mesh.vertex_positions, morph_targets(mesh), cam.n_materials, duration, speed=speed)
+    morphs.apply(_keyframe(cam), True, 0.0)
+    spans = []
+    for f, view in enumerate(_zoom(mesh, 0, 24)):
+        now = f * 0.1
+        kappa = view.height / (2 * math.tan(math.radians(view.fov_y) / 2))
+        morphs.tick(now)
+        before = _drawn(cam, morphs, now)
+        started = {p: morphs.point_at(p, now) for p in morphs.active}
+        morphs.look_from(view.eye, kappa)
+        morphs.apply(_surfaces(cam.update(view)), False, now)
+        assert _distance(_drawn(cam, morphs, now), before) <= 1e-5 * ext, f
+        for p, m in morphs.active.items():
+            if m.t0 != now or m.start is None or p in started:
+                continue
+            a = morphs.point_at(m.start, now)
+            b = morphs.positions[morphs._members[morphs._start[p]]].astype(np.float64)
+            eye = np.asarray(view.eye, np.float64)
+            pixels = np.linalg.norm(b - a) * kappa / min(np.linalg.norm(a - eye), np.linalg.norm(b - eye))
+            assert m.span == pytest.approx(min(duration, max(pixels / speed, 1e-3)), rel=1e-9)
+            spans.append(m.span)
+    assert len(spans) > 100 and min(spans) < duration / 2 and max(spans) == duration, "morphs of many lengths"
+    end = max(m.t0 + m.span for m in morphs.active.values())
+    morphs.tick(end)
+    assert not morphs.active
+    for m in range(cam.n_materials):
+        assert np.array_equal(morphs.display(m), cam.index_buffer(m))
+    with pytest.raises(ValueError, match="speed"):
+        Geomorphs(mesh.vertex_positions, morph_targets(mesh), cam.n_materials, duration, speed=0.0)
+
+
 @pytest.mark.parametrize("source", ["rough", "scan"])
 def test_a_flight_with_collapses_jumps_less_and_ends_at_the_mesh_sent(source):
     """Splits and collapses: the display is always made of valid triangles, the morphs' copy of the

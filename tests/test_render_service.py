@@ -77,24 +77,31 @@ def test_gpu_buffers_equal_the_client_library_after_every_frame(server, gl, tmp_
             view.release()
 
 
-def test_geomorphs_through_a_session_run_on_path_time_and_mirror_the_display(server, gl, tmp_path):
-    """A flight with --morph-ms: morphs are under way between frames (on the path's clock, 0.1 s a
-    frame here), the GPU holds the display buffers and the camera's moving positions, and once the
-    morphs are over the GPU holds the client library's buffers exactly."""
+@pytest.mark.parametrize("morph_ms, speed", [(400, None), (800, 30.0)])
+def test_geomorphs_through_a_session_run_on_path_time_and_mirror_the_display(server, gl, tmp_path, morph_ms, speed):
+    """A flight with --morph-ms (and --morph-speed): morphs are under way between frames (on the path's
+    clock, 0.1 s a frame here), the GPU holds the display buffers and the camera's moving positions, and
+    once the morphs are over the GPU holds the client library's buffers exactly. At a speed, morphs are
+    timed by their path on screen from the poses the renderer drew."""
     with Client(f"127.0.0.1:{server.port}", cache_dir=tmp_path) as client:
         with client.session("terrain", cameras=2, width=160, height=90, tolerance_px=0.5,
                             morph_targets=True, frame_encoding="linked") as s:
             assert s.info.frame_encoding == pb.FRAME_ENCODING_OPS_LINKED     # what render and view ask for
-            view = SessionRenderer(s, 320, 90, ctx=gl, morph_ms=400)
-            busy = 0
+            view = SessionRenderer(s, 320, 90, ctx=gl, morph_ms=morph_ms, morph_speed=speed)
+            busy, spans = 0, set()
             for rec in fly(s, view, "flyover", 30, fps=10.0, verify=True):
                 assert not view.mismatches()
                 busy += sum(len(m.active) > 0 for m in view.morphs)
+                spans.update(m.span for morphs in view.morphs for m in morphs.active.values())
                 for c, morphs in enumerate(view.morphs):
                     np.testing.assert_array_equal(view.renderer.camera_positions(c),
                                                   morphs.drawn_positions(rec.t).astype(np.float32))
             assert busy >= 10, "morphs must be under way in many frames"
-            view.render([p for p in path_poses("flyover", *_bounds(s), 2, 3.0)], now=rec.t + 0.4)
+            if speed is None:
+                assert spans == {morph_ms / 1000}
+            else:
+                assert len(spans) > 10 and min(spans) < max(spans) <= morph_ms / 1000, sorted(spans)[:5]
+            view.render([p for p in path_poses("flyover", *_bounds(s), 2, 3.0)], now=rec.t + morph_ms / 1000)
             for c in range(2):
                 assert not view.morphs[c].active
                 for m in range(4):

@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import io
 import itertools
+import math
 import threading
 import time
 from urllib.parse import urlparse
@@ -132,10 +133,11 @@ def _base(server) -> str:
     return f"http://127.0.0.1:{server.web_port}/"
 
 
-@pytest.mark.parametrize("cameras", [2])
-def test_a_terrain_flyover_in_quadrants(make_server, browser, cameras):
+@pytest.mark.parametrize("cameras, morph", [(2, ""), (2, "&morph=8000&morphspeed=5")])
+def test_a_terrain_flyover_in_quadrants(make_server, browser, cameras, morph):
     server = make_server(web_port=0)
-    with Page(browser, _base(server) + f"?mesh=terrain&cameras={cameras}&trajectory=flyover&tolerance=1") as page:
+    with Page(browser, _base(server) + f"?mesh=terrain&cameras={cameras}&trajectory=flyover&tolerance=1{morph}") \
+            as page:
         stats = page.wait(lambda s: s["frames"] >= 60 and s["crcChecks"] >= 30 or s["error"])
         assert stats["error"] is None and stats["connected"], stats
         assert stats["frames"] >= 60 and stats["crcChecks"] >= 30 and stats["divergences"] == 0, stats
@@ -398,12 +400,13 @@ def test_the_pages_vertex_unpacker_makes_pythons_bytes(browser, make_server, tex
             assert g == w, g
 
 
-GEOMORPH_IN_PAGE = """async ([positions, targets, materials, duration, steps]) => {
+GEOMORPH_IN_PAGE = """async ([positions, targets, materials, duration, speed, steps]) => {
   const { Geomorphs, pointsOf } = await import('/static/geomorph.js');
   const pos = Float32Array.from(positions), tg = Uint32Array.from(targets);
-  const g = new Geomorphs(pos, tg, materials, duration, pointsOf(pos, tg));
+  const g = new Geomorphs(pos, tg, materials, duration, pointsOf(pos, tg), speed);
   const out = [];
-  for (const [kind, now, surfaces] of steps) {
+  for (const [kind, now, surfaces, eye, kappa] of steps) {
+    if (eye !== null) g.lookFrom(eye, kappa);
     if (kind === 'frame') {
       g.apply(surfaces.map(([m, count, slots, tris]) => ({ material: m, count, slots: Uint32Array.from(slots), tris: Uint32Array.from(tris) })), false, now);
     } else if (kind === 'key') {
@@ -418,9 +421,11 @@ GEOMORPH_IN_PAGE = """async ([positions, targets, materials, duration, steps]) =
 }"""
 
 
-def test_the_pages_geomorphs_agree_with_pythons(browser, make_server, terrain_path):
+@pytest.mark.parametrize("speed", [None, 20.0])
+def test_the_pages_geomorphs_agree_with_pythons(browser, make_server, terrain_path, speed):
     """The page's geomorph.js, fed the frames of a flight with splits, collapses and a keyframe, draws
-    the display buffers and moving positions that caveclod.client.geomorph draws, step for step."""
+    the display buffers and moving positions that caveclod.client.geomorph draws, step for step; with
+    a speed too, each morph timed by its path on screen from the frame's camera."""
     import caveclod
     from caveclod.client.geomorph import Geomorphs
     from caveclod.paths import flyover
@@ -431,15 +436,19 @@ def test_the_pages_geomorphs_agree_with_pythons(browser, make_server, terrain_pa
     lo, hi = mesh.bounds()
     targets = morph_targets(mesh)
     cam = mesh.new_camera()
-    morphs = Geomorphs(mesh.vertex_positions, targets, cam.n_materials, 0.3)
+    morphs = Geomorphs(mesh.vertex_positions, targets, cam.n_materials, 0.3, speed=speed)
 
     def key():
         return [(m, int(cam.cnt[m]), list(range(int(cam.cnt[m]))), cam.index_buffer(m).ravel().tolist())
                 for m in range(cam.n_materials)]
-    steps, want = [], []
+    steps, want, spans = [], [], set()
 
-    def step(kind, now, surfaces):
-        steps.append((kind, now, surfaces))
+    def step(kind, now, surfaces, view=None):
+        eye = None if view is None else [float(x) for x in view.eye]
+        kappa = None if view is None else view.height / (2 * math.tan(math.radians(view.fov_y) / 2))
+        steps.append((kind, now, surfaces, eye, kappa))
+        if view is not None:
+            morphs.look_from(eye, kappa)
         objs = [Surface(m, c, np.asarray(sl, np.int64), np.asarray(t, np.int64).reshape(-1, 3))
                 for m, c, sl, t in surfaces]
         if kind == "tick":
@@ -447,6 +456,7 @@ def test_the_pages_geomorphs_agree_with_pythons(browser, make_server, terrain_pa
         else:
             morphs.apply(objs, kind == "key", now)
         v, p = morphs.moving(now)
+        spans.update(m.span for m in morphs.active.values())
         want.append(([morphs.display(m).ravel().tolist() for m in range(cam.n_materials)],
                      dict(zip(v.tolist(), map(tuple, p.tolist()))), len(morphs.active), morphs.snaps))
     step("key", 0.0, key())
@@ -458,12 +468,12 @@ def test_the_pages_geomorphs_agree_with_pythons(browser, make_server, terrain_pa
             step("key", now, key())
             continue
         step("frame", now, [(m, int(d.count), d.slots.tolist(), np.asarray(d.tris).ravel().tolist())
-                            for m, d in delta.surfaces.items()])
+                            for m, d in delta.surfaces.items()], view)
         if f % 3 == 0:
             step("tick", now + 0.01, [])
     with Page(browser, _base(server) + "?mesh=terrain&trajectory=rotate&morph=0") as page:
         got = page.page.evaluate(GEOMORPH_IN_PAGE, [mesh.vertex_positions.ravel().tolist(), targets.tolist(),
-                                                    cam.n_materials, 0.3, steps])
+                                                    cam.n_materials, 0.3, speed, steps])
     busy = 0
     for i, ((display, verts, where, active, snaps), (w_display, w_moving, w_active, w_snaps)) in \
             enumerate(zip(got, want)):
@@ -473,3 +483,5 @@ def test_the_pages_geomorphs_agree_with_pythons(browser, make_server, terrain_pa
         assert (active, snaps) == (w_active, w_snaps), i
         busy += active > 0
     assert busy > 20, "the flight must morph"
+    if speed is not None:                           # morphs of many lengths, some cut at the duration
+        assert len(spans) > 10 and min(spans) < 0.3 and max(spans) == 0.3, sorted(spans)[:5]

@@ -44,9 +44,14 @@ benchmark share it; a renderer gives each camera its own position buffer
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, field
 
 import numpy as np
+
+
+MIN_SPAN = 1e-3
+"""Seconds the shortest morph takes with a speed (a slide of a fraction of a pixel)."""
 
 
 @dataclass
@@ -71,6 +76,7 @@ class _Morph:
     start: int | None             # anchor point it grows out of (appear), or None: from `fixed`
     fixed: np.ndarray | None      # (3,) where it started (going, or coming back)
     end: int | None               # anchor point it shrinks onto (going), or None: home
+    span: float = 1.0             # seconds it takes
 
 
 class Geomorphs:
@@ -80,15 +86,23 @@ class Geomorphs:
         positions: (d, 3) float32 the vertex buffer's positions.
         targets: (d,) morph targets (:attr:`caveclod.client.VertexBuffer.morph_targets`).
         materials: index buffers per camera.
-        duration: seconds a morph takes (> 0).
+        duration: seconds a morph takes (> 0); with ``speed``, the most it takes.
         points: :func:`points_of` of the buffer (computed when not given;
             share it between the cameras of one vertex buffer).
+        speed: None, or pixels a second: each morph then takes as long as
+            its path on screen needs at that speed (at most ``duration``),
+            measured from where :meth:`look_from` last put the camera, so
+            that a long slide moves no faster than a short one.
     """
 
     def __init__(self, positions: np.ndarray, targets: np.ndarray, materials: int, duration: float,
-                 points: tuple | None = None):
+                 points: tuple | None = None, speed: float | None = None):
         if not duration > 0:
             raise ValueError(f"a geomorph takes a positive duration, got {duration!r}")
+        if speed is not None and not speed > 0:
+            raise ValueError(f"a geomorph's speed must be positive pixels a second, got {speed!r}")
+        self.speed = None if speed is None else float(speed)
+        self._eye, self._kappa = None, 0.0               # where the camera is (look_from)
         self.positions = np.asarray(positions, np.float32)
         self.targets = np.asarray(targets, np.int64).reshape(-1)
         d = len(self.positions)
@@ -106,6 +120,13 @@ class Geomorphs:
         self.snaps = 0                                      # display triangles that ended unlike the logical
 
     # -- what is drawn ---------------------------------------------------------------
+    def look_from(self, eye, kappa: float) -> None:
+        """Where the camera is for the morphs the next frames begin (with a ``speed``): ``eye`` (3,)
+        and ``kappa``, pixels a unit spans at distance 1 (height / (2 tan(fov_y / 2)), as
+        :class:`caveclod.View` converts errors)."""
+        self._eye = tuple(float(x) for x in np.asarray(eye, np.float64).reshape(3))
+        self._kappa = float(kappa)
+
     def display(self, material: int) -> np.ndarray:
         """(count + kept, 3) uint32: the display buffer of ``material``, as the renderer holds it."""
         rows = self.rows[material].astype(np.uint32)
@@ -120,7 +141,7 @@ class Geomorphs:
         own = self.positions[self._members[self._start[p]]].astype(np.float64)
         if m is None or _depth > 64:
             return own
-        u = min(max((now - m.t0) / self.duration, 0.0), 1.0)
+        u = min(max((now - m.t0) / m.span, 0.0), 1.0)
         a = m.fixed if m.start is None else self.point_at(m.start, now, _depth + 1)
         b = own if m.end is None else self.point_at(m.end, now, _depth + 1)
         return a + (b - a) * u
@@ -136,10 +157,11 @@ class Geomorphs:
         act = np.fromiter(self.active, np.int64, len(self.active))
         morphs = [self.active[p] for p in act.tolist()]
         t0 = np.array([m.t0 for m in morphs])
+        span = np.array([m.span for m in morphs])
         start = np.array([-1 if m.start is None else m.start for m in morphs], np.int64)
         end = np.array([-1 if m.end is None else m.end for m in morphs], np.int64)
         fixed = np.array([m.fixed if m.fixed is not None else (0.0, 0.0, 0.0) for m in morphs], np.float64)
-        u = np.clip((now - t0) / self.duration, 0.0, 1.0)[:, None]
+        u = np.clip((now - t0) / span, 0.0, 1.0)[:, None]
         home = self.positions[self._members[self._start[act]]].astype(np.float64)
         slot = {p: i for i, p in enumerate(act.tolist())}
         si = np.array([slot.get(int(x), -1) for x in start], np.int64)      # an active anchor: its row
@@ -224,8 +246,8 @@ class Geomorphs:
     def tick(self, now: float) -> Changes:
         """End the morphs that are over at ``now`` (call before drawing); the display :class:`Changes`."""
         out = Changes()
-        over = self.duration * (1.0 - 1e-9)    # `now` may be t0 + duration, rounded
-        done = sorted((m.t0, p) for p, m in self.active.items() if now - m.t0 >= over)
+        # `now` may be t0 + span, rounded
+        done = sorted((m.t0, p) for p, m in self.active.items() if now - m.t0 >= m.span * (1.0 - 1e-9))
         if not done:
             return out
         arrived = {}                         # going point -> the anchor that takes its place
@@ -278,12 +300,13 @@ class Geomorphs:
         back = self.active.get(p)
         if back is not None and back.end is not None:
             # A going point comes back: home from where it is; what held it on screen goes.
-            self.active[p] = _Morph(now, None, self.point_at(p, now), None)
+            here = self.point_at(p, now)
+            self.active[p] = _Morph(now, None, here, None, self._span(here, self._home(p)))
             self._drop_triangles_of(p)
             return
         anchor = self._anchor(p, before)
         if anchor >= 0:
-            self.active[p] = _Morph(now, anchor, None, None)
+            self.active[p] = _Morph(now, anchor, None, None, self._span(self.point_at(anchor, now), self._home(p)))
         self._moved.add(p)
 
     def _go(self, p: int, now: float) -> None:
@@ -292,7 +315,20 @@ class Geomorphs:
             self.active.pop(p, None)         # nothing to shrink onto: it goes at once
             self._moved.add(p)
             return
-        self.active[p] = _Morph(now, None, self.point_at(p, now), anchor)
+        here = self.point_at(p, now)
+        self.active[p] = _Morph(now, None, here, anchor, self._span(here, self.point_at(anchor, now)))
+
+    def _home(self, p: int) -> np.ndarray:
+        """(3,) float64 point ``p``'s own position."""
+        return self.positions[self._members[self._start[p]]].astype(np.float64)
+
+    def _span(self, a: np.ndarray, b: np.ndarray) -> float:
+        """Seconds a morph from ``a`` to ``b`` (3,) takes: ``duration``, or with a speed its length on
+        screen (at the nearer end's distance) over the speed, at most ``duration``."""
+        if self.speed is None or self._eye is None:
+            return self.duration
+        pixels = _apart(a, b) * self._kappa / max(min(_apart(a, self._eye), _apart(b, self._eye)), 1e-9)
+        return min(self.duration, max(pixels / self.speed, MIN_SPAN))
 
     def _anchor_vertex(self, v: int, end: int) -> int:
         """The vertex that takes vertex ``v``'s place when its point arrives on point ``end``: along
@@ -438,6 +474,12 @@ def points_of(positions: np.ndarray, targets: np.ndarray) -> tuple:
     members = np.argsort(point, kind="stable")
     start = np.r_[0, np.cumsum(np.bincount(point, minlength=len(first)))]
     return point, point[targets[first]], start, members
+
+
+def _apart(a, b) -> float:
+    """The distance between points ``a`` and ``b`` (3,), summed in the order the page's port sums it."""
+    x, y, z = float(b[0]) - float(a[0]), float(b[1]) - float(a[1]), float(b[2]) - float(a[2])
+    return math.sqrt(x * x + y * y + z * z)
 
 
 def _key(tri) -> tuple:

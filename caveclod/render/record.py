@@ -13,6 +13,7 @@ camera-second, bytes per frame, pose -> frame latency, divergences).
 from __future__ import annotations
 
 import json
+import math
 import os
 import sys
 import time
@@ -45,10 +46,13 @@ def parse_size(text: str) -> tuple[int, int]:
 
 
 def morph_ms(args) -> float:
-    """``--morph-ms`` checked: milliseconds, 0 (or absent) for no geomorphs."""
+    """``--morph-ms`` checked (and ``--morph-speed``): milliseconds, 0 (or absent) for no geomorphs."""
     morph = getattr(args, "morph_ms", 0.0) or 0.0
     if morph < 0:
         raise InputError(f"--morph-ms must be at least 0 (0: no geomorphs), got {morph:g}")
+    speed = getattr(args, "morph_speed", None)
+    if speed is not None and not (speed > 0 and math.isfinite(speed)):
+        raise InputError(f"--morph-speed must be a positive number of pixels a second, got {speed:g}")
     return morph
 
 
@@ -88,7 +92,8 @@ def shrink(image: np.ndarray, width: int = ANIMATION_WIDTH) -> np.ndarray:
 def record(session, out: Path, *, size: tuple[int, int], trajectory: str, frames: int, fps: float = 30.0,
            wireframe: bool = False, verify: bool = True, keep_every: int = 1, progress: bool = True,
            animation: Path | None = None, animation_width: int = ANIMATION_WIDTH,
-           wireframe_still: Path | None = None, morph_ms: float = 0.0) -> tuple[dict, list]:
+           wireframe_still: Path | None = None, morph_ms: float = 0.0,
+           morph_speed: float | None = None) -> tuple[dict, list]:
     """Fly ``session`` along ``trajectory`` for ``frames`` frames; write the images into ``out``.
 
     Args:
@@ -100,6 +105,7 @@ def record(session, out: Path, *, size: tuple[int, int], trajectory: str, frames
         animation_width: the animation's frames are shrunk to at most this width.
         wireframe_still: also draw the last frame with the wireframe overlay, as a PNG here.
         morph_ms: geomorph duration (the session opened with ``morph_targets=True``); 0: none.
+        morph_speed: None, or geomorphs' pixels a second (each at most ``morph_ms``).
 
     Returns:
         ``(summary, frames)``: the figures ``render.json`` holds, and every
@@ -112,7 +118,7 @@ def record(session, out: Path, *, size: tuple[int, int], trajectory: str, frames
     latency, ops, nbytes, faces, written, small, draw_ms = [], [], [], [], [], [], []
     verified, inserted = 0, 0
     started = time.perf_counter()
-    with SessionRenderer(session, *size, morph_ms=morph_ms) as view:
+    with SessionRenderer(session, *size, morph_ms=morph_ms, morph_speed=morph_speed) as view:
         for rec in fly(session, view, trajectory, frames, fps=fps, wireframe=wireframe, verify=verify):
             latency += [v for v in rec.latency_ms if v is not None]
             ops.append(rec.operations)
@@ -191,7 +197,8 @@ def main(args) -> int:
                                 strict_bound=True if getattr(args, "strict_bound", False) else None,
                                 **cache) as session:
                 summary, _ = record(session, out, size=size, trajectory=args.trajectory, frames=args.frames,
-                                 fps=args.fps, wireframe=args.wireframe, morph_ms=args.morph_ms)
+                                 fps=args.fps, wireframe=args.wireframe, morph_ms=args.morph_ms,
+                                 morph_speed=args.morph_speed)
     except SessionEnded as exc:
         raise InputError(f"{args.target}: the session ended: {exc}") from None
     except FlightError as exc:

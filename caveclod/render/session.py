@@ -29,6 +29,7 @@ into them before its index writes, as the client library applies them.
 
 from __future__ import annotations
 
+import math
 import time
 
 import numpy as np
@@ -50,11 +51,14 @@ class SessionRenderer:
         width, height: image size in pixels; the cameras share it as quadrants.
         fov_y: vertical field of view in degrees (default: the session's).
         morph_ms: geomorph duration; 0 (or a session without morph targets): none.
+        morph_speed: None, or pixels a second: each morph then takes its path on
+            screen (seen from the camera's last rendered pose) over it, at most
+            ``morph_ms`` (:class:`caveclod.client.geomorph.Geomorphs`).
         **renderer_options: passed to :class:`Renderer` (``ctx``, ``textures``, ...).
     """
 
     def __init__(self, session, width: int, height: int, *, fov_y: float | None = None, morph_ms: float = 0.0,
-                 **renderer_options):
+                 morph_speed: float | None = None, **renderer_options):
         self.session = session
         self.morphs = None                     # per camera: Geomorphs, when morphing
         info = session.info
@@ -73,8 +77,10 @@ class SessionRenderer:
                                      cameras=int(info.cameras), bounds=(lo, hi), morph=morph, **renderer_options)
             if morph:
                 points = points_of(vb.positions, vb.morph_targets)
-                self.morphs = [Geomorphs(vb.positions, vb.morph_targets, len(names), morph_ms / 1000.0, points)
-                               for _ in range(int(info.cameras))]
+                self.morphs = [Geomorphs(vb.positions, vb.morph_targets, len(names), morph_ms / 1000.0, points,
+                                         speed=morph_speed) for _ in range(int(info.cameras))]
+        # Pixels a unit spans at distance 1 in the viewport the server refines for (the tolerance's pixels).
+        self._kappa = (info.options.viewport_height or height) / (2.0 * math.tan(math.radians(self.fov_y) / 2.0))
         self._started = time.monotonic()
         self.time = 0.0                        # the geomorphs' clock when a frame was last applied
         self._epoch = session.protocol.epoch
@@ -134,6 +140,9 @@ class SessionRenderer:
         """(height, width, 3) uint8 image of every camera at its pose (one per camera), the geomorphs
         at ``now`` (default: :meth:`clock`)."""
         self.advance(self.clock() if now is None else float(now))
+        if self.morphs is not None:            # the next frames' morphs are timed from these poses
+            for morphs, pose in zip(self.morphs, poses):
+                morphs.look_from(pose[0], self._kappa)
         return self.renderer.render(self.views(poses), wireframe=wireframe)
 
     def mismatches(self) -> list[tuple[int, int]]:

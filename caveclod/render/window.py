@@ -123,7 +123,8 @@ def main(args) -> int:
                                 tolerance_px=args.tolerance, prune=False if args.no_prune else None,
                                 strict_bound=True if getattr(args, "strict_bound", False) else None,
                                 **cache) as session:
-                view = SessionRenderer(session, *size, ctx=ctx, morph_ms=args.morph_ms)
+                view = SessionRenderer(session, *size, ctx=ctx, morph_ms=args.morph_ms,
+                                       morph_speed=args.morph_speed)
                 drawn, image = _loop(glfw, window, ctx, session, view, args)
                 if args.screenshot and image is not None:
                     save_png(args.screenshot, image)

@@ -28,6 +28,11 @@ export function pointsOf(positions, targets) {
   return { point, pointTarget, start, members };
 }
 
+function apart(a, b) {
+  const x = b[0] - a[0], y = b[1] - a[1], z = b[2] - a[2];
+  return Math.sqrt(x * x + y * y + z * z);
+}
+
 function key(a, b, c) {
   // A triangle up to rotation: whichever corner comes first.
   if (a <= b && a <= c) return `${a},${b},${c}`;
@@ -35,19 +40,27 @@ function key(a, b, c) {
   return `${c},${a},${b}`;
 }
 
+/** Seconds the shortest morph takes with a speed (caveclod/client/geomorph.py's MIN_SPAN). */
+const MIN_SPAN = 1e-3;
+
 export class Geomorphs {
   /**
    * @param {Float32Array} positions (3d) the vertex buffer's positions
    * @param {Uint32Array} targets (d) morph targets
    * @param {number} materials index buffers per camera
-   * @param {number} duration seconds a morph takes
+   * @param {number} duration seconds a morph takes; with `speed`, the most it takes
    * @param {object} points pointsOf(positions, targets), shared by the cameras
+   * @param {number|null} speed pixels a second: each morph then takes its path on screen over it
+   *   (from where lookFrom last put the camera), at most `duration`
    */
-  constructor(positions, targets, materials, duration, points) {
+  constructor(positions, targets, materials, duration, points, speed = null) {
     this.positions = positions;
     this.targets = targets;
     this.materials = materials;
     this.duration = duration;
+    this.speed = speed;
+    this.eye = null;
+    this.kappa = 0;
     Object.assign(this, points);
     this.pointRefs = new Int32Array(this.pointTarget.length);
     this.rows = Array.from({ length: materials }, () => new Uint32Array(0));
@@ -73,7 +86,7 @@ export class Geomorphs {
     const m = this.active.get(p);
     const own = this.own(p);
     if (m === undefined || depth > 64) return own;
-    const u = Math.min(Math.max((now - m.t0) / this.duration, 0), 1);
+    const u = Math.min(Math.max((now - m.t0) / m.span, 0), 1);
     const a = m.start < 0 ? m.fixed : this.pointAt(m.start, now, depth + 1);
     const b = m.end < 0 ? own : this.pointAt(m.end, now, depth + 1);
     return [a[0] + (b[0] - a[0]) * u, a[1] + (b[1] - a[1]) * u, a[2] + (b[2] - a[2]) * u];
@@ -143,8 +156,7 @@ export class Geomorphs {
   /** End the morphs that are over at `now` (call before drawing); the display writes. */
   tick(now) {
     const out = { writes: [], reset: false };
-    const over = this.duration * (1 - 1e-9);
-    const done = [...this.active.entries()].filter(([, m]) => now - m.t0 >= over)
+    const done = [...this.active.entries()].filter(([, m]) => now - m.t0 >= m.span * (1 - 1e-9))
       .sort((a, b) => a[1].t0 - b[1].t0 || a[0] - b[0]);
     if (!done.length) return out;
     const arrived = new Map();
@@ -195,19 +207,35 @@ export class Geomorphs {
   appear(p, before, now) {
     const back = this.active.get(p);
     if (back !== undefined && back.end >= 0) {
-      this.active.set(p, { t0: now, start: -1, fixed: this.pointAt(p, now), end: -1 });
+      const here = this.pointAt(p, now);
+      this.active.set(p, { t0: now, start: -1, fixed: here, end: -1, span: this.span(here, this.own(p)) });
       this.dropTrianglesOf(p);
       return;
     }
     const a = this.anchor(p, before);
-    if (a >= 0) this.active.set(p, { t0: now, start: a, fixed: null, end: -1 });
+    if (a >= 0) this.active.set(p, { t0: now, start: a, fixed: null, end: -1, span: this.span(this.pointAt(a, now), this.own(p)) });
     this.moved.add(p);
   }
 
   go(p, now) {
     const a = this.anchor(p, this.pointRefs);
     if (a < 0) { this.active.delete(p); this.moved.add(p); return; }
-    this.active.set(p, { t0: now, start: -1, fixed: this.pointAt(p, now), end: a });
+    const here = this.pointAt(p, now);
+    this.active.set(p, { t0: now, start: -1, fixed: here, end: a, span: this.span(here, this.pointAt(a, now)) });
+  }
+
+  /** Where the camera is, for the morphs the next frames begin (with a speed): eye [x, y, z] and
+   * kappa, pixels a unit spans at distance 1 (height / (2 tan(fovY / 2))). */
+  lookFrom(eye, kappa) {
+    this.eye = [eye[0], eye[1], eye[2]];
+    this.kappa = kappa;
+  }
+
+  /** Seconds a morph from a to b takes: the duration, or its length on screen (at the nearer end) over the speed. */
+  span(a, b) {
+    if (this.speed === null || this.eye === null) return this.duration;
+    const pixels = apart(a, b) * this.kappa / Math.max(Math.min(apart(a, this.eye), apart(b, this.eye)), 1e-9);
+    return Math.min(this.duration, Math.max(pixels / this.speed, MIN_SPAN));
   }
 
   anchorVertex(v, end) {

@@ -15,6 +15,8 @@
 //   &vertices=packed|float32  how the vertex buffer downloads (default packed)
 //   &morph=MS           geomorphs: splits and collapses change shape over MS
 //                       milliseconds (default 500; 0: off; needs packed)
+//   &morphspeed=PX      geomorphs move PX pixels a second on screen: each lasts
+//                       its path over PX, at most MS (give a long &morph=8000)
 //   &hz=N               poses a second per camera (default 30)
 
 import { Geomorphs, pointsOf } from "./geomorph.js";
@@ -121,6 +123,8 @@ async function main() {
   const poses = new Array(cameras).fill(null);
   const url = `${location.protocol === "https:" ? "wss" : "ws"}://${location.host}/v1/session`;
   const morphMs = Math.max(0, parseFloat(params.get("morph") ?? "500") || 0);
+  const morphSpeed = parseFloat(params.get("morphspeed") ?? "") > 0 ? parseFloat(params.get("morphspeed")) : null;
+  const kappa = options.viewportHeight / (2 * Math.tan((FOV_Y * Math.PI) / 360)); // pixels a unit spans at distance 1
   // Geomorphs (caveclod/web/geomorph.js): per camera, the display buffers drawn instead of the
   // session's, and the positions of the vertices on their way.
   let morphs = null, display = null;
@@ -146,7 +150,7 @@ async function main() {
         const positions = new Float32Array(payload.buffer, payload.byteOffset, 3 * d);
         const targets = new Uint32Array(payload.buffer, payload.byteOffset + Number(morphAttr.offset), d);
         const points = pointsOf(positions, targets);
-        morphs = Array.from({ length: cameras }, () => new Geomorphs(positions, targets, materials, morphMs / 1000, points));
+        morphs = Array.from({ length: cameras }, () => new Geomorphs(positions, targets, materials, morphMs / 1000, points, morphSpeed));
         display = Array.from({ length: cameras }, () => Array.from({ length: materials }, () => new IndexBuffer()));
         session.buffers.forEach((row, c) => { // what the session holds already appears as it is
           const held = row.map((buf, m) => ({ material: m, count: buf.count, slots: Uint32Array.from({ length: buf.count }, (_, i) => i), tris: buf.rows.subarray(0, 3 * buf.count) }));
@@ -161,6 +165,7 @@ async function main() {
       if (!morphs) return;
       const t = performance.now() / 1000;
       for (const [c, cu] of update.cameras) {
+        if (poses[c]) morphs[c].lookFrom(poses[c].eye, kappa); // morphs timed from where the camera is
         const started = morphs[c].active.size;
         applyDisplay(c, morphs[c].apply(cu.surfaces, cu.keyframe, t));
         stats.morphsStarted += Math.max(0, morphs[c].active.size - started);
