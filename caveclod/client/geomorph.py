@@ -76,7 +76,7 @@ class _Morph:
     start: int | None             # anchor point it grows out of (appear), or None: from `fixed`
     fixed: np.ndarray | None      # (3,) where it started (going, or coming back)
     end: int | None               # anchor point it shrinks onto (going), or None: home
-    span: float = 1.0             # seconds it takes
+    span: float                   # seconds it takes
 
 
 class Geomorphs:
