@@ -400,6 +400,17 @@ def test_the_pages_vertex_unpacker_makes_pythons_bytes(browser, make_server, tex
             assert g == w, g
 
 
+def _in_pieces(surfaces: list) -> list:
+    """``[(material, count, slots, flat tris)]`` with each surface of more than one row cut in two row
+    ranges, each with the buffer's count, as caveclod.frames.frame_parts cuts a frame across parts."""
+    out = []
+    for m, count, slots, tris in surfaces:
+        h = len(slots) // 2
+        out += [(m, count, slots[:h], tris[:3 * h]), (m, count, slots[h:], tris[3 * h:])] if h else \
+            [(m, count, slots, tris)]
+    return out
+
+
 GEOMORPH_IN_PAGE = """async ([positions, targets, materials, duration, speed, steps]) => {
   const { Geomorphs, pointsOf } = await import('/static/geomorph.js');
   const pos = Float32Array.from(positions), tg = Uint32Array.from(targets);
@@ -421,11 +432,12 @@ GEOMORPH_IN_PAGE = """async ([positions, targets, materials, duration, speed, st
 }"""
 
 
-@pytest.mark.parametrize("speed", [None, 20.0])
-def test_the_pages_geomorphs_agree_with_pythons(browser, make_server, terrain_path, speed):
+@pytest.mark.parametrize("speed, cut", [(None, False), (20.0, False), (None, True)])
+def test_the_pages_geomorphs_agree_with_pythons(browser, make_server, terrain_path, speed, cut):
     """The page's geomorph.js, fed the frames of a flight with splits, collapses and a keyframe, draws
     the display buffers and moving positions that caveclod.client.geomorph draws, step for step; with
-    a speed too, each morph timed by its path on screen from the frame's camera."""
+    a speed too, each morph timed by its path on screen from the frame's camera; and fed every
+    material's writes in pieces (a frame cut across parts), what Python draws fed them whole."""
     import caveclod
     from caveclod.client.geomorph import Geomorphs
     from caveclod.paths import flyover
@@ -446,7 +458,7 @@ def test_the_pages_geomorphs_agree_with_pythons(browser, make_server, terrain_pa
     def step(kind, now, surfaces, view=None):
         eye = None if view is None else [float(x) for x in view.eye]
         kappa = None if view is None else view.height / (2 * math.tan(math.radians(view.fov_y) / 2))
-        steps.append((kind, now, surfaces, eye, kappa))
+        steps.append((kind, now, _in_pieces(surfaces) if cut else surfaces, eye, kappa))
         if view is not None:
             morphs.look_from(eye, kappa)
         objs = [Surface(m, c, np.asarray(sl, np.int64), np.asarray(t, np.int64).reshape(-1, 3))

@@ -208,7 +208,9 @@ class Geomorphs:
     def apply(self, surfaces, keyframe: bool, now: float) -> Changes:
         """Take one frame's writes of this camera (``caveclod.wire.Surface``-like: material, count,
         slots (k,), tris (k, 3)), after emptying its buffers when ``keyframe``: the display
-        :class:`Changes`. Morphs over by ``now`` end first."""
+        :class:`Changes`. Morphs over by ``now`` end first. A material's writes may come in pieces
+        (a frame cut across parts): they are joined first."""
+        surfaces = joined(surfaces)
         out = self.tick(now)
         if keyframe:
             return self._restart(surfaces, out)
@@ -480,6 +482,34 @@ def _apart(a, b) -> float:
     """The distance between points ``a`` and ``b`` (3,), summed in the order the page's port sums it."""
     x, y, z = float(b[0]) - float(a[0]), float(b[1]) - float(a[1]), float(b[2]) - float(a[2])
     return math.sqrt(x * x + y * y + z * z)
+
+
+@dataclass
+class _Joined:
+    """One material's writes of a frame, joined from its pieces."""
+
+    material: int
+    count: int
+    slots: np.ndarray
+    tris: np.ndarray
+
+
+def joined(surfaces) -> list:
+    """A camera's writes of one frame with one entry per material: the pieces a frame larger than a
+    part brings (each a row range of one surface, with the buffer's count; caveclod.frames.frame_parts)
+    joined in order. Geomorphs read a material's writes as one: fed a keyframe piece by piece, each
+    piece emptied the buffer the one before had filled."""
+    pieces: dict[int, list] = {}
+    for s in surfaces:
+        pieces.setdefault(int(s.material), []).append(s)
+    out = []
+    for m, ps in pieces.items():
+        if len(ps) == 1:
+            out.append(ps[0])
+            continue
+        out.append(_Joined(m, int(ps[-1].count), np.concatenate([np.asarray(p.slots, np.int64) for p in ps]),
+                           np.concatenate([np.asarray(p.tris, np.int64).reshape(-1, 3) for p in ps])))
+    return out
 
 
 def _key(tri) -> tuple:

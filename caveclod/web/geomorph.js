@@ -33,6 +33,26 @@ function apart(a, b) {
   return Math.sqrt(x * x + y * y + z * z);
 }
 
+/** A camera's writes of one frame with one entry per material: the pieces of a frame larger than a
+ * part (row ranges of one surface, each with the buffer's count) joined in order (geomorph.py's joined). */
+export function joined(surfaces) {
+  const pieces = new Map();
+  for (const s of surfaces) {
+    const list = pieces.get(s.material);
+    if (list) list.push(s); else pieces.set(s.material, [s]);
+  }
+  const out = [];
+  for (const [m, ps] of pieces) {
+    if (ps.length === 1) { out.push(ps[0]); continue; }
+    const n = ps.reduce((a, p) => a + p.slots.length, 0);
+    const slots = new Uint32Array(n), tris = new Uint32Array(3 * n);
+    let o = 0;
+    for (const p of ps) { slots.set(p.slots, o); tris.set(p.tris, 3 * o); o += p.slots.length; }
+    out.push({ material: m, count: ps[ps.length - 1].count, slots, tris });
+  }
+  return out;
+}
+
 function key(a, b, c) {
   // A triangle up to rotation: whichever corner comes first.
   if (a <= b && a <= c) return `${a},${b},${c}`;
@@ -118,6 +138,7 @@ export class Geomorphs {
 
   /** One frame's writes of this camera ([{material, count, slots, tris}]); the display writes. */
   apply(surfaces, keyframe, now) {
+    surfaces = joined(surfaces); // a material's pieces (a frame cut across parts) as one
     const out = this.tick(now);
     if (keyframe) return this.restart(surfaces, out);
     const before = this.pointRefs.slice();
