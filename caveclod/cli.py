@@ -315,8 +315,8 @@ def morph_argument(p: argparse.ArgumentParser) -> None:
                         "vertex download")
     p.add_argument("--morph-speed", type=float, metavar="PX_PER_S",
                    help="geomorphs move at this many pixels a second on screen: each morph lasts its path "
-                        "over it, at most --morph-ms (give a long one, e.g. 8000); 5 keeps a 4 px "
-                        "tolerance's per-frame jumps under a quarter pixel (README, Rendering)")
+                        "over it, at most --morph-ms (give a long one, e.g. 8000); at 5, 99 %% of a flight's "
+                        "frames jumped less than a quarter pixel at a 4 px tolerance (README, Rendering)")
 
 
 def _cache_arguments(p: argparse.ArgumentParser, more: str = "") -> None:
