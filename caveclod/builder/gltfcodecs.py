@@ -34,7 +34,8 @@ DECODABLE_WITH = {"KHR_draco_mesh_compression": ("DracoPy", "pip install DracoPy
 """Extensions decoded here (Draco by trimesh, meshopt by :mod:`.gltfquant`), the package each needs
 and how to install it."""
 
-_GLB_MAGIC, _JSON_CHUNK = 0x46546C67, 0x4E4F534A
+GLB_MAGIC, JSON_CHUNK = 0x46546C67, 0x4E4F534A
+"""A GLB's magic number and its JSON chunk's type."""
 _MAX_JSON_BYTES = 64 << 20          # a glTF's JSON larger than this is read by trimesh, unchecked here
 
 
@@ -50,7 +51,7 @@ def required_extensions(path: Path, file_type: str) -> set[str]:
                 if len(header) < 20:
                     return set()
                 magic, _, _, length, kind = struct.unpack("<IIIII", header)
-                if magic != _GLB_MAGIC or kind != _JSON_CHUNK or length > _MAX_JSON_BYTES:
+                if magic != GLB_MAGIC or kind != JSON_CHUNK or length > _MAX_JSON_BYTES:
                     return set()
                 text = f.read(length)
             else:

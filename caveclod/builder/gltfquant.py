@@ -24,7 +24,8 @@ decoded first, with the ``meshoptimizer`` package where it is installed
 (``make`` installs it; :mod:`.gltfcodecs` refuses such a file, saying so,
 where it is not), every size checked before the decoder writes. The
 result is one GLB with every buffer in its binary chunk; a file that
-needs none of this is read as it is.
+needs none of this is read as it is (its buffers are not read here: the
+JSON alone says whether anything needs rewriting).
 """
 
 from __future__ import annotations
@@ -33,6 +34,7 @@ import base64
 import importlib.util
 import json
 import math
+import os
 import struct
 from pathlib import Path
 from urllib.parse import unquote
@@ -40,9 +42,10 @@ from urllib.parse import unquote
 import numpy as np
 
 from ..errors import InputError
+from .gltfcodecs import DECODABLE_WITH, GLB_MAGIC, JSON_CHUNK
 from .source import FLOAT32_MAX
 
-_GLB_MAGIC, _JSON_CHUNK, _BIN_CHUNK = 0x46546C67, 0x4E4F534A, 0x004E4942
+_BIN_CHUNK = 0x004E4942
 _COMPONENTS = {"SCALAR": 1, "VEC2": 2, "VEC3": 3, "VEC4": 4}
 _DTYPES = {5120: np.int8, 5121: np.uint8, 5122: np.int16, 5123: np.uint16, 5125: np.uint32, 5126: np.float32}
 _FLOAT = 5126
@@ -56,54 +59,84 @@ def dequantized_gltf(path: Path, file_type: str) -> bytes | None:
     if file_type not in ("glb", "gltf"):
         return None
     try:
-        tree, buffers = _read(path, file_type)
+        tree, binary = _read_json(path, file_type)
     except Exception:       # any damage: left to trimesh, whose error the loader turns into one line
         return None
     try:
+        todo = _attributes_to_rewrite(tree)
+        if not todo and not _compressed_views(tree):
+            return None                          # nothing to rewrite: the buffers need not be read
+    except Exception as exc:
+        raise _undecodable(path, exc) from None
+    try:
+        buffers = _read_buffers(path, tree, binary)
+    except Exception:
+        return None
+    try:
         out = bytearray()
-        if not _rewrite(tree, buffers, out):
+        if not _rewrite(tree, buffers, out, todo):
             return None
     except InputError as exc:
         raise InputError(f"{path}: {exc}") from None
     except Exception as exc:    # a damaged tree, whatever shape its damage takes
-        raise InputError(f"{path}: its compressed or quantized glTF buffers do not decode ({type(exc).__name__}: "
-                         f"{' '.join(str(exc).split())[:200]}); the file is damaged: export it again") from None
+        raise _undecodable(path, exc) from None
     return glb_bytes(tree, bytes(out))
+
+
+def _undecodable(path: Path, exc: Exception) -> InputError:
+    return InputError(f"{path}: its compressed or quantized glTF buffers do not decode ({type(exc).__name__}: "
+                      f"{' '.join(str(exc).split())[:200]}); the file is damaged: export it again")
 
 
 # ------------------------------------------------------------------ reading and writing
 
 
-def _read(path: Path, file_type: str) -> tuple[dict, list]:
-    """(JSON tree, [bytes of each buffer, or None where it cannot be had])."""
-    data = path.read_bytes()
+def _read_json(path: Path, file_type: str) -> tuple[dict, tuple[int, int] | None]:
+    """(JSON tree, (offset, length) of a GLB's binary chunk, or None): the chunks' headers and the
+    JSON read, the binary chunk only found."""
     binary = None
     if file_type == "glb":
-        magic, _, _ = struct.unpack_from("<III", data, 0)
-        if magic != _GLB_MAGIC:
-            raise ValueError("not a GLB")
-        at, chunks = 12, {}
-        while at + 8 <= len(data):
-            length, kind = struct.unpack_from("<II", data, at)
-            chunks.setdefault(kind, data[at + 8:at + 8 + length])
-            at += 8 + length + (-length % 4)
-        tree = json.loads(chunks[_JSON_CHUNK])
-        binary = chunks.get(_BIN_CHUNK)
+        with open(path, "rb") as f:
+            size = os.fstat(f.fileno()).st_size
+            magic, _, _ = struct.unpack("<III", f.read(12))
+            if magic != GLB_MAGIC:
+                raise ValueError("not a GLB")
+            at, text = 12, None
+            while at + 8 <= size:
+                f.seek(at)
+                length, kind = struct.unpack("<II", f.read(8))
+                if kind == JSON_CHUNK and text is None:
+                    text = f.read(length)
+                elif kind == _BIN_CHUNK and binary is None:
+                    binary = (at + 8, min(length, size - at - 8))
+                at += 8 + length + (-length % 4)
+        tree = json.loads(text)
     else:
-        tree = json.loads(data)
+        tree = json.loads(path.read_bytes())
     if not isinstance(tree, dict):
         raise ValueError("not a glTF object")
+    return tree, binary
+
+
+def _read_buffers(path: Path, tree: dict, binary: tuple[int, int] | None) -> list:
+    """[bytes of each of the tree's buffers, or None where it cannot be had]: a GLB's binary
+    chunk at ``binary`` (offset, length), data URIs, files beside ``path``."""
     buffers = []
     for i, b in enumerate(tree.get("buffers", [])):
         uri = b.get("uri")
         if uri is None:
-            buffers.append(binary if i == 0 else None)
+            if i == 0 and binary is not None:
+                with open(path, "rb") as f:
+                    f.seek(binary[0])
+                    buffers.append(f.read(binary[1]))
+            else:
+                buffers.append(None)
         elif uri.startswith("data:"):
             buffers.append(base64.b64decode(uri.split(",", 1)[1]))
         else:
             target = (path.parent / unquote(uri)).resolve()      # glTF URIs are percent-encoded
             buffers.append(target.read_bytes() if target.is_file() else None)
-    return tree, buffers
+    return buffers
 
 
 def glb_bytes(tree: dict, binary: bytes) -> bytes:
@@ -111,26 +144,23 @@ def glb_bytes(tree: dict, binary: bytes) -> bytes:
     text = json.dumps(tree, separators=(",", ":")).encode()
     text += b" " * (-len(text) % 4)
     binary += b"\0" * (-len(binary) % 4)
-    body = struct.pack("<II", len(text), _JSON_CHUNK) + text + struct.pack("<II", len(binary), _BIN_CHUNK) + binary
-    return struct.pack("<III", _GLB_MAGIC, 2, 12 + len(body)) + body
+    body = struct.pack("<II", len(text), JSON_CHUNK) + text + struct.pack("<II", len(binary), _BIN_CHUNK) + binary
+    return struct.pack("<III", GLB_MAGIC, 2, 12 + len(body)) + body
 
 
 # ------------------------------------------------------------------ the rewrite
 
 
-def _rewrite(tree: dict, buffers: list, out: bytearray) -> bool:
-    """Rewrite ``tree`` in place to one binary buffer (written to ``out``); False if nothing needed it."""
-    accessors, views = tree.get("accessors", []), tree.get("bufferViews", [])
-    compressed = [i for i, v in enumerate(views) if "EXT_meshopt_compression" in v.get("extensions", {})]
-    if compressed and importlib.util.find_spec("meshoptimizer") is None:
-        # Without the decoder, views whose own buffer holds the fallback data (extensionsUsed
-        # only) are read as they are; a view without it cannot be.
-        if any(buffers[views[i]["buffer"]] is None for i in compressed):
-            raise InputError("its geometry is compressed with EXT_meshopt_compression, which needs the "
-                             "meshoptimizer package: pip install --pre meshoptimizer (make installs it)")
-        compressed = []
-    decoded = {i: _decompressed(views[i], buffers) for i in compressed}
-    todo = []                                    # (primitive, attribute name, accessor index, transform or None)
+def _compressed_views(tree: dict) -> list[int]:
+    """The indices of the bufferViews compressed with EXT_meshopt_compression."""
+    views = tree.get("bufferViews", [])
+    return [i for i, v in enumerate(views) if "EXT_meshopt_compression" in v.get("extensions", {})]
+
+
+def _attributes_to_rewrite(tree: dict) -> list[tuple]:
+    """[(primitive, attribute name, accessor index, transform or None)]: the normalized attributes
+    to dequantize and the texture coordinates a base colour texture's transform moves."""
+    accessors, todo = tree.get("accessors", []), []
     for mesh in tree.get("meshes", []):
         for prim in mesh.get("primitives", []):
             transform, tex_coord = _base_colour_transform(tree, prim)
@@ -140,6 +170,23 @@ def _rewrite(tree: dict, buffers: list, out: bytearray) -> bool:
                 moved = transform is not None and name == f"TEXCOORD_{tex_coord}"
                 if (quantized or moved) and "bufferView" in acc and "sparse" not in acc:
                     todo.append((prim, name, index, transform if moved else None))
+    return todo
+
+
+def _rewrite(tree: dict, buffers: list, out: bytearray, todo: list) -> bool:
+    """Rewrite ``tree`` in place to one binary buffer (written to ``out``), the attributes ``todo``
+    (:func:`_attributes_to_rewrite`) among it; False if nothing needed it."""
+    accessors, views = tree.get("accessors", []), tree.get("bufferViews", [])
+    compressed = _compressed_views(tree)
+    if compressed and importlib.util.find_spec("meshoptimizer") is None:
+        # Without the decoder, views whose own buffer holds the fallback data (extensionsUsed
+        # only) are read as they are; a view without it cannot be.
+        if any(buffers[views[i]["buffer"]] is None for i in compressed):
+            package, install = DECODABLE_WITH["EXT_meshopt_compression"]
+            raise InputError(f"its geometry is compressed with EXT_meshopt_compression, which needs the "
+                             f"{package} package: {install}")
+        compressed = []
+    decoded = {i: _decompressed(views[i], buffers) for i in compressed}
     if not todo and not decoded:
         return False
     # One buffer: the file's buffers one after another, the decompressed views, then the new arrays.
