@@ -31,7 +31,6 @@ from __future__ import annotations
 
 import argparse
 import json
-import math
 import sys
 import time
 from pathlib import Path
@@ -100,7 +99,7 @@ def fly(mesh, targets, duration_ms: float, frames: int, speed: float | None = No
     of every camera over the flyover; with ``speed`` (pixels a second) morphs last their path on
     screen over it, at most ``duration_ms``."""
     import caveclod
-    from caveclod.client.geomorph import Geomorphs, points_of
+    from caveclod.client.geomorph import Geomorphs, pixels_per_unit, points_of
     from caveclod.paths import flyover
     lo, hi = mesh.bounds()
     points = points_of(mesh.vertex_positions, targets)
@@ -124,7 +123,7 @@ def fly(mesh, targets, duration_ms: float, frames: int, speed: float | None = No
             if morphs is not None:           # what a client does a frame: end morphs, apply, move
                 t0 = time.perf_counter()
                 morphs.tick(now)
-                morphs.look_from(view.eye, view.height / (2 * math.tan(math.radians(view.fov_y) / 2)))
+                morphs.look_from(view.eye, pixels_per_unit(view.height, view.fov_y))
                 morphs.apply([_Surface(m, d) for m, d in delta.surfaces.items()], False, now)
                 morphs.moving(now)
                 if f >= SETTLE_FRAMES:

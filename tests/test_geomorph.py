@@ -13,7 +13,7 @@ import pytest
 from hypothesis import given, settings, strategies as st
 
 import caveclod
-from caveclod.client.geomorph import Geomorphs
+from caveclod.client.geomorph import Geomorphs, pixels_per_unit
 from caveclod.kernels.nearest import build_bvh, nearest_dist2
 from caveclod.refine.morphtargets import morph_targets
 from caveclod.wire import Surface
@@ -102,7 +102,6 @@ def test_morphs_at_a_speed_last_their_path_on_screen():
     """With a speed, a morph takes its path's length on screen (from the camera look_from gave, at
     the nearer end) over the speed, at most the duration; the new surface still starts in the old one,
     and once the longest morph is over the display is the mesh sent."""
-    import math
     mesh = _mesh("rough")
     ext = float(np.linalg.norm(np.ptp(mesh.vertex_positions, axis=0)))
     cam = mesh.new_camera()
@@ -112,7 +111,7 @@ def test_morphs_at_a_speed_last_their_path_on_screen():
     spans = []
     for f, view in enumerate(_zoom(mesh, 0, 24)):
         now = f * 0.1
-        kappa = view.height / (2 * math.tan(math.radians(view.fov_y) / 2))
+        kappa = pixels_per_unit(view.height, view.fov_y)
         morphs.tick(now)
         before = _drawn(cam, morphs, now)
         started = {p: morphs.point_at(p, now) for p in morphs.active}

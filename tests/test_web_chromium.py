@@ -13,7 +13,6 @@ from __future__ import annotations
 
 import io
 import itertools
-import math
 import threading
 import time
 from urllib.parse import urlparse
@@ -439,7 +438,7 @@ def test_the_pages_geomorphs_agree_with_pythons(browser, make_server, terrain_pa
     a speed too, each morph timed by its path on screen from the frame's camera; and fed every
     material's writes in pieces (a frame cut across parts), what Python draws fed them whole."""
     import caveclod
-    from caveclod.client.geomorph import Geomorphs
+    from caveclod.client.geomorph import Geomorphs, pixels_per_unit
     from caveclod.paths import flyover
     from caveclod.refine.morphtargets import morph_targets
     from caveclod.wire import Surface
@@ -457,7 +456,7 @@ def test_the_pages_geomorphs_agree_with_pythons(browser, make_server, terrain_pa
 
     def step(kind, now, surfaces, view=None):
         eye = None if view is None else [float(x) for x in view.eye]
-        kappa = None if view is None else view.height / (2 * math.tan(math.radians(view.fov_y) / 2))
+        kappa = None if view is None else pixels_per_unit(view.height, view.fov_y)
         steps.append((kind, now, _in_pieces(surfaces) if cut else surfaces, eye, kappa))
         if view is not None:
             morphs.look_from(eye, kappa)

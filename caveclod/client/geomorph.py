@@ -122,8 +122,7 @@ class Geomorphs:
     # -- what is drawn ---------------------------------------------------------------
     def look_from(self, eye, kappa: float) -> None:
         """Where the camera is for the morphs the next frames begin (with a ``speed``): ``eye`` (3,)
-        and ``kappa``, pixels a unit spans at distance 1 (height / (2 tan(fov_y / 2)), as
-        :class:`caveclod.View` converts errors)."""
+        and ``kappa``, pixels a unit spans at distance 1 (:func:`pixels_per_unit`)."""
         self._eye = tuple(float(x) for x in np.asarray(eye, np.float64).reshape(3))
         self._kappa = float(kappa)
 
@@ -476,6 +475,12 @@ def points_of(positions: np.ndarray, targets: np.ndarray) -> tuple:
     members = np.argsort(point, kind="stable")
     start = np.r_[0, np.cumsum(np.bincount(point, minlength=len(first)))]
     return point, point[targets[first]], start, members
+
+
+def pixels_per_unit(height: float, fov_y: float) -> float:
+    """Pixels a unit spans at distance 1 in a viewport ``height`` pixels high with a vertical field of
+    view of ``fov_y`` degrees: height / (2 tan(fov_y / 2)), as :class:`caveclod.View` converts errors."""
+    return height / (2.0 * math.tan(math.radians(fov_y) / 2.0))
 
 
 def _apart(a, b) -> float:

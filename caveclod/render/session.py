@@ -29,12 +29,11 @@ into them before its index writes, as the client library applies them.
 
 from __future__ import annotations
 
-import math
 import time
 
 import numpy as np
 
-from ..client.geomorph import Geomorphs, points_of
+from ..client.geomorph import Geomorphs, pixels_per_unit, points_of
 from ..wire import Surface
 from .camera import Camera
 from .renderer import Renderer, Vertices
@@ -80,7 +79,7 @@ class SessionRenderer:
                 self.morphs = [Geomorphs(vb.positions, vb.morph_targets, len(names), morph_ms / 1000.0, points,
                                          speed=morph_speed) for _ in range(int(info.cameras))]
         # Pixels a unit spans at distance 1 in the viewport the server refines for (the tolerance's pixels).
-        self._kappa = (info.options.viewport_height or height) / (2.0 * math.tan(math.radians(self.fov_y) / 2.0))
+        self._kappa = pixels_per_unit(info.options.viewport_height or height, self.fov_y)
         self._started = time.monotonic()
         self.time = 0.0                        # the geomorphs' clock when a frame was last applied
         self._epoch = session.protocol.epoch
