@@ -49,6 +49,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from ..frames import Surface
 
 MIN_SPAN = 1e-3
 """Seconds the shortest morph takes with a speed (a slide of a fraction of a pixel)."""
@@ -489,16 +490,6 @@ def _apart(a, b) -> float:
     return math.sqrt(x * x + y * y + z * z)
 
 
-@dataclass
-class _Joined:
-    """One material's writes of a frame, joined from its pieces."""
-
-    material: int
-    count: int
-    slots: np.ndarray
-    tris: np.ndarray
-
-
 def joined(surfaces) -> list:
     """A camera's writes of one frame with one entry per material: the pieces a frame larger than a
     part brings (each a row range of one surface, with the buffer's count; caveclod.frames.frame_parts)
@@ -512,7 +503,7 @@ def joined(surfaces) -> list:
         if len(ps) == 1:
             out.append(ps[0])
             continue
-        out.append(_Joined(m, int(ps[-1].count), np.concatenate([np.asarray(p.slots, np.int64) for p in ps]),
+        out.append(Surface(m, int(ps[-1].count), np.concatenate([np.asarray(p.slots, np.int64) for p in ps]),
                            np.concatenate([np.asarray(p.tris, np.int64).reshape(-1, 3) for p in ps])))
     return out
 
