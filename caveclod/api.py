@@ -20,7 +20,7 @@ def build(source, *, cell_size: float | None = None, z_scale: float = 1.0, mater
           crease_angle: float | None = None, size: int = DEFAULT_SIZE, seed: int | None = None, nodata: float | None = None,
           weld: float | None = None, progress: bool = False, tiles: int | None = None,
           workers: int | None = None, packed: bool = True, check_memory: bool = True,
-          tiles_dir: str | os.PathLike | None = None, origin=None) -> StaticMesh:
+          tiles_dir: str | os.PathLike | None = None, origin=None, stride: int = 1) -> StaticMesh:
     """Build the static CAVECLOD mesh of ``source``.
 
     Args:
@@ -71,6 +71,10 @@ def build(source, *, cell_size: float | None = None, z_scale: float = 1.0, mater
             in world coordinates far from 0, where float32 positions lose
             detail (``"auto"``: the bounding box's centre, rounded; see
             :mod:`caveclod.builder.origin`).
+        stride: build a heightfield from every ``stride``-th sample a side
+            (cells ``stride`` times as wide, about ``stride**2`` times fewer
+            triangles; the south-west sample kept): for rasters whose full
+            build would not fit (:func:`caveclod.builder.terrain.every_kth_sample`).
     """
     from .builder.hierarchy import build_static_mesh
     from .builder.tilestore import TileStore
@@ -80,7 +84,7 @@ def build(source, *, cell_size: float | None = None, z_scale: float = 1.0, mater
     mesh = build_static_mesh(lambda: _prepared_source(source, cell_size=cell_size, z_scale=z_scale, materials=materials,
                                                       crease_angle=crease_angle, size=size, seed=seed, nodata=nodata,
                                                       weld=weld, tiles=tiles, workers=workers,
-                                                      check_memory=check_memory, origin=origin),
+                                                      check_memory=check_memory, origin=origin, stride=stride),
                              crease_angle=crease_angle, progress=progress, tiles=tiles, workers=workers, store=store)
     if packed:
         from .vertexpack import attach_packed
@@ -92,7 +96,7 @@ def build_tiles(source, tiles_dir: str | os.PathLike, job: str | tuple[int, int]
                 z_scale: float = 1.0, materials=None, crease_angle: float | None = None, size: int = DEFAULT_SIZE,
                 seed: int | None = None, nodata: float | None = None, weld: float | None = None,
                 progress: bool = False, tiles: int | None = None, workers: int | None = None,
-                check_memory: bool = True, origin=None) -> dict:
+                check_memory: bool = True, origin=None, stride: int = 1) -> dict:
     """Make one tile job's share of ``source``'s blocks of tiles and write them to ``tiles_dir``.
 
     ``job``: ``"I/N"`` or (I, N), this job's index and the number of jobs;
@@ -112,12 +116,12 @@ def build_tiles(source, tiles_dir: str | os.PathLike, job: str | tuple[int, int]
     return build_tile_job(lambda: _prepared_source(source, cell_size=cell_size, z_scale=z_scale, materials=materials,
                                                    crease_angle=crease_angle, size=size, seed=seed, nodata=nodata,
                                                    weld=weld, tiles=tiles, workers=workers, check_memory=check_memory,
-                                                   origin=origin),
+                                                   origin=origin, stride=stride),
                           store, crease_angle=crease_angle, progress=progress, tiles=tiles, workers=workers)
 
 
 def _prepared_source(source, *, cell_size, z_scale, materials, crease_angle, size, seed, nodata, weld, tiles, workers,
-                     check_memory, origin=None) -> SourceMesh:
+                     check_memory, origin=None, stride=1) -> SourceMesh:
     """The options checked, then ``source`` as a (welded) :class:`SourceMesh` that fits in memory."""
     from .builder.memory import check_build_memory
     from .builder.tiles import check_tiles
@@ -127,7 +131,7 @@ def _prepared_source(source, *, cell_size, z_scale, materials, crease_angle, siz
     _check_workers(workers)
     check_tiles(tiles)
     src = to_source(source, cell_size=cell_size, z_scale=z_scale, materials=materials, size=size, seed=seed,
-                    nodata=nodata, check_memory=check_memory)
+                    nodata=nodata, check_memory=check_memory, stride=stride)
     if check_memory:
         check_build_memory(len(src.faces), _input_name(source, size))
     src = move_to_origin(src, origin)
@@ -143,12 +147,15 @@ def _check_workers(workers) -> None:
         raise InputError(f"--workers must be a whole number from 1 to 256, got {workers!r}")
 
 
-def _raster_file_to_source(path: Path, heights, classes, cell_size, z_scale) -> SourceMesh:
+def _raster_file_to_source(path: Path, samples, classes, cell_size, z_scale, stride: int = 1,
+                           nodata=None) -> SourceMesh:
     """A heightfield file's mesh at the cell size given (``cell_size``), else the one its
-    georeference states (and then where it lies: ``origin``), else 1; notes say which."""
+    georeference states (and then where it lies: ``origin``), else 1; notes say which.
+    ``samples``: :func:`caveclod.builder.terrain.read_heightfield`'s; ``stride``: one sample in
+    ``stride`` a side, taken before the rest is read, cells that many times as wide."""
     from .builder import terrain
     from .builder.georef import grid_spacing
-    spacing, why_not = grid_spacing(path, heights.shape)
+    spacing, why_not = grid_spacing(path, samples.shape)
     north_first = spacing is None or spacing.north_first
     origin = None
     if cell_size is not None:
@@ -162,6 +169,10 @@ def _raster_file_to_source(path: Path, heights, classes, cell_size, z_scale) -> 
         cell, notes, origin = (spacing.x, spacing.y), [spacing.note], spacing.origin
     if not north_first:
         notes.append("the file's rows run northwards (its transformation says so): read as they are")
+    if stride > 1:
+        samples, classes, cell, note = _every_kth(samples, classes, stride, cell, north_first)
+        notes.append(note)
+    heights = terrain.heights_of(samples, path, nodata)
     source = terrain.raster_to_source(heights, cell_size=cell, z_scale=z_scale, materials=classes, notes=notes,
                                       north_first=north_first)
     if origin is not None:
@@ -169,6 +180,27 @@ def _raster_file_to_source(path: Path, heights, classes, cell_size, z_scale) -> 
         source.notes.append(f"its south-west sample lies at ({origin[0]:.10g}, {origin[1]:.10g}) in the file's "
                             "coordinates (info origin); positions are relative to it")
     return source
+
+
+def _every_kth(heights, classes, stride: int, cell, north_first: bool = True):
+    """(heights, classes, cell size, note) at every ``stride``-th sample a side."""
+    from .builder import terrain
+    rows, cols = np.shape(heights)
+    heights, classes = terrain.every_kth_sample(heights, stride, classes, north_first=north_first)
+    cx, cy = terrain.cell_xy(cell)
+    note = (f"--stride {stride}: one sample in {stride} a side of the {rows:,} x {cols:,} grid, "
+            f"{heights.shape[0]:,} x {heights.shape[1]:,} samples, cells of "
+            + (f"{cx * stride:g}" if cx == cy else f"{cx * stride:g} x {cy * stride:g}")
+            + " (the south-west sample kept)")
+    return heights, classes, (cx * stride, cy * stride), note
+
+
+def _check_stride(stride) -> int:
+    """``stride`` as an int, refused unless a whole number from 1 to 1,024."""
+    if isinstance(stride, bool) or not isinstance(stride, (int, np.integer)) or not 1 <= stride <= 1024:
+        raise InputError(f"--stride must be a whole number from 1 to 1,024 (every Kth sample of a heightfield "
+                         f"a side), got {stride!r}")
+    return int(stride)
 
 
 def _check_options(crease_angle, cell_size, z_scale) -> None:
@@ -185,11 +217,12 @@ def _check_options(crease_angle, cell_size, z_scale) -> None:
         raise InputError(f"--crease-angle must be between 0 and 180 degrees, got {crease_angle}")
 
 
-def _refuse_heightfield_options(what: str, cell_size, z_scale, materials, nodata) -> None:
+def _refuse_heightfield_options(what: str, cell_size, z_scale, materials, nodata, stride=1) -> None:
     """Options that only heightfields read are refused elsewhere, not silently ignored."""
     given = [name for name, unused in (("--cell-size", cell_size is not None and float(cell_size) != 1.0),
                                        ("--z-scale", float(z_scale) != 1.0),
-                                       ("--materials", materials is not None), ("--nodata", nodata is not None))
+                                       ("--materials", materials is not None), ("--nodata", nodata is not None),
+                                       ("--stride", stride != 1))
              if unused]
     if given:
         raise InputError(f"{', '.join(given)} only apply to heightfields (.npy, .png, .tif, .hgt, .asc), not to "
@@ -213,31 +246,37 @@ def _input_name(source, size) -> str:
     return "the mesh"
 
 
-def _grid_triangles(shape) -> int:
-    """Triangles of a heightfield of ``shape`` samples with no holes (two a cell): what its
-    build may need memory for, known before the mesh is made."""
+def _grid_triangles(shape, stride: int = 1) -> int:
+    """Triangles of a heightfield of ``shape`` samples with no holes (two a cell), at every
+    ``stride``-th sample a side: what its build may need memory for, known before the mesh is made."""
     rows, cols = shape[:2]
-    return 2 * max(rows - 1, 0) * max(cols - 1, 0)
+    return 2 * max((rows - 1) // stride, 0) * max((cols - 1) // stride, 0)
 
 
 def to_source(source, *, cell_size=None, z_scale=1.0, materials=None, size=DEFAULT_SIZE, seed=None,
-              nodata=None, check_memory: bool = False) -> SourceMesh:
+              nodata=None, check_memory: bool = False, stride: int = 1) -> SourceMesh:
     """Turn any accepted ``source`` into a validated :class:`SourceMesh`.
 
     ``check_memory``: refuse a heightfield or built-in terrain whose build
     would not fit in memory from its grid's size alone, before its mesh
-    (itself about 100 bytes a triangle) is made.
+    (itself about 100 bytes a triangle) is made. ``stride``: a heightfield
+    at every ``stride``-th sample a side (:func:`build`).
     """
     from .builder import builtin, meshfile, terrain
     from .builder.memory import check_build_memory
+    stride = _check_stride(stride)
 
-    def check_grid(triangles):
+    def check_grid(triangles, shape=None):
         if check_memory:
-            check_build_memory(triangles, _input_name(source, size))
+            check_build_memory(triangles, _input_name(source, size), grid_shape=shape, stride=stride)
     if isinstance(source, SourceMesh):
+        _refuse_heightfield_options("a SourceMesh", None, 1.0, None, None, stride)
         source.validate()
         return source
     if isinstance(source, str) and source in builtin.BUILTINS:
+        if stride != 1:
+            raise InputError(f"--stride applies to heightfield files and arrays, not to the built-in {source!r}: "
+                             "give it a smaller --size instead")
         _refuse_heightfield_options(f"the built-in {source!r}", cell_size, z_scale, materials, nodata)
         if not isinstance(size, (int, np.integer)) or not 2 <= size <= 8192:
             raise InputError(f"--size must be an integer between 2 and 8192 cells, got {size!r}")
@@ -247,26 +286,33 @@ def to_source(source, *, cell_size=None, z_scale=1.0, materials=None, size=DEFAU
     if isinstance(source, (str, os.PathLike)):
         path = Path(source)
         if path.suffix.lower() in HEIGHTFIELD_SUFFIXES:
-            heights = terrain.load_heightfield(path, nodata=nodata)
-            check_grid(_grid_triangles(heights.shape))
+            samples = terrain.read_heightfield(path)         # a .npy only mapped: the check comes first
+            check_grid(_grid_triangles(samples.shape, stride), samples.shape)
             classes = None
             if materials is not None:
                 classes = terrain.load_material_map(materials) if isinstance(materials, (str, os.PathLike)) \
                     else np.asarray(materials)
-            return _raster_file_to_source(path, heights, classes, cell_size, z_scale)
-        _refuse_heightfield_options(f"the mesh file {path.name}", cell_size, z_scale, materials, nodata)
+            return _raster_file_to_source(path, samples, classes, cell_size, z_scale, stride, nodata)
+        _refuse_heightfield_options(f"the mesh file {path.name}", cell_size, z_scale, materials, nodata, stride)
         if check_memory:
             from .builder.memory import check_read_memory
             check_read_memory(path, path.name)
         return meshfile.load_mesh_file(path)
     if isinstance(source, np.ndarray):
-        check_grid(_grid_triangles(source.shape))
-        return terrain.raster_to_source(source, cell_size=1.0 if cell_size is None else cell_size, z_scale=z_scale,
-                                        materials=None if materials is None else np.asarray(materials))
+        check_grid(_grid_triangles(source.shape, stride), source.shape)
+        heights, classes = source, None if materials is None else np.asarray(materials)
+        cell, notes = 1.0 if cell_size is None else cell_size, []
+        if stride > 1:
+            if source.ndim != 2:
+                raise InputError(f"a heightfield is a 2-D array of samples, got shape {source.shape}")
+            heights, classes, cell, note = _every_kth(heights, classes, stride, cell)
+            notes.append(note)
+        return terrain.raster_to_source(heights, cell_size=cell, z_scale=z_scale, materials=classes, notes=notes)
     try:
         import trimesh
     except ImportError:  # pragma: no cover - trimesh is a dependency
         trimesh = None
     if trimesh is not None and isinstance(source, (trimesh.Trimesh, trimesh.Scene)):
+        _refuse_heightfield_options(f"a trimesh {type(source).__name__}", None, 1.0, None, None, stride)
         return meshfile.source_from_trimesh(source)
     raise InputError(f"cannot build from a {type(source).__name__}; give a path, 'default', a trimesh mesh or a heightfield array")

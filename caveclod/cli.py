@@ -19,6 +19,7 @@ import argparse
 import json
 import sys
 
+from .builder.memory import PEAK_BYTES_PER_TRIANGLE
 from .errors import CaveclodError, InputError
 from .server.config import DEFAULT_MAX_SESSIONS, default_checked_dir
 
@@ -84,6 +85,10 @@ def _parser() -> argparse.ArgumentParser:
                                                    "degrees; else 1)")
     b.add_argument("--z-scale", type=float, default=1.0, help="heightfield height scale")
     b.add_argument("--materials", help="heightfield material map (.npy, one integer class per cell)")
+    b.add_argument("--stride", type=int, default=1, metavar="K",
+                   help="build a heightfield from every Kth sample a side: cells K times as wide, about K*K times "
+                        "fewer triangles, the south-west sample kept (default 1: every sample); for rasters too "
+                        "large to build here, which the memory check names the K for")
     b.add_argument("--nodata", type=float, help="heightfield value marking missing samples, which become holes "
                                                 "(NaN, a GeoTIFF's GDAL_NODATA and -32768 in 16-bit signed grids always do)")
     b.add_argument("--crease-angle", type=float, help="degrees; edges sharper than this become normal seams where the "
@@ -109,7 +114,8 @@ def _parser() -> argparse.ArgumentParser:
                                                      "-o to merge them")
     b.add_argument("--no-memory-check", action="store_true",
                    help="build even if the input looks too large for the memory available (by default such a build "
-                        "is refused before it starts: it needs about 340 bytes per input triangle)")
+                        f"is refused before it starts: it needs about {PEAK_BYTES_PER_TRIANGLE} bytes per input "
+                        "triangle)")
     b.add_argument("--quiet", action="store_true", help="no progress on stderr")
     b.set_defaults(run=_build)
 
@@ -369,7 +375,7 @@ def _build(args) -> int:
     from .api import build, build_tiles
     options = dict(cell_size=args.cell_size, z_scale=args.z_scale, materials=args.materials,
                    crease_angle=args.crease_angle, size=args.size, seed=args.seed, nodata=args.nodata, weld=args.weld,
-                   origin=args.origin,
+                   origin=args.origin, stride=args.stride,
                    progress=not args.quiet, tiles=args.tiles, workers=args.workers,
                    check_memory=not args.no_memory_check)
     if args.tile_job is not None:

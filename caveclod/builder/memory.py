@@ -67,12 +67,15 @@ def _read(path: Path) -> str | None:
         return None
 
 
-def check_build_memory(triangles: int, what: str, available: int | None = None) -> None:
+def check_build_memory(triangles: int, what: str, available: int | None = None,
+                       grid_shape: tuple[int, int] | None = None, stride: int = 1) -> None:
     """Refuse a build of ``triangles`` input triangles that would not fit.
 
     ``what`` names the input in the message; ``available`` (bytes) defaults
-    to :func:`available_bytes`. Raises :class:`InputError` saying how much the
-    build needs, how much there is, and what to do.
+    to :func:`available_bytes`. ``grid_shape``: a heightfield's (rows, cols),
+    read at every ``stride``-th sample: the message then names the smallest
+    ``--stride`` that would fit. Raises :class:`InputError` saying how much
+    the build needs, how much there is, and what to do.
     """
     if available is None:
         available = available_bytes()
@@ -80,11 +83,37 @@ def check_build_memory(triangles: int, what: str, available: int | None = None) 
     if available is None or need <= available:
         return
     gib = 1 << 30
+    smaller = "cut the input into smaller pieces"
+    if grid_shape is not None:
+        k = _stride_that_fits(grid_shape, stride, available)
+        smaller = ("cut the heightfield into smaller pieces" if k is None else
+                   f"build one sample in {k} a side with --stride {k} "
+                   f"({_strided_triangles(grid_shape, k):,} triangles, cells {k} times as wide), or cut the "
+                   "heightfield into smaller pieces")
     raise InputError(
         f"{what}: {int(triangles):,} triangles need about {need / gib:.1f} GiB to build (about "
         f"{PEAK_BYTES_PER_TRIANGLE} bytes a triangle at the build's peak) and {available / gib:.1f} GiB are "
-        "available here; build on a machine (or in a container) with more memory, cut the input into "
-        "smaller pieces, or for a heightfield take every second sample; --no-memory-check builds anyway")
+        f"available here; build on a machine (or in a container) with more memory, {smaller}; "
+        "--no-memory-check builds anyway")
+
+
+def _strided_triangles(shape, k: int) -> int:
+    """Triangles of a (rows, cols) heightfield with no holes at every ``k``-th sample a side
+    (:func:`caveclod.builder.terrain.every_kth_sample`)."""
+    rows, cols = shape[:2]
+    return 2 * max((rows - 1) // k, 0) * max((cols - 1) // k, 0)
+
+
+def _stride_that_fits(shape, stride: int, available: int) -> int | None:
+    """The smallest stride above ``stride`` whose build fits in ``available`` bytes, or None
+    where even one leaving 2 samples a side would not."""
+    rows, cols = shape[:2]
+    for k in range(stride + 1, max(rows, cols)):
+        if (rows - 1) // k < 1 or (cols - 1) // k < 1:
+            return None
+        if _strided_triangles(shape, k) * PEAK_BYTES_PER_TRIANGLE <= available:
+            return k
+    return None
 
 
 READ_BYTES_PER_FILE_BYTE = {"obj": 9.0, "ply-ascii": 18.0, "ply": 13.0, "stl-ascii": 8.5, "stl": 11.5, "off": 18.0,

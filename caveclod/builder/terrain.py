@@ -69,9 +69,22 @@ def load_heightfield(path: str | os.PathLike, nodata: float | None = None) -> np
     grids (the SRTM void marker). Real elevation data marks voids that way;
     read as heights they would be pits kilometres deep.
     """
-    array = _read_grid(path, what="heightfield")
+    return heights_of(read_heightfield(path), path, nodata)
+
+
+def read_heightfield(path: str | os.PathLike) -> np.ndarray:
+    """A heightfield file's samples as stored (any real dtype), not yet
+    :func:`heights_of`: a ``.npy`` memory-mapped, so that its shape is known and
+    a part of it (:func:`every_kth_sample`) read without reading the rest."""
+    array = _read_grid(path, what="heightfield", mmap=True)
     if array.dtype.kind not in "biuf":
         raise InputError(f"heightfield {path} holds {array.dtype} values; give real numbers")
+    return array
+
+
+def heights_of(array: np.ndarray, path: str | os.PathLike, nodata: float | None = None) -> np.ndarray:
+    """(rows, cols) float64 heights of samples :func:`read_heightfield` read from ``path`` (all
+    of them or a part), the file's no-data values NaN (see :func:`load_heightfield`)."""
     voids = [] if nodata is None else [float(nodata)]
     if os.path.splitext(os.fspath(path))[1].lower() in (".tif", ".tiff"):
         voids += _tiff_nodata(path)
@@ -82,6 +95,8 @@ def load_heightfield(path: str | os.PathLike, nodata: float | None = None) -> np
         if nodata_value is not None:
             voids.append(nodata_value)
     heights = _as_float64(array)
+    if not heights.flags.writeable:
+        heights = np.array(heights)         # a float64 .npy still mapped: read now, into memory of its own
     for value in voids:
         heights[heights == value] = np.nan
     return heights
@@ -132,10 +147,11 @@ def load_material_map(path: str | os.PathLike) -> np.ndarray:
     return classes.astype(np.int32)
 
 
-def _read_grid(path: str | os.PathLike, what: str, palette: bool = False) -> np.ndarray:
+def _read_grid(path: str | os.PathLike, what: str, palette: bool = False, mmap: bool = False) -> np.ndarray:
     """The 2-D array stored in ``path`` (.npy, .png, .tif/.tiff, .hgt, .asc).
 
     ``palette``: accept palette PNGs (their indices are classes, not heights).
+    ``mmap``: a ``.npy`` memory-mapped read-only, not read (other types are read).
     """
     path = os.fspath(path)
     if not os.path.isfile(path):
@@ -146,7 +162,7 @@ def _read_grid(path: str | os.PathLike, what: str, palette: bool = False) -> np.
         # any, is what the user needs (see caveclod.builder.quiet).
         with quiet_reading("tifffile", "PIL"):
             if ext == ".npy":
-                array = np.load(path, allow_pickle=False)
+                array = np.load(path, allow_pickle=False, mmap_mode="r" if mmap else None)
             elif ext == ".png":
                 array = _read_png(path, what, palette)
             elif ext in (".tif", ".tiff"):
@@ -376,6 +392,47 @@ def raster_to_source(heights: np.ndarray, cell_size: float | tuple[float, float]
     source = heightfield_to_source(heights, cell_size=cell_size, z_scale=z_scale, materials=classes)
     source.notes[:0] = list(notes) + _sentinel_notes(heights)
     return source
+
+
+def every_kth_sample(heights: np.ndarray, k: int, materials: np.ndarray | None = None,
+                     north_first: bool = True) -> tuple[np.ndarray, np.ndarray | None]:
+    """Every ``k``-th sample of a raster a side, for a build ``k`` x ``k`` times
+    smaller (``caveclod build --stride K``): cells ``k`` times as wide.
+
+    The south-west sample is kept (so a georeferenced file's origin stays
+    where it is); up to ``k - 1`` rows at the north and columns at the east
+    are dropped, since the grid stays regular. A per-sample ``materials`` map
+    (rows, cols) is sampled alike; a per-cell one (rows - 1, cols - 1) gives
+    each new cell the class of the original cell at its first corner in
+    raster order, as :func:`raster_to_source` does for per-sample maps.
+    No-data samples (NaN) that are kept stay holes.
+
+    Args:
+        heights: (rows, cols) raster, first row north unless ``north_first``
+            is False. k: 1 or more (1: returned as given).
+    Returns:
+        ((rows', cols') heights, the materials map sampled alike or None),
+        rows' = (rows - 1) // k + 1, cols' = (cols - 1) // k + 1.
+    """
+    h = np.asarray(heights)
+    if k == 1 or h.ndim != 2:
+        return heights, materials
+    rows, cols = h.shape
+    # North-first rasters keep the last (southernmost) row; rows running northwards keep the first.
+    r0 = (rows - 1) % k if north_first else 0
+    kept_rows, kept_cols = (rows - 1) // k + 1, (cols - 1) // k + 1
+    if kept_rows < 2 or kept_cols < 2:
+        raise InputError(f"the heightfield has {rows:,} x {cols:,} samples: one in {k} a side leaves "
+                         f"{kept_rows} x {kept_cols}, fewer than 2 a side; give a smaller --stride")
+    out = h[r0::k, ::k]
+    if materials is not None:
+        m = np.asarray(materials)
+        if m.ndim == 2 and m.shape == h.shape:
+            m = m[r0::k, ::k]
+        elif m.ndim == 2 and m.shape == (rows - 1, cols - 1):
+            m = m[r0::k, ::k][:kept_rows - 1, :kept_cols - 1]
+        materials = np.ascontiguousarray(m)   # other shapes: refused as they are by the triangulation
+    return np.ascontiguousarray(out), materials
 
 
 COMMON_NODATA = (-9999.0, -99999.0, -32767.0, -32768.0, -10000.0, -3.4028234663852886e38)

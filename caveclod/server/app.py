@@ -148,7 +148,11 @@ class LodServer:
             from .held import compile_encoders
             for served in self.catalogue.meshes.values():
                 lo, hi = served.info.bounds_min, served.info.bounds_max
-                served.mesh.new_camera().update(View(eye=(hi.x, hi.y, hi.z + 1.0), target=(lo.x, lo.y, lo.z)))
+                # A small viewport: the update only has to run the kernels once. At 1280 x 720 this view
+                # (a corner, looking across the whole mesh) refined a 47M-triangle rough terrain to 1.7M
+                # faces, 3.5 s that every Open waited; at 64 x 36, 91,000 faces in 0.11 s.
+                served.mesh.new_camera().update(View(eye=(hi.x, hi.y, hi.z + 1.0), target=(lo.x, lo.y, lo.z),
+                                                     width=64, height=36))
             compile_encoders()
         except Exception as exc:              # a broken mesh must not hang every Open
             logs.event("server.warm_up_failed", error=repr(exc))

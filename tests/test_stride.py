@@ -1,0 +1,191 @@
+"""``--stride K``: a heightfield too large to build here, built from one sample in K a side.
+
+The strided mesh must be the full one's samples, not a resampling: every
+position it has is a position of the full-resolution mesh (the same x, y and
+height), its south-west sample where the full one's is (so a georeferenced
+file's origin holds), its material classes those of the cells it keeps, and
+the memory check must name a stride that then fits.
+"""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+import tifffile
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+import caveclod
+from caveclod.api import to_source
+from caveclod.builder import memory
+from caveclod.builder.memory import PEAK_BYTES_PER_TRIANGLE, check_build_memory
+from caveclod.builder.terrain import every_kth_sample
+from caveclod.cli import main
+from caveclod.errors import InputError
+
+
+def _rough(rows, cols, seed=5) -> np.ndarray:
+    """Rough relief with a no-data hole: heights every one distinct."""
+    rng = np.random.default_rng(seed)
+    h = rng.normal(size=(rows, cols)).cumsum(0).cumsum(1) + rng.permutation(rows * cols).reshape(rows, cols) * 1e-3
+    h[rows // 3:rows // 3 + 4, cols // 2:cols // 2 + 3] = np.nan
+    return h
+
+
+@settings(max_examples=200, deadline=None)
+@given(rows=st.integers(2, 40), cols=st.integers(2, 40), k=st.integers(1, 12), north_first=st.booleans(),
+       per_cell=st.booleans())
+def test_every_kth_sample_keeps_the_south_west_sample_and_a_regular_grid(rows, cols, k, north_first, per_cell):
+    h = np.arange(rows * cols, dtype=np.float64).reshape(rows, cols)
+    classes = (np.arange((rows - 1) * (cols - 1)).reshape(rows - 1, cols - 1) if per_cell
+               else np.arange(rows * cols).reshape(rows, cols) + 1000)
+    kept_rows, kept_cols = (rows - 1) // k + 1, (cols - 1) // k + 1
+    if kept_rows < 2 or kept_cols < 2:
+        if k > 1:
+            with pytest.raises(InputError, match="fewer than 2 a side"):
+                every_kth_sample(h, k, classes, north_first)
+        return
+    out, m = every_kth_sample(h, k, classes, north_first)
+    assert out.shape == (kept_rows, kept_cols)
+    south = rows - 1 if north_first else 0
+    south_out = kept_rows - 1 if north_first else 0
+    assert out[south_out, 0] == h[south, 0]                  # the south-west sample stays
+    # The slow way: raster row of each kept row, counted from the south edge.
+    for i in range(kept_rows):
+        r = (south - (south_out - i) * k) if north_first else i * k
+        for j in range(kept_cols):
+            assert out[i, j] == h[r, j * k]
+            if not per_cell:
+                assert m[i, j] == classes[r, j * k]
+            elif i < kept_rows - 1 and j < kept_cols - 1:
+                assert m[i, j] == classes[r, j * k]          # the original cell at its first corner
+    if per_cell:
+        assert m.shape == (kept_rows - 1, kept_cols - 1)
+
+
+def test_a_strided_heightfield_is_the_full_ones_samples(tmp_path):
+    """Every position of the strided mesh is one of the full mesh's, at the same place; the
+    hole stays a hole; cells are k times as wide; the note says what was done."""
+    h = _rough(61, 83)
+    path = tmp_path / "dem.npy"
+    np.save(path, h)
+    full = to_source(str(path), cell_size=2.5)
+    for k in (2, 3, 5):
+        part = to_source(str(path), cell_size=2.5, stride=k)
+        have = {tuple(p) for p in full.positions.tolist()}
+        assert all(tuple(p) in have for p in part.positions.tolist())
+        assert part.positions[:, :2].min(axis=0).tolist() == [0.0, 0.0]
+        assert part.positions[:, 0].max() == ((83 - 1) // k) * k * 2.5
+        assert part.positions[:, 1].max() == ((61 - 1) // k) * k * 2.5
+        assert not np.isnan(part.positions).any()
+        assert any(n.startswith(f"--stride {k}: one sample in {k} a side of the 61 x 83 grid") and
+                   f"cells of {2.5 * k:g}" in n for n in part.notes)
+        assert len(part.faces) < len(full.faces) / (k * k) * 1.2
+
+
+def test_an_array_is_strided_like_its_file(tmp_path):
+    h = _rough(40, 50)
+    np.save(tmp_path / "dem.npy", h)
+    a, f = to_source(h, stride=3), to_source(str(tmp_path / "dem.npy"), stride=3)
+    assert np.array_equal(a.positions, f.positions) and np.array_equal(a.faces, f.faces)
+
+
+def test_a_georeferenced_file_keeps_its_origin_and_scales_its_cells(tmp_path):
+    """A projected GeoTIFF: the south-west sample is where the file says, strided or not."""
+    h = _rough(31, 45).astype(np.float32)
+    h[np.isnan(h)] = -9999.0
+    path = tmp_path / "dem.tif"
+    tifffile.imwrite(path, h, extratags=[(33550, 12, 3, (25.0, 30.0, 0.0)),
+                                         (33922, 12, 6, (0.0, 0.0, 0.0, 500000.0, 4100000.0, 0.0)),
+                                         (42113, 2, 0, "-9999")])
+    full, part = to_source(str(path)), to_source(str(path), stride=4)
+    assert part.origin == full.origin and full.origin is not None
+    assert part.positions[:, 0].max() == ((45 - 1) // 4) * 4 * 25.0
+    assert part.positions[:, 1].max() == ((31 - 1) // 4) * 4 * 30.0
+    have = {tuple(p) for p in full.positions.tolist()}
+    assert all(tuple(p) in have for p in part.positions.tolist())
+
+
+def test_a_material_map_is_strided_with_its_cells():
+    h = _rough(33, 33)
+    h[~np.isfinite(h)] = 0.0
+    classes = np.zeros((32, 32), np.int64)
+    classes[:, 16:] = 1                      # east half another material
+    part = to_source(h, materials=classes, stride=4)
+    x = part.positions[:, 0][part.vertex_position]
+    for f, material in zip(part.faces, part.face_material):
+        centre = x[f].mean()
+        assert material == (1 if centre > 16 else 0)    # cell j spans x 4j..4j+4 and takes cell 4j's class
+
+
+def test_the_memory_check_names_a_stride_that_fits():
+    with pytest.raises(InputError) as info:
+        check_build_memory(199_960_002, "dem.npy", available=22 << 30, grid_shape=(10_000, 10_000))
+    text = str(info.value)
+    assert "with --stride 2 (49,980,002 triangles, cells 2 times as wide)" in text
+    assert 49_980_002 * PEAK_BYTES_PER_TRIANGLE <= 22 << 30
+    with pytest.raises(InputError) as info:           # at stride 2 already: the next that fits
+        check_build_memory(49_980_002, "dem.npy", available=5 << 30, grid_shape=(10_000, 10_000), stride=2)
+    assert "--stride 4 (12,490,002 triangles" in str(info.value)
+    assert 12_490_002 * PEAK_BYTES_PER_TRIANGLE <= 5 << 30 < 2 * 3333 ** 2 * PEAK_BYTES_PER_TRIANGLE   # 3 would not
+    with pytest.raises(InputError) as info:           # meshes: no stride to name
+        check_build_memory(199_960_002, "scan.ply", available=22 << 30)
+    assert "--stride" not in str(info.value)
+
+
+def test_the_cli_builds_with_the_stride_the_refusal_named(tmp_path, monkeypatch, capsys):
+    """Refused with a stride named, then built with it: the file holds the strided grid."""
+    h = _rough(121, 121)
+    path = tmp_path / "dem.npy"
+    np.save(path, h)
+    out = tmp_path / "dem.cvc"
+    full_triangles = 2 * 120 * 120
+    monkeypatch.setattr(memory, "available_bytes", lambda root="/": full_triangles * PEAK_BYTES_PER_TRIANGLE // 3)
+    assert main(["build", str(path), "-o", str(out), "--quiet"]) == 2 and not out.exists()
+    err = capsys.readouterr().err
+    assert "--stride 2 (" in err
+    assert main(["build", str(path), "-o", str(out), "--quiet", "--stride", "2", "--json"]) == 0
+    report = json.loads(capsys.readouterr().out)
+    assert report["input_triangles"] < full_triangles / 4 + 1 and report["input_triangles"] > full_triangles / 5
+    assert any("--stride 2" in n for n in report["notes"])
+    assert caveclod.load(out).n_faces == report["input_triangles"]
+
+
+@pytest.mark.parametrize("source", ["default", "mesh"])
+def test_a_stride_is_refused_where_there_is_no_grid(tmp_path, source):
+    if source == "mesh":
+        import trimesh
+        path = tmp_path / "ball.ply"
+        trimesh.creation.icosphere(subdivisions=1).export(path)
+        source = str(path)
+    with pytest.raises(InputError, match="--stride"):
+        caveclod.build(source, stride=2, size=16, packed=False)
+
+
+@pytest.mark.parametrize("bad", [0, -2, 1.5, True, "2", 5000])
+def test_a_bad_stride_is_refused(bad):
+    with pytest.raises(InputError, match="--stride must be a whole number"):
+        to_source(np.zeros((8, 8)), stride=bad)
+
+
+def test_a_strided_npy_is_read_without_the_rest_of_it(tmp_path):
+    """A .npy is memory-mapped and only the kept samples copied out: numpy's allocations
+    (which tracemalloc sees; the mapped file's pages it does not) stay far below the file's
+    128 MB (read whole, its float64 copy alone would be 128 MB)."""
+    import tracemalloc
+    h = np.random.default_rng(2).normal(size=(4001, 4001)).astype(np.float64)
+    path = tmp_path / "dem.npy"
+    np.save(path, h)
+    del h
+    np.save(tmp_path / "small.npy", _rough(40, 40))
+    to_source(str(tmp_path / "small.npy"), stride=2)          # imports and first calls, not measured
+    tracemalloc.start()
+    try:
+        part = to_source(str(path), stride=16)
+        _, peak = tracemalloc.get_traced_memory()
+    finally:
+        tracemalloc.stop()
+    assert len(part.faces) == 2 * 250 * 250
+    assert peak < 32 << 20, f"{peak / 2**20:.1f} MiB allocated reading a 128 MB file at one sample in 16"
