@@ -125,8 +125,9 @@ def _parser() -> argparse.ArgumentParser:
     i.add_argument("--verify", action="store_true", help="re-hash the whole file and check it is intact")
     i.set_defaults(run=_inspect)
 
-    k = sub.add_parser("pack", help="store the packed vertex downloads in a .cvc built before caveclod stored them "
-                                    "(a server then need not pack them at start)")
+    k = sub.add_parser("pack", help="store the packed vertex downloads and the derived arrays (each vertex's "
+                                    "position, faces per material, connected parts) in a .cvc built before "
+                                    "caveclod stored them (a server then need not make them at start)")
     k.add_argument("path")
     k.add_argument("-o", "--output", help="write here instead of rewriting PATH")
     k.add_argument("--json", action="store_true", help="print one JSON object on stdout")
@@ -398,10 +399,12 @@ def _pack(args) -> int:
     from .staticmesh import load
     from .vertexpack import attach_packed
     mesh = load(args.path)       # checked, as serve would
+    mesh.store_derived()
     attach_packed(mesh, progress=not args.quiet)
     output = args.output or args.path
     _save(mesh, output)          # a new file renamed into place: the mapped one stays readable meanwhile
-    _print({"path": str(output), "attachments": mesh.summary()["attachments"]}, args.json)
+    _print({"path": str(output), "attachments": mesh.summary()["attachments"], "derived_bytes": mesh.derived_bytes},
+           args.json)
     return 0
 
 

@@ -30,7 +30,11 @@ p faces, m internal nodes (``len(node_position)``), n = e + m nodes and k base f
 * the base mesh: its corner nodes are roots, its neighbours are base faces,
   and each of its corners has a vertex of the face's surface group;
 * positions and cones are finite; bounding spheres and error bounds are
-  finite and of the scale of the positions.
+  finite and of the scale of the positions;
+* the arrays a build stores so that no server derives them
+  (``staticmesh.DERIVED_ARRAYS``: each vertex's position, the faces per
+  material, the connected parts) are what the other arrays give, derived
+  afresh once the rest has passed.
 
 The last two hierarchy rules make the split dependencies acyclic (a split
 of x needs only its parent and the creators of its required faces, all with
@@ -156,6 +160,28 @@ def find_problem(mesh) -> str | None:
     problem = _lengths(a)
     if problem:
         return problem
+    # The derived arrays last: deriving them afresh runs kernels that trust the ids checked before.
+    return _structure(a, mesh) or _derived(a, mesh)
+
+
+def _derived(a: dict, mesh) -> str | None:
+    """The stored :data:`caveclod.staticmesh.DERIVED_ARRAYS`, each equal to a fresh derivation."""
+    from .staticmesh import DERIVED_ARRAYS, PART_ARRAYS, derived_arrays
+    present = [name for name in DERIVED_ARRAYS if name in a]
+    if not present:
+        return None
+    parts = [name for name in PART_ARRAYS if name in a]
+    if parts and len(parts) < len(PART_ARRAYS):
+        return f"the file holds {', '.join(parts)} but not every part_ array"
+    fresh = derived_arrays(mesh, present)
+    for name in present:
+        if a[name].shape != fresh[name].shape or not np.array_equal(a[name], fresh[name]):
+            return f"{name} is not what the other arrays give"
+    return None
+
+
+def _structure(a: dict, mesh) -> str | None:
+    """The first inconsistency of the hierarchy's arrays (module doc), or None."""
     checks = (_vertex_index, _enums, _parents, _links, _faces, _base, _floats)
     if len(a["face_creator"]) <= PARALLEL_FACES:
         return next((problem for problem in (check(a, mesh) for check in checks) if problem), None)

@@ -71,7 +71,22 @@ ARRAYS = {
 }
 OPTIONAL_ARRAYS = {
     "node_ring": ("<f4", (2,)),          # (m, 2) ring bound: reach, error (files from before it have none)
+    # DERIVED_ARRAYS: what a process would otherwise derive from the arrays above for its first camera.
+    "vertex_position": ("<i4", ()),      # (d,) position of each vertex-buffer entry: pos_vstart's inverse
+    "material_faces": ("<i8", (2,)),     # (materials, 2) faces of each material: the full mesh's, the base mesh's
+    "part_sphere": ("<f8", (4,)),        # (parts, 4) and the four below: caveclod.refine.parts.Parts
+    "part_root_start": ("<i8", ()),      # (parts + 1,)
+    "part_roots": ("<i4", ()),           # (roots,)
+    "part_face_start": ("<i8", ()),      # (parts + 1,)
+    "part_faces": ("<i4", ()),           # (base faces,)
 }
+DERIVED_ARRAYS = ("vertex_position", "material_faces", "part_sphere", "part_root_start", "part_roots",
+                  "part_face_start", "part_faces")
+"""Optional arrays that the other arrays determine: derived once per process when a file lacks
+them (files from before 2026-11-29), stored by the build so that a server's start does not grow
+with the mesh (1.2 s of a 47M-triangle terrain's first camera) and their pages are mapped and
+shared by every server process instead of held by each. :mod:`caveclod.meshcheck` compares them
+with a fresh derivation; :attr:`StaticMesh.nbytes` leaves them out (``derived_bytes``)."""
 DECLARED = {**ARRAYS, **OPTIONAL_ARRAYS}
 VERTEX_BUFFER = ("vertex_positions", "vertex_normals", "vertex_uvs", "vertex_colors")
 COUNT_BLOCK = 1 << 20        # faces per pass of material_face_counts
@@ -184,8 +199,14 @@ class StaticMesh:
 
     @property
     def nbytes(self) -> int:
-        """Bytes of all static arrays (what every camera shares)."""
-        return int(sum(a.nbytes for a in self.arrays.values()))
+        """Bytes of the hierarchy's static arrays (what every camera shares), not counting the
+        :data:`DERIVED_ARRAYS` (:attr:`derived_bytes`)."""
+        return int(sum(a.nbytes for name, a in self.arrays.items() if name not in DERIVED_ARRAYS))
+
+    @property
+    def derived_bytes(self) -> int:
+        """Bytes of the :data:`DERIVED_ARRAYS` the mesh holds (0 for a file without them)."""
+        return int(sum(a.nbytes for name, a in self.arrays.items() if name in DERIVED_ARRAYS))
 
     @property
     def equation1_bytes(self) -> int:
@@ -201,13 +222,12 @@ class StaticMesh:
     @property
     def vertex_position_ids(self) -> np.ndarray:
         """(d,) int32 position id of each vertex-buffer entry (inverse of the
-        CSR ``pos_vstart``; derived once per process, not stored)."""
+        CSR ``pos_vstart``), read-only: the file's ``vertex_position``, else
+        derived once per process (:func:`derive_vertex_positions`)."""
         ids = self.__dict__.get("_vertex_position_ids")
         if ids is None:
-            from .kernels.positions import fill_vertex_positions
-            start = np.asarray(self.arrays["pos_vstart"])
-            ids = np.zeros(self.n_vertices, np.int32)
-            fill_vertex_positions(start, ids)
+            stored = self.arrays.get("vertex_position")
+            ids = _read_only(stored) if stored is not None else derive_vertex_positions(self)
             self.__dict__["_vertex_position_ids"] = ids
         return ids
 
@@ -231,28 +251,37 @@ class StaticMesh:
         return box[0].copy(), box[1].copy()
 
     def material_face_counts(self) -> tuple[np.ndarray, np.ndarray]:
-        """((m,) faces of each material in the full mesh, (m,) in the base mesh), int64; computed once."""
+        """((m,) faces of each material in the full mesh, (m,) in the base mesh), int64: the file's
+        ``material_faces``, else counted once per process (:func:`count_material_faces`)."""
         counts = self.__dict__.get("_material_face_counts")
         if counts is None:
-            fm = np.asarray(self.arrays["face_material"])
-            m = max(self.n_materials, int(fm.max(initial=0)) + 1)
-            # A block at a time: bincount widens its input to int64, which for a whole 33.5M-face
-            # mesh was 268 MB of fresh pages (0.5 s of its first camera).
-            total = np.zeros(m, np.int64)
-            for lo in range(0, len(fm), COUNT_BLOCK):
-                total += np.bincount(fm[lo:lo + COUNT_BLOCK], minlength=m)
-            counts = (total, np.bincount(fm[np.asarray(self.arrays["base_faces"])], minlength=m))
+            stored = self.arrays.get("material_faces")
+            table = np.asarray(stored) if stored is not None else count_material_faces(self)
+            m = max(self.n_materials, len(table))      # names without faces count none
+            counts = tuple(np.pad(table[:, j], (0, m - len(table))).astype(np.int64) for j in (0, 1))
             self.__dict__["_material_face_counts"] = counts
         return counts
 
     def parts(self):
-        """The connected parts of the base mesh (:class:`caveclod.refine.parts.Parts`); computed once."""
+        """The connected parts of the base mesh (:class:`caveclod.refine.parts.Parts`): the file's
+        ``part_*`` arrays, else derived once per process (:func:`caveclod.refine.parts.mesh_parts`)."""
         parts = self.__dict__.get("_parts")
         if parts is None:
-            from .refine.parts import mesh_parts
-            parts = mesh_parts(self)
+            from .refine.parts import Parts, mesh_parts
+            if all(name in self.arrays for name in PART_ARRAYS):
+                parts = Parts(*(_read_only(self.arrays[name]) for name in PART_ARRAYS))
+            else:
+                parts = mesh_parts(self)
             self.__dict__["_parts"] = parts
         return parts
+
+    def store_derived(self) -> None:
+        """Add the :data:`DERIVED_ARRAYS` to the arrays (derived afresh), so that a file saved
+        from this mesh carries them; the build does this."""
+        self.arrays.update(derived_arrays(self))
+        self.optional_hash = _optional_hash(self.arrays)
+        for cached in ("_vertex_position_ids", "_material_face_counts", "_parts"):
+            self.__dict__.pop(cached, None)
 
     def position_tops(self) -> np.ndarray:
         """(e,) int32 the last node at each position, read-only; computed once.
@@ -319,6 +348,7 @@ class StaticMesh:
             "materials": self.n_materials,
             "base_faces": len(self.arrays["base_faces"]),
             "static_bytes": self.nbytes,
+            "derived_bytes": self.derived_bytes,
             "equation1_static_bytes": self.equation1_bytes,
             "content_hash": self.content_hash,
             "vertex_buffer_hash": self.vertex_buffer_hash,
@@ -386,6 +416,54 @@ class StaticMesh:
         content, _ = _hashes(self.arrays)
         if content != self.content_hash or _optional_hash(self.arrays) != self.optional_hash:
             raise FileFormatError(f"{self.path}: content hash mismatch; the file is corrupt, rebuild it")
+
+
+PART_ARRAYS = ("part_sphere", "part_root_start", "part_roots", "part_face_start", "part_faces")
+"""The :class:`caveclod.refine.parts.Parts` fields, in order, as stored."""
+
+
+def derive_vertex_positions(mesh: StaticMesh) -> np.ndarray:
+    """(d,) int32 read-only: the position of each vertex-buffer entry, from ``pos_vstart``."""
+    from .kernels.positions import fill_vertex_positions
+    ids = np.zeros(mesh.n_vertices, np.int32)
+    fill_vertex_positions(np.asarray(mesh.arrays["pos_vstart"]), ids)
+    ids.setflags(write=False)           # as a file's map: one compiled variant of the kernels that read it
+    return ids
+
+
+def count_material_faces(mesh: StaticMesh) -> np.ndarray:
+    """(m, 2) int64: faces of each material 0 .. m-1 in the full mesh and in the base mesh, m the
+    largest material a face has, plus one (the names in the header do not change it)."""
+    fm = np.asarray(mesh.arrays["face_material"])
+    m = int(fm.max()) + 1 if len(fm) else 0
+    # A block at a time: bincount widens its input to int64, which for a whole 33.5M-face
+    # mesh was 268 MB of fresh pages (0.5 s of its first camera).
+    total = np.zeros(m, np.int64)
+    for lo in range(0, len(fm), COUNT_BLOCK):
+        total += np.bincount(fm[lo:lo + COUNT_BLOCK], minlength=m)
+    return np.stack([total, np.bincount(fm[np.asarray(mesh.arrays["base_faces"])], minlength=m)], axis=1)
+
+
+def derived_arrays(mesh: StaticMesh, names=DERIVED_ARRAYS) -> dict:
+    """The :data:`DERIVED_ARRAYS` in ``names``, derived from ``mesh``'s other arrays (never read
+    from its stored ones)."""
+    out = {}
+    if "vertex_position" in names:
+        out["vertex_position"] = derive_vertex_positions(mesh)
+    if "material_faces" in names:
+        out["material_faces"] = count_material_faces(mesh)
+    if any(name in names for name in PART_ARRAYS):
+        from .refine.parts import mesh_parts
+        parts = mesh_parts(mesh)
+        out.update({name: getattr(parts, name.removeprefix("part_")) for name in PART_ARRAYS})
+    return {name: a for name, a in out.items() if name in names}
+
+
+def _read_only(a) -> np.ndarray:
+    """A read-only view of ``a`` (a file's maps are read-only already; an in-memory mesh's are not)."""
+    v = np.asarray(a).view()
+    v.setflags(write=False)
+    return v
 
 
 def load(path: str | os.PathLike, check: bool = True) -> StaticMesh:

@@ -73,6 +73,7 @@ def build_static_mesh(source: SourceMesh | Callable[[], SourceMesh], crease_angl
         reasons = side.submit(_base_mesh_reasons, hier, face_pos, topo, lay, arrays["face_material"], smooth_rigid)
         arrays.update(node_arrays(positions, hier))
         mesh = StaticMesh(arrays=arrays, materials=materials)
+        mesh.store_derived()                  # so that no server derives them when it starts
         reasons = reasons.result()
     mesh.info = {
         "build_seconds": round(time.perf_counter() - t0, 3),

@@ -1,8 +1,10 @@
 """The connected parts of a static mesh, for hiding parts smaller than the tolerance.
 
-Derived from the base mesh when the first camera is made (it is small: a
-few faces per part), not stored in the ``.cvc`` file, so every file built so
-far prunes too. See :mod:`caveclod.kernels.parts` for how cameras use them.
+Derived from the base mesh (it is small: a few faces per part) and one pass
+over the nodes; the build stores the result in the ``.cvc`` file
+(:data:`caveclod.staticmesh.DERIVED_ARRAYS`), and a file without it (built
+before 2026-11-29) has it derived when its first camera is made, so every
+file prunes. See :mod:`caveclod.kernels.parts` for how cameras use them.
 """
 
 from __future__ import annotations
@@ -62,7 +64,10 @@ def mesh_parts(mesh) -> Parts:
     root_start = np.searchsorted(pairs[:, 0], np.arange(m + 1)).astype(np.int64)
     part = _node_part(mesh, roots, root_start)
     sphere = part_spheres(np.asarray(a["vertex_positions"]), np.asarray(a["pos_vstart"]), part, m)
-    return Parts(sphere, root_start, roots, face_start, faces)
+    out = (sphere, root_start, roots, face_start, faces)
+    for x in out:
+        x.setflags(write=False)         # as a file's maps: one compiled variant of the kernels that read them
+    return Parts(*out)
 
 
 def position_part(mesh) -> np.ndarray:
