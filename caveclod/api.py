@@ -198,8 +198,8 @@ def _every_kth(heights, classes, stride: int, cell, north_first: bool = True):
 def _check_stride(stride) -> int:
     """``stride`` as an int, refused unless a whole number from 1 to 1,024."""
     if isinstance(stride, bool) or not isinstance(stride, (int, np.integer)) or not 1 <= stride <= 1024:
-        raise InputError(f"--stride must be a whole number from 1 to 1,024 (every Kth sample of a heightfield "
-                         f"a side), got {stride!r}")
+        raise InputError(f"--stride must be a whole number from 1 to 1,024 (one sample in K a side of a "
+                         f"heightfield), got {stride!r}")
     return int(stride)
 
 

@@ -85,7 +85,7 @@ def _parser() -> argparse.ArgumentParser:
                                                    "degrees; else 1)")
     b.add_argument("--z-scale", type=float, default=1.0, help="heightfield height scale")
     b.add_argument("--materials", help="heightfield material map (.npy, one integer class per cell)")
-    b.add_argument("--stride", type=int, default=1, metavar="K",
+    b.add_argument("--stride", default="1", metavar="K",
                    help="build a heightfield from every Kth sample a side: cells K times as wide, about K*K times "
                         "fewer triangles, the south-west sample kept (default 1: every sample); for rasters too "
                         "large to build here, which the memory check names the K for")
@@ -376,7 +376,7 @@ def _build(args) -> int:
     from .api import build, build_tiles
     options = dict(cell_size=args.cell_size, z_scale=args.z_scale, materials=args.materials,
                    crease_angle=args.crease_angle, size=args.size, seed=args.seed, nodata=args.nodata, weld=args.weld,
-                   origin=args.origin, stride=args.stride,
+                   origin=args.origin, stride=_whole_number("--stride", args.stride),
                    progress=not args.quiet, tiles=args.tiles, workers=args.workers,
                    check_memory=not args.no_memory_check)
     if args.tile_job is not None:
@@ -393,6 +393,14 @@ def _build(args) -> int:
     report["output"] = args.output
     _print(report, args.json)
     return 0
+
+
+def _whole_number(option: str, text: str) -> int:
+    """``text`` as an int, refused in one line (argparse's own refusal prints its usage too)."""
+    try:
+        return int(text)
+    except ValueError:
+        raise InputError(f"{option} must be a whole number, got {text!r}") from None
 
 
 def _pack(args) -> int:

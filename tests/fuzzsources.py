@@ -69,7 +69,8 @@ INT_VALUES = (-1, 0, 1, 2 ** 31 - 1, -2 ** 31, 99999, 1 << 24)
 # Command-line values of the numeric build options, all parseable as floats.
 OPTION_VALUES = ("0", "-1", "nan", "inf", "-inf", "1e-320", "1e-39", "1e-30", "1e-9", "0.5", "3", "180",
                  "1e19", "1e38", "1e300")
-HEIGHTFIELD_OPTIONS = ("--cell-size", "--z-scale", "--nodata", "--origin")
+HEIGHTFIELD_OPTIONS = ("--cell-size", "--z-scale", "--nodata", "--origin", "--stride")
+STRIDE_VALUES = ("1", "2", "3", "5", "40", "1000", "0", "-1", "1.5", "99999999999")
 MESH_OPTIONS = ("--weld", "--crease-angle", "--origin")
 ORIGIN_VALUES = ("auto", "0,0,0", "1e30,0,0", "nan,1,1", "1,2", "-4.7e18,4.7e18,0", "abc", "1e308,-1e308,0")
 
@@ -386,8 +387,8 @@ def random_options(seed: Seed, rng: random.Random) -> list[str]:
         return []
     names = HEIGHTFIELD_OPTIONS if seed.heightfield else MESH_OPTIONS
     # "--name=value": a value like "-inf" would otherwise read as an option.
-    return [f"{name}={rng.choice(ORIGIN_VALUES if name == '--origin' else OPTION_VALUES)}"
-            for name in rng.sample(names, rng.randint(1, 2))]
+    values = {"--origin": ORIGIN_VALUES, "--stride": STRIDE_VALUES}
+    return [f"{name}={rng.choice(values.get(name, OPTION_VALUES))}" for name in rng.sample(names, rng.randint(1, 2))]
 
 
 @dataclass

@@ -108,7 +108,7 @@ def build_tile_job(source: SourceMesh | Callable[[], SourceMesh], store: TileSto
     if callable(source):
         source = source()
     t0 = time.perf_counter()
-    source, face_pos, topo, lay, _ = _prepare(source, crease_angle, progress)
+    source, face_pos, topo, lay, _ = _prepare(source, crease_angle, progress, report=False)
     positions = source.positions              # a job writes no vertex buffer: the rest of the source can go
     del source
     lay = _for_collapses(lay)
@@ -120,15 +120,16 @@ def build_tile_job(source: SourceMesh | Callable[[], SourceMesh], store: TileSto
             "seconds": round(time.perf_counter() - t0, 3)}
 
 
-def _prepare(source: SourceMesh, crease_angle, progress) -> tuple:
+def _prepare(source: SourceMesh, crease_angle, progress, report: bool = True) -> tuple:
     """(source with normals, face_pos (p, 3) int32, topology, surface layout, RIGID positions with
     smooth normals or None), checked. The last is counted where the build makes normals at the
-    source's default crease angle (below 180 degrees), for the report (:func:`_base_mesh_reasons`)."""
+    source's default crease angle (below 180 degrees), for the report (:func:`_base_mesh_reasons`);
+    not at all without ``report`` (a tile job writes no report)."""
     source.validate()
     face_pos = source.face_positions.astype(np.int32)       # once: 0.2 s a gather at 2M faces
     _check_float32_positions(source, face_pos)
     stage(f"preparing {len(source.faces):,} triangles: normals, topology, surface groups", progress)
-    by_default = crease_angle is None and source.vertex_normal is None and source.crease_angle < 180.0
+    by_default = report and crease_angle is None and source.vertex_normal is None and source.crease_angle < 180.0
     input_faces = source.faces if by_default else None
     source, topo = prepare_source(source, crease_angle, face_pos)
     lay = layout_surfaces(face_pos, source.faces.astype(np.int32), source.face_material, topo.nbrs,
