@@ -389,6 +389,7 @@ def _build(args) -> int:
         raise InputError("-o/--output is required: the .cvc file to write")
     mesh = build(args.input, tiles_dir=args.tiles_dir, **options)
     _save(mesh, args.output)
+    _remember_checked(args.output)
     report = mesh.summary()
     report["output"] = args.output
     _print(report, args.json)
@@ -411,9 +412,22 @@ def _pack(args) -> int:
     attach_packed(mesh, progress=not args.quiet)
     output = args.output or args.path
     _save(mesh, output)          # a new file renamed into place: the mapped one stays readable meanwhile
+    _remember_checked(output)
     _print({"path": str(output), "attachments": mesh.summary()["attachments"], "derived_bytes": mesh.derived_bytes},
            args.json)
     return 0
+
+
+def _remember_checked(path) -> None:
+    """Run on the file just written the structural check ``caveclod serve`` runs at a file's first
+    start, and remember that it passed where serve looks by default (``--checked-dir``), so that
+    serving it here starts as a restart does (a 47M-triangle terrain: 3.3 -> 0.3 s to SERVING).
+    A directory that cannot be written only costs that; ``CAVECLOD_CHECKED_DIR=none`` skips it."""
+    from .meshcheck import check_mesh
+    from .staticmesh import load
+    checked_dir = default_checked_dir()
+    if checked_dir != "none":
+        check_mesh(load(path, check=False), checked_dir=checked_dir)
 
 
 def _save(mesh, path) -> None:

@@ -113,3 +113,25 @@ def test_pack_stores_the_downloads_in_a_file_built_without_them(tmp_path):
     for bits, morph in vertexpack.STORED_VARIANTS:
         assert vertexpack.stored_packed(after, bits, morph) is not None
     assert_refused(run("pack", tmp_path / "missing.cvc"), "missing.cvc")
+
+
+def test_a_built_file_is_remembered_as_checked_where_serve_looks(tmp_path, monkeypatch):
+    """``caveclod build`` runs the structural check on what it wrote and remembers it in serve's
+    default --checked-dir, so a first serve starts as a restart does; a changed file is read
+    again; CAVECLOD_CHECKED_DIR=none remembers nothing."""
+    from caveclod.cli import main
+    from caveclod.meshcheck import check_mesh
+    from caveclod.staticmesh import load
+    checked = tmp_path / "checked"
+    monkeypatch.setenv("CAVECLOD_CHECKED_DIR", str(checked))
+    out = tmp_path / "t.cvc"
+    assert main(["build", "default", "--size", "16", "-o", str(out), "--quiet"]) == 0
+    assert len(list(checked.iterdir())) == 1
+    assert check_mesh(load(out, check=False), checked_dir=checked) is False      # not read again
+    data = bytearray(out.read_bytes())
+    out.write_bytes(bytes(data))                                                  # rewritten: ctime moves
+    assert check_mesh(load(out, check=False), checked_dir=checked) is True
+    monkeypatch.setenv("CAVECLOD_CHECKED_DIR", "none")
+    monkeypatch.chdir(tmp_path)                   # a directory named "none" would land here
+    assert main(["build", "default", "--size", "16", "-o", str(tmp_path / "u.cvc"), "--quiet"]) == 0
+    assert not (tmp_path / "none").exists() and len(list(checked.iterdir())) == 1
