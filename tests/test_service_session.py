@@ -333,3 +333,34 @@ def test_costly_frames_made_back_to_back_on_workers_arrive_in_order_and_check(se
         assert any(chained), "no frame started its successor on a worker"
     finally:
         driver.close()
+
+
+def test_a_close_read_just_before_the_stream_broke_ends_the_session(make_server):
+    """Under load a browser's Close message and its close frame can arrive together: the reader
+    takes the Close (the session's end is set) and the stream breaks before the writer ends the
+    session. The session then ends as closed, not left for the resume TTL holding its place in
+    --max-sessions (it was, until the reaper expired it: the Chromium unload test failed so)."""
+    import grpc
+    from service import open_message
+    from caveclod.server.session import End
+    server = make_server(resume_ttl=60)
+    server.sessions.ready.wait(30)
+    session, generation, resumed = server.sessions.open(open_message().open)
+    assert not resumed and session.token in server.sessions.sessions
+    assert session.accept(pb.ClientMessage(close=pb.Close(reason="the page was closed")), generation)
+    ended = server.metrics.session_ends.labels("closed")
+    before = ended._value.get()
+    server.sessions.stream_ended(session, generation, End(grpc.StatusCode.CANCELLED, "the stream broke", False))
+    assert session.token not in server.sessions.sessions
+    assert ended._value.get() == before + 1
+
+
+def test_a_stream_that_broke_without_a_close_stays_resumable(make_server):
+    import grpc
+    from service import open_message
+    from caveclod.server.session import End
+    server = make_server(resume_ttl=60)
+    server.sessions.ready.wait(30)
+    session, generation, _ = server.sessions.open(open_message().open)
+    server.sessions.stream_ended(session, generation, End(grpc.StatusCode.CANCELLED, "the stream broke", False))
+    assert session.token in server.sessions.sessions and not session.attached

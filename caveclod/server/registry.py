@@ -165,6 +165,12 @@ class Sessions:
                 self._drop(session, "closed" if end.code == grpc.StatusCode.OK else end.code.name.lower())
             elif session.detach(generation):
                 self.log("session.detached", **session.describe(), resume_ttl=self.config.resume_ttl)
+            elif generation == session.generation and session.end is not None and session.end.discard:
+                # The stream broke after the session's own end was set (a Close read just before the
+                # browser's close frame, under load): that end, not the resume TTL. Before, such a
+                # session lingered, holding its place in --max-sessions, until the TTL expired it.
+                own = session.end
+                self._drop(session, "closed" if own.code == grpc.StatusCode.OK else own.code.name.lower())
             self._gauges()
 
     def _drop(self, session: Session, why: str) -> None:
