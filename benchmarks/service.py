@@ -728,6 +728,9 @@ def main() -> int:
                     help="the parallel-refinement runs' client: h2 (one event loop over caveclod's HTTP/2 client, "
                          "the default), grpc (a blocking gRPC stream a session), or both, comma-separated")
     ap.add_argument("--startup-size", type=int, default=1024, help="mesh of the start-up test (1024: 2M triangles)")
+    ap.add_argument("--startup-mesh", metavar="CVC", help="a .cvc of the start-up test instead of the built-in "
+                    "terrain at --startup-size (e.g. benchmarks/large_dem.py's model built with --stride)")
+    ap.add_argument("--startup-repeats", type=int, default=5, help="starts of each kind, after an untimed one")
     ap.add_argument("--skip", default="", help="comma-separated sections to skip: capacity,parallel,startup,shared")
     ap.add_argument("--shared-sessions", type=int, default=8,
                     help="sessions on each of the two servers of the shared-mesh section (default 8)")
@@ -859,7 +862,8 @@ def main() -> int:
         out["kernel_parallelism"] = kernel_parallelism(mesh, args.parallel_seconds)
         print(f"kernels alone: {out['kernel_parallelism']}", file=sys.stderr)
     if "startup" not in skip:
-        out["startup"] = startup(mesh_path(args.startup_size))
+        out["startup"] = startup(Path(args.startup_mesh) if args.startup_mesh else mesh_path(args.startup_size),
+                                 repeats=args.startup_repeats)
         print(f"start-up: {out['startup']}", file=sys.stderr)
     if "shared" not in skip:
         out["shared_mesh"] = shared_mesh(mesh, args.shared_sessions, args.duration)

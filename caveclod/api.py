@@ -246,13 +246,6 @@ def _input_name(source, size) -> str:
     return "the mesh"
 
 
-def _grid_triangles(shape, stride: int = 1) -> int:
-    """Triangles of a heightfield of ``shape`` samples with no holes (two a cell), at every
-    ``stride``-th sample a side: what its build may need memory for, known before the mesh is made."""
-    rows, cols = shape[:2]
-    return 2 * max((rows - 1) // stride, 0) * max((cols - 1) // stride, 0)
-
-
 def to_source(source, *, cell_size=None, z_scale=1.0, materials=None, size=DEFAULT_SIZE, seed=None,
               nodata=None, check_memory: bool = False, stride: int = 1) -> SourceMesh:
     """Turn any accepted ``source`` into a validated :class:`SourceMesh`.
@@ -263,7 +256,7 @@ def to_source(source, *, cell_size=None, z_scale=1.0, materials=None, size=DEFAU
     at every ``stride``-th sample a side (:func:`build`).
     """
     from .builder import builtin, meshfile, terrain
-    from .builder.memory import check_build_memory
+    from .builder.memory import check_build_memory, grid_triangles
     stride = _check_stride(stride)
 
     def check_grid(triangles, shape=None):
@@ -281,13 +274,13 @@ def to_source(source, *, cell_size=None, z_scale=1.0, materials=None, size=DEFAU
         if not isinstance(size, (int, np.integer)) or not 2 <= size <= 8192:
             raise InputError(f"--size must be an integer between 2 and 8192 cells, got {size!r}")
         if source in builtin.TERRAINS:
-            check_grid(_grid_triangles((size + 1, size + 1)))
+            check_grid(grid_triangles((size + 1, size + 1)))
         return builtin.BUILTINS[source](int(size)) if seed is None else builtin.BUILTINS[source](int(size), seed)
     if isinstance(source, (str, os.PathLike)):
         path = Path(source)
         if path.suffix.lower() in HEIGHTFIELD_SUFFIXES:
             samples = terrain.read_heightfield(path)         # a .npy only mapped: the check comes first
-            check_grid(_grid_triangles(samples.shape, stride), samples.shape)
+            check_grid(grid_triangles(samples.shape, stride), samples.shape)
             classes = None
             if materials is not None:
                 classes = terrain.load_material_map(materials) if isinstance(materials, (str, os.PathLike)) \
@@ -299,7 +292,7 @@ def to_source(source, *, cell_size=None, z_scale=1.0, materials=None, size=DEFAU
             check_read_memory(path, path.name)
         return meshfile.load_mesh_file(path)
     if isinstance(source, np.ndarray):
-        check_grid(_grid_triangles(source.shape, stride), source.shape)
+        check_grid(grid_triangles(source.shape, stride), source.shape)
         heights, classes = source, None if materials is None else np.asarray(materials)
         cell, notes = 1.0 if cell_size is None else cell_size, []
         if stride > 1:

@@ -88,7 +88,7 @@ def check_build_memory(triangles: int, what: str, available: int | None = None,
         k = _stride_that_fits(grid_shape, stride, available)
         smaller = ("cut the heightfield into smaller pieces" if k is None else
                    f"build one sample in {k} a side with --stride {k} "
-                   f"({_strided_triangles(grid_shape, k):,} triangles, cells {k} times as wide), or cut the "
+                   f"({grid_triangles(grid_shape, k):,} triangles, cells {k} times as wide), or cut the "
                    "heightfield into smaller pieces")
     raise InputError(
         f"{what}: {int(triangles):,} triangles need about {need / gib:.1f} GiB to build (about "
@@ -97,11 +97,12 @@ def check_build_memory(triangles: int, what: str, available: int | None = None,
         "--no-memory-check builds anyway")
 
 
-def _strided_triangles(shape, k: int) -> int:
-    """Triangles of a (rows, cols) heightfield with no holes at every ``k``-th sample a side
-    (:func:`caveclod.builder.terrain.every_kth_sample`)."""
+def grid_triangles(shape, stride: int = 1) -> int:
+    """Triangles of a heightfield of ``shape`` (rows, cols) samples with no holes (two a cell), at
+    one sample in ``stride`` a side (:func:`caveclod.builder.terrain.every_kth_sample`): what its
+    build may need memory for, known before its mesh is made."""
     rows, cols = shape[:2]
-    return 2 * max((rows - 1) // k, 0) * max((cols - 1) // k, 0)
+    return 2 * max((rows - 1) // stride, 0) * max((cols - 1) // stride, 0)
 
 
 def _stride_that_fits(shape, stride: int, available: int) -> int | None:
@@ -111,7 +112,7 @@ def _stride_that_fits(shape, stride: int, available: int) -> int | None:
     for k in range(stride + 1, max(rows, cols)):
         if (rows - 1) // k < 1 or (cols - 1) // k < 1:
             return None
-        if _strided_triangles(shape, k) * PEAK_BYTES_PER_TRIANGLE <= available:
+        if grid_triangles(shape, k) * PEAK_BYTES_PER_TRIANGLE <= available:
             return k
     return None
 
