@@ -279,7 +279,10 @@ def to_source(source, *, cell_size=None, z_scale=1.0, materials=None, size=DEFAU
     if isinstance(source, (str, os.PathLike)):
         path = Path(source)
         if path.suffix.lower() in HEIGHTFIELD_SUFFIXES:
-            samples = terrain.read_heightfield(path)         # a .npy only mapped: the check comes first
+            shape = terrain.heightfield_shape(path)          # from the header: refused before the samples are read
+            if shape is not None:
+                check_grid(grid_triangles(shape, stride), shape)
+            samples = terrain.read_heightfield(path)         # a .npy only mapped
             check_grid(grid_triangles(samples.shape, stride), samples.shape)
             classes = None
             if materials is not None:

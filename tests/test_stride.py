@@ -189,3 +189,51 @@ def test_a_strided_npy_is_read_without_the_rest_of_it(tmp_path):
         tracemalloc.stop()
     assert len(part.faces) == 2 * 250 * 250
     assert peak < 32 << 20, f"{peak / 2**20:.1f} MiB allocated reading a 128 MB file at one sample in 16"
+
+
+@pytest.mark.parametrize("kind", ["npy", "tif", "hgt", "asc", "png"])
+def test_a_grid_too_large_is_refused_before_its_samples_are_read(tmp_path, monkeypatch, kind):
+    """Every heightfield format says its shape in its header: the refusal (naming a stride)
+    comes before the samples are read, as a grid too large to read would otherwise be."""
+    from PIL import Image
+    from caveclod.builder import terrain
+    side = 121
+    h = (np.arange(side * side).reshape(side, side) % 500 + 100).astype(np.int16)
+    path = tmp_path / f"dem.{kind}"
+    if kind == "npy":
+        np.save(path, h)
+    elif kind == "tif":
+        tifffile.imwrite(path, h)
+    elif kind == "hgt":
+        h.astype(">i2").tofile(path)
+    elif kind == "asc":
+        path.write_text(f"ncols {side}\nnrows {side}\nxllcorner 0\nyllcorner 0\ncellsize 30\n"
+                        + "\n".join(" ".join(map(str, row)) for row in h) + "\n")
+    else:
+        Image.fromarray(h.astype(np.uint16)).save(path)
+    assert terrain.heightfield_shape(path) == (side, side)
+    read = []
+    real = terrain._read_grid
+    monkeypatch.setattr(terrain, "_read_grid", lambda *a, **k: read.append(1) or real(*a, **k))
+    monkeypatch.setattr(memory, "available_bytes",
+                        lambda root="/": 2 * 120 * 120 * PEAK_BYTES_PER_TRIANGLE // 3)
+    with pytest.raises(InputError, match=r"--stride 2 \("):
+        caveclod.build(str(path), packed=False)
+    assert read == []
+    assert caveclod.build(str(path), packed=False, stride=2).info["input_triangles"] == 2 * 60 * 60
+    assert read == [1]
+
+
+@pytest.mark.parametrize("stride", ["1", "2"])
+def test_an_npy_header_claiming_an_overflowing_shape_is_one_line(tmp_path, capsys, stride):
+    """A source fuzzer's find once .npy files were memory-mapped: a header claiming 2**32 x 2**32
+    samples was refused (numpy: "array is too big"), but numpy also printed an overflow warning
+    on stderr beside the one-line error."""
+    from fuzzsources import build_here
+    path = tmp_path / "dem.npy"
+    np.save(path, np.zeros((4, 4)))
+    data = path.read_bytes()
+    path.write_bytes(data.replace(b"'shape': (4, 4)", b"'shape': (4294967296, 4294967296)"))
+    assert b"4294967296" in path.read_bytes()
+    code, err = build_here(capsys, path, f"--stride={stride}")
+    assert code == 2 and "cannot read heightfield" in err and "check that the file is intact" in err, err

@@ -72,6 +72,54 @@ def load_heightfield(path: str | os.PathLike, nodata: float | None = None) -> np
     return heights_of(read_heightfield(path), path, nodata)
 
 
+def heightfield_shape(path: str | os.PathLike) -> tuple[int, int] | None:
+    """(rows, cols) of a heightfield file from its header alone, or None where the header does not
+    say, cannot be read or disagrees with the file (the reader then says what is wrong: a damaged
+    header claiming a huge grid must not be refused as too large to build). For refusing a grid
+    too large to build before reading its samples; the shape read with the samples is checked again."""
+    path = os.fspath(path)
+    ext = os.path.splitext(path)[1].lower()
+    try:
+        if ext == ".npy":
+            shape = _mapped_npy(path).shape     # refused if the file is short
+        elif ext in (".tif", ".tiff"):
+            import tifffile
+            with quiet_reading("tifffile"), tifffile.TiffFile(path) as tif:
+                page = tif.pages[0]
+                n = min(len(page.dataoffsets), len(page.databytecounts))
+                held = np.count_nonzero((np.asarray(page.dataoffsets[:n]) > 0)
+                                        & (np.asarray(page.databytecounts[:n]) > 0))
+                if held < int(np.prod(page.chunked)):
+                    return None                 # strips or tiles missing: _read_tiff says so
+                shape = tuple(n for n in tif.series[0].shape if n != 1)
+        elif ext == ".hgt":
+            side = int(round((os.path.getsize(path) / 2) ** 0.5))
+            shape = (side, side)
+        elif ext == ".asc":
+            header = ascii_grid_header(path)
+            shape = (int(header["nrows"]), int(header["ncols"]))
+            if os.path.getsize(path) - header["_data_at"] < 2 * shape[0] * shape[1] - 1:
+                return None                     # fewer bytes than samples: _read_ascii_grid says so
+        elif ext == ".png":
+            from PIL import Image
+            with quiet_reading("PIL"), Image.open(path) as image:
+                shape = (image.height, image.width)
+            if Image.MAX_IMAGE_PIXELS and shape[0] * shape[1] > Image.MAX_IMAGE_PIXELS:
+                return None                     # beyond Pillow's limit: _pillow_pixels refuses it
+        else:
+            return None
+    except Exception:       # noqa: BLE001 - any damage: the reader's error says what it is
+        return None
+    return (int(shape[0]), int(shape[1])) if len(shape) == 2 else None
+
+
+def _mapped_npy(path: str) -> np.ndarray:
+    """A ``.npy`` memory-mapped read-only. A header's shape whose byte count overflows raises
+    ValueError; numpy also warns of the overflow on stderr, silenced here (the error says it)."""
+    with np.errstate(all="ignore"):
+        return np.load(path, allow_pickle=False, mmap_mode="r")
+
+
 def read_heightfield(path: str | os.PathLike) -> np.ndarray:
     """A heightfield file's samples as stored (any real dtype), not yet
     :func:`heights_of`: a ``.npy`` memory-mapped, so that its shape is known and
@@ -162,7 +210,7 @@ def _read_grid(path: str | os.PathLike, what: str, palette: bool = False, mmap: 
         # any, is what the user needs (see caveclod.builder.quiet).
         with quiet_reading("tifffile", "PIL"):
             if ext == ".npy":
-                array = np.load(path, allow_pickle=False, mmap_mode="r" if mmap else None)
+                array = _mapped_npy(path) if mmap else np.load(path, allow_pickle=False)
             elif ext == ".png":
                 array = _read_png(path, what, palette)
             elif ext in (".tif", ".tiff"):
