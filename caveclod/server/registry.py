@@ -162,15 +162,16 @@ class Sessions:
         """Book-keeping once a stream of ``session`` is over."""
         with self.lock:
             if end.discard:
-                self._drop(session, "closed" if end.code == grpc.StatusCode.OK else end.code.name.lower())
-            elif session.detach(generation):
-                self.log("session.detached", **session.describe(), resume_ttl=self.config.resume_ttl)
-            elif generation == session.generation and session.end is not None and session.end.discard:
-                # The stream broke after the session's own end was set (a Close read just before the
-                # browser's close frame, under load): that end, not the resume TTL. Before, such a
-                # session lingered, holding its place in --max-sessions, until the TTL expired it.
-                own = session.end
-                self._drop(session, "closed" if own.code == grpc.StatusCode.OK else own.code.name.lower())
+                self._drop(session, _why(end))
+            else:
+                current, own = session.detach(generation)
+                if current and own is not None and own.discard:
+                    # The stream broke after the session's own end was set (a Close read just before
+                    # the browser's close frame, under load): that end, not the resume TTL. Before,
+                    # such a session lingered, holding its place in --max-sessions, until the TTL.
+                    self._drop(session, _why(own))
+                elif current:
+                    self.log("session.detached", **session.describe(), resume_ttl=self.config.resume_ttl)
             self._gauges()
 
     def _drop(self, session: Session, why: str) -> None:
@@ -243,3 +244,8 @@ def _frame_encoding(msg: pb.Open, cache: dict | None) -> int:
         holds_targets = msg.morph_targets and msg.vertex_encoding == pb.VERTEX_ENCODING_PACKED and cache is None
         return pb.FRAME_ENCODING_OPS_LINKED if holds_targets else pb.FRAME_ENCODING_OPS
     return pb.FRAME_ENCODING_OPS if asked == pb.FRAME_ENCODING_OPS else pb.FRAME_ENCODING_RAW
+
+
+def _why(end: End) -> str:
+    """How a session ended with ``end``, as its session.ended log and metric name it."""
+    return "closed" if end.code == grpc.StatusCode.OK else end.code.name.lower()

@@ -187,14 +187,15 @@ class Session:
             self._notify()
             return self.generation
 
-    def detach(self, generation: int) -> bool:
-        """The stream of ``generation`` broke; True when the session stays resumable."""
+    def detach(self, generation: int) -> tuple[bool, End | None]:
+        """The stream of ``generation`` broke: (whether it was the attached one, now detached; the
+        session's own end by then, if any: a Close or a refusal read just before the break)."""
         with self.cond:
             if generation != self.generation or not self.attached:
-                return False
+                return False, None
             self.attached = False
             self.detached_at = time.monotonic()
-            return self.end is None or not self.end.discard
+            return True, self.end
 
     def finish(self, end: End, generation: int | None = None) -> None:
         """End the attached stream with ``end`` (only if it is of ``generation``, when given)."""
