@@ -85,15 +85,14 @@ def heightfield_shape(path: str | os.PathLike) -> tuple[int, int] | None:
         elif ext in (".tif", ".tiff"):
             import tifffile
             with quiet_reading("tifffile"), tifffile.TiffFile(path) as tif:
-                page = tif.pages[0]
-                n = min(len(page.dataoffsets), len(page.databytecounts))
-                held = np.count_nonzero((np.asarray(page.dataoffsets[:n]) > 0)
-                                        & (np.asarray(page.databytecounts[:n]) > 0))
-                if held < int(np.prod(page.chunked)):
+                held, needed = _tiff_chunks(tif.pages[0])
+                if held < needed:
                     return None                 # strips or tiles missing: _read_tiff says so
                 shape = tuple(n for n in tif.series[0].shape if n != 1)
         elif ext == ".hgt":
-            side = int(round((os.path.getsize(path) / 2) ** 0.5))
+            side = _hgt_side(os.path.getsize(path))
+            if side is None:
+                return None                     # not a square of int16: _read_hgt says so
             shape = (side, side)
         elif ext == ".asc":
             header = ascii_grid_header(path)
@@ -271,9 +270,7 @@ def _read_tiff(path: str, what: str) -> np.ndarray:
     import tifffile
     with tifffile.TiffFile(path) as tif:
         page = tif.pages[0]
-        needed = int(np.prod(page.chunked))
-        n = min(len(page.dataoffsets), len(page.databytecounts))
-        held = int(np.count_nonzero((np.asarray(page.dataoffsets[:n]) > 0) & (np.asarray(page.databytecounts[:n]) > 0)))
+        held, needed = _tiff_chunks(page)
         if held < needed:
             raise InputError(f"{what} {path} is damaged: it holds {held} of the {needed} strips or tiles its "
                              f"{page.imagewidth}x{page.imagelength} pixels need; check that the file is intact")
@@ -285,6 +282,13 @@ def _read_tiff(path: str, what: str) -> np.ndarray:
                 raise
             dtype, compression = page.dtype, getattr(page.compression, "name", page.compression)
     return _tiff_through_pillow(path, what, dtype, compression)
+
+
+def _tiff_chunks(page) -> tuple[int, int]:
+    """(strips or tiles a TIFF page lists with data, strips or tiles its size needs)."""
+    n = min(len(page.dataoffsets), len(page.databytecounts))
+    held = np.count_nonzero((np.asarray(page.dataoffsets[:n]) > 0) & (np.asarray(page.databytecounts[:n]) > 0))
+    return int(held), int(np.prod(page.chunked))
 
 
 def _tiff_through_pillow(path: str, what: str, dtype, compression) -> np.ndarray:
@@ -305,11 +309,17 @@ def _read_hgt(path: str, what: str) -> np.ndarray:
     """An SRTM ``.hgt`` tile: a square of big-endian int16 samples, rows from north to south,
     as native int16 (so that its -32768 voids are found like any int16 grid's)."""
     size = os.path.getsize(path)
-    side = int(round((size / 2) ** 0.5))
-    if size % 2 or side * side * 2 != size or side < 2:
+    side = _hgt_side(size)
+    if side is None:
         raise InputError(f"{what} {path} holds {size:,} bytes, not a square of 16-bit samples as an SRTM .hgt "
                          "tile does (1201 x 1201 or 3601 x 3601); check that the file is whole")
     return np.fromfile(path, dtype=">i2").reshape(side, side).astype(np.int16)
+
+
+def _hgt_side(size: int) -> int | None:
+    """Samples a side of an SRTM tile of ``size`` bytes (a square of int16, 2 or more a side), else None."""
+    side = int(round((size / 2) ** 0.5))
+    return side if size % 2 == 0 and side * side * 2 == size and side >= 2 else None
 
 
 ASCII_GRID_KEYS = ("ncols", "nrows", "xllcorner", "yllcorner", "xllcenter", "yllcenter", "cellsize", "dx", "dy",
