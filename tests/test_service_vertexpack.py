@@ -20,22 +20,41 @@ from service import open_message, proxy_to, raw_stream
 EYE, TARGET = (-60.0, -60.0, 70.0), (24.0, 24.0, 0.0)
 
 
+def _pose(session, k: int):
+    """Send the flight's ``k``-th pose and read frames until one answers it: (its pose_seq, that frame)."""
+    seq = session.send_pose(0, (EYE[0] + 9 * k, EYE[1] + 5 * k, EYE[2] - 6 * k), TARGET)
+    for _ in range(200):
+        update = session.next_frame(timeout=5)
+        assert update is not None, "no frame within 5 s"
+        if update.pose_seq >= session.protocol.pose_seq:
+            return seq, update
+    raise AssertionError(f"pose {seq} not answered within 200 frames")
+
+
+def _converged(update, seq: int) -> bool:
+    """Whether ``update`` carries camera 0's converged update for pose ``seq``: no operation and
+    no budget stop, after which the server makes no further update for that pose (the proto's
+    "Updates per pose")."""
+    cam = update.cameras.get(0)
+    stats = None if cam is None or cam.pose_seq != seq else cam.stats
+    return stats is not None and not (stats.splits or stats.collapses or stats.budget_exhausted)
+
+
 def _fly(session, frames=4):
-    """Send a few poses, each once the last has been answered and refined to the end (no frame
-    for 0.5 s: the server's convergence updates, 50 ms after a pose, have nothing left to do);
-    the camera's triangles after them. Waiting for the end keeps the two sessions' histories
-    equal: a pose answered before a convergence update the other session had made starts
-    from another state, and may end in another (a loaded machine made them differ)."""
+    """Send a few poses, each once the last has been refined to the end; the camera's triangles
+    after them. Waiting for the converged update keeps the two sessions' histories equal: a pose
+    answered before a convergence update the other session had made starts from another state,
+    and may end in another. (Waiting for 0.5 s without a frame instead let a loaded machine, two
+    test processes at once, make them differ.)"""
     for k in range(frames):
-        session.send_pose(0, (EYE[0] + 9 * k, EYE[1] + 5 * k, EYE[2] - 6 * k), TARGET)
-        for _ in range(200):
-            update = session.next_frame(timeout=5)
-            assert update is not None, "no frame within 5 s"
-            if update.pose_seq >= session.protocol.pose_seq:
+        seq, update = _pose(session, k)
+        for _ in range(400):
+            if _converged(update, seq):
                 break
-        for _ in range(200):
-            if session.next_frame(timeout=0.5) is None:
-                break
+            update = session.next_frame(timeout=10)
+            assert update is not None, f"pose {seq}: no frame within 10 s before it converged"
+        else:
+            raise AssertionError(f"pose {seq} did not converge within 400 frames")
     return session.triangles(0)
 
 
@@ -168,7 +187,7 @@ def test_a_resumed_packed_session_keeps_its_buffer(server):
             held = s.vertex_buffer
             proxy.cut()                       # the network breaks under the stream; the client resumes
             for _ in range(100):
-                _fly(s, 1)
+                _pose(s, 0)
                 if s.protocol.resumes:
                     break
             assert s.protocol.resumes == 1 and s.info.resumed and s.info.vertex_buffer_cached
