@@ -9,6 +9,7 @@ finer relief from a periodic fractal tile. Written as float32, as GeoTIFF
 exports mostly are; no-data samples are NaN.
 
     .venv/bin/python benchmarks/large_dem.py --side 9999 --out /tmp/dem10k.npy    # about 30 s, 5 GB peak
+    .venv/bin/python benchmarks/large_dem.py --side 19999 --out /tmp/dem20k.tif   # a GeoTIFF: read_window.py
     .venv/bin/caveclod build /tmp/dem10k.npy -o /tmp/dem.cvc            # refused: names --stride 2
     .venv/bin/caveclod build /tmp/dem10k.npy --stride 2 -o /tmp/dem.cvc  # 47M triangles, about 5 minutes
     .venv/bin/python benchmarks/service.py --skip capacity,parallel,shared --startup-mesh /tmp/dem.cvc \\
@@ -53,11 +54,18 @@ def main() -> int:
     ap.add_argument("--side", type=int, default=9999, help="samples a side, odd (9999: 199,920,008 triangles "
                                                           "less the voids')")
     ap.add_argument("--seed", type=int, default=23)
-    ap.add_argument("--out", required=True, help="the .npy to write")
+    ap.add_argument("--out", required=True, help="the .npy to write, or a .tif (a BigTIFF in strips of "
+                                                 "--strip-rows rows, no-data -9999 in its GDAL_NODATA tag)")
+    ap.add_argument("--strip-rows", type=int, default=16, help="rows a strip of a .tif (default 16)")
     args = ap.parse_args()
     t0 = time.perf_counter()
     heights = large_dem(args.side, args.seed)
-    np.save(args.out, heights)
+    if args.out.lower().endswith((".tif", ".tiff")):
+        import tifffile
+        tifffile.imwrite(args.out, np.nan_to_num(heights, nan=-9999.0), bigtiff=True, rowsperstrip=args.strip_rows,
+                         extratags=[(42113, 2, 0, "-9999", True)])
+    else:
+        np.save(args.out, heights)
     print(f"{args.out}: {heights.shape[0]:,} x {heights.shape[1]:,} samples, "
           f"{np.isnan(heights).mean():.1%} no-data, {time.perf_counter() - t0:.1f} s")
     return 0

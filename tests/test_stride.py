@@ -215,6 +215,9 @@ def test_a_grid_too_large_is_refused_before_its_samples_are_read(tmp_path, monke
     read = []
     real = terrain._read_grid
     monkeypatch.setattr(terrain, "_read_grid", lambda *a, **k: read.append(1) or real(*a, **k))
+    from caveclod.builder import tiffwindow
+    real_window = tiffwindow.open_window           # a strided TIFF is read by window instead
+    monkeypatch.setattr(tiffwindow, "open_window", lambda *a: read.append(1) or real_window(*a))
     monkeypatch.setattr(memory, "available_bytes",
                         lambda root="/": 2 * 120 * 120 * PEAK_BYTES_PER_TRIANGLE // 3)
     with pytest.raises(InputError, match=r"--stride 2 \("):
@@ -237,3 +240,82 @@ def test_an_npy_header_claiming_an_overflowing_shape_is_one_line(tmp_path, capsy
     assert b"4294967296" in path.read_bytes()
     code, err = build_here(capsys, path, f"--stride={stride}")
     assert code == 2 and "cannot read heightfield" in err and "check that the file is intact" in err, err
+
+
+# -- a TIFF read by window -----------------------------------------------------------------
+
+@settings(max_examples=120, deadline=None)
+@given(rows=st.integers(1, 70), cols=st.integers(1, 70), k=st.integers(1, 9), r0=st.integers(0, 8),
+       layout=st.sampled_from([{"rowsperstrip": 1}, {"rowsperstrip": 7}, {"rowsperstrip": 500},
+                               {"tile": (16, 16)}, {"tile": (32, 48), "compression": "zlib"},
+                               {"rowsperstrip": 5, "compression": "zlib", "byteorder": ">"}]),
+       dtype=st.sampled_from(["float32", "int16", "uint16", "float64"]))
+def test_a_tiff_window_reads_what_the_whole_file_holds(tmp_path_factory, rows, cols, k, r0, layout, dtype):
+    """Strips or tiles (padded at the edges), deflate, big-endian: every slice a window reads
+    is the whole file's slice, from only the strips or tiles that slice touches."""
+    from caveclod.builder.tiffwindow import open_window
+    a = (np.random.default_rng(rows * 100 + cols).normal(size=(rows, cols)) * 1000).astype(dtype)
+    path = tmp_path_factory.mktemp("win") / "dem.tif"
+    tifffile.imwrite(path, a, **layout)
+    w = open_window(str(path))
+    assert w is not None and w.shape == a.shape and w.dtype == a.dtype.newbyteorder("=")
+    got = w[r0::k, ::k]
+    assert got.dtype == w.dtype and np.array_equal(got, a[r0::k, ::k])
+    rows_per = layout.get("tile", (min(layout.get("rowsperstrip", rows), rows),))[0]
+    assert w.chunks_read <= (len(np.unique(np.arange(r0, rows, k) // rows_per)) *
+                             (-(-cols // layout["tile"][1]) if "tile" in layout else 1))
+
+
+def test_a_strided_tiff_is_built_from_its_kept_samples_alone(tmp_path):
+    """``--stride`` on a GeoTIFF reads by window: the same mesh as the .npy of the same samples,
+    the same no-data holes (GDAL_NODATA), and numpy's allocations (tracemalloc) far below the
+    file's 64 MB, which reading it whole allocates (tested: the whole-file reader exceeds it)."""
+    import tracemalloc
+    from caveclod.builder import terrain
+    h = _rough(61, 83).astype(np.float32)
+    h[np.isnan(h)] = -9999.0
+    tifffile.imwrite(tmp_path / "dem.tif", h, rowsperstrip=1, extratags=[(42113, 2, 0, "-9999", True)])
+    g = h.astype(np.float64)
+    g[g == -9999.0] = np.nan
+    np.save(tmp_path / "dem.npy", g)
+    for k in (2, 3, 7):
+        a, b = to_source(str(tmp_path / "dem.tif"), stride=k), to_source(str(tmp_path / "dem.npy"), stride=k)
+        assert np.array_equal(a.positions, b.positions) and np.array_equal(a.faces, b.faces)
+    big = np.random.default_rng(3).normal(size=(4001, 4001)).astype(np.float32)
+    tifffile.imwrite(tmp_path / "big.tif", big, rowsperstrip=1)
+    del big
+    to_source(str(tmp_path / "dem.tif"), stride=2)          # imports and first calls, not measured
+    peaks = {}
+    for name, window in (("window", True), ("whole", False)):
+        tracemalloc.start()
+        try:
+            if window:
+                part = to_source(str(tmp_path / "big.tif"), stride=16)
+            else:
+                terrain.read_heightfield(tmp_path / "big.tif")
+            peaks[name] = tracemalloc.get_traced_memory()[1]
+        finally:
+            tracemalloc.stop()
+    assert len(part.faces) == 2 * 250 * 250
+    assert peaks["window"] < 24 << 20 < peaks["whole"], {k: f"{v / 2**20:.1f} MiB" for k, v in peaks.items()}
+
+
+def test_a_tiff_that_cannot_be_read_by_window_is_read_whole(tmp_path):
+    """LZW (tifffile needs imagecodecs for it; Pillow's libtiff reads it whole), several bands
+    (refused by the whole-file reader, as before), a missing strip (refused, as before)."""
+    from PIL import Image
+    from caveclod.builder.tiffwindow import open_window
+    h = (_rough(40, 50) * 10).astype(np.float32)
+    h[np.isnan(h)] = 0.0
+    Image.fromarray(h, mode="F").save(tmp_path / "lzw.tif", compression="tiff_lzw")
+    np.save(tmp_path / "dem.npy", h.astype(np.float64))
+    try:
+        import imagecodecs  # noqa: F401
+    except ImportError:
+        assert open_window(str(tmp_path / "lzw.tif")) is None
+    a, b = to_source(str(tmp_path / "lzw.tif"), stride=3), to_source(str(tmp_path / "dem.npy"), stride=3)
+    assert np.array_equal(a.positions, b.positions) and np.array_equal(a.faces, b.faces)
+    tifffile.imwrite(tmp_path / "rgb.tif", np.zeros((20, 20, 3), np.uint8), photometric="rgb")
+    assert open_window(str(tmp_path / "rgb.tif")) is None
+    with pytest.raises(InputError, match="single-channel 2-D grid"):
+        to_source(str(tmp_path / "rgb.tif"), stride=2)

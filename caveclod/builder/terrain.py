@@ -119,10 +119,19 @@ def _mapped_npy(path: str) -> np.ndarray:
         return np.load(path, allow_pickle=False, mmap_mode="r")
 
 
-def read_heightfield(path: str | os.PathLike) -> np.ndarray:
+def read_heightfield(path: str | os.PathLike, window: bool = False):
     """A heightfield file's samples as stored (any real dtype), not yet
     :func:`heights_of`: a ``.npy`` memory-mapped, so that its shape is known and
-    a part of it (:func:`every_kth_sample`) read without reading the rest."""
+    a part of it (:func:`every_kth_sample`) read without reading the rest.
+    ``window``: a TIFF that can be read so comes back as a
+    :class:`caveclod.builder.tiffwindow.TiffWindow` (a shape, a dtype, and the
+    samples of a slice read on demand) for :func:`every_kth_sample`, instead of
+    being read whole."""
+    if window and os.path.splitext(os.fspath(path))[1].lower() in (".tif", ".tiff") and os.path.isfile(path):
+        from .tiffwindow import open_window
+        lazy = open_window(os.fspath(path))
+        if lazy is not None:
+            return lazy
     array = _read_grid(path, what="heightfield", mmap=True)
     if array.dtype.kind not in "biuf":
         raise InputError(f"heightfield {path} holds {array.dtype} values; give real numbers")
@@ -466,13 +475,14 @@ def every_kth_sample(heights: np.ndarray, k: int, materials: np.ndarray | None =
     No-data samples (NaN) that are kept stay holes.
 
     Args:
-        heights: (rows, cols) raster, first row north unless ``north_first``
-            is False. k: 1 or more (1: returned as given).
+        heights: (rows, cols) raster (or a TIFF read by window), first row
+            north unless ``north_first`` is False. k: 1 or more (1: returned as given).
     Returns:
         ((rows', cols') heights, the materials map sampled alike or None),
         rows' = (rows - 1) // k + 1, cols' = (cols - 1) // k + 1.
     """
-    h = np.asarray(heights)
+    from .tiffwindow import TiffWindow
+    h = heights if isinstance(heights, TiffWindow) else np.asarray(heights)     # a window: only the kept samples read
     if k == 1 or h.ndim != 2:
         return heights, materials
     rows, cols = h.shape
