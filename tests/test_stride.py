@@ -319,3 +319,23 @@ def test_a_tiff_that_cannot_be_read_by_window_is_read_whole(tmp_path):
     assert open_window(str(tmp_path / "rgb.tif")) is None
     with pytest.raises(InputError, match="single-channel 2-D grid"):
         to_source(str(tmp_path / "rgb.tif"), stride=2)
+
+
+def test_a_tiff_damaged_past_its_first_strip_is_refused_in_one_line(tmp_path):
+    """The window decodes its first strip when it opens; one damaged further on (here a deflate
+    strip overwritten, and a file cut short) is found while reading, and refused as the whole-file
+    reader refuses a damaged file."""
+    h = _rough(60, 40).astype(np.float32)
+    tifffile.imwrite(tmp_path / "dem.tif", h, rowsperstrip=4, compression="zlib")
+    data = bytearray((tmp_path / "dem.tif").read_bytes())
+    with tifffile.TiffFile(tmp_path / "dem.tif") as tif:
+        at = tif.pages[0].dataoffsets[-2]
+    data[at:at + 8] = b"\xff" * 8
+    (tmp_path / "bad.tif").write_bytes(bytes(data))
+    with pytest.raises(InputError, match=r"cannot read heightfield .*bad\.tif \(.*\); check that the file is intact"):
+        to_source(str(tmp_path / "bad.tif"), stride=2)
+    tifffile.imwrite(tmp_path / "plain.tif", h, rowsperstrip=4)
+    (tmp_path / "short.tif").write_bytes((tmp_path / "plain.tif").read_bytes()[:-100])
+    with pytest.raises(InputError, match="check that the file is intact") as err:
+        to_source(str(tmp_path / "short.tif"), stride=2)
+    assert "\n" not in str(err.value)

@@ -22,6 +22,9 @@ import threading
 
 import numpy as np
 
+from ..errors import InputError
+from .quiet import quiet_reading
+
 
 class TiffWindow:
     """A single-band TIFF page's samples, read by window (see the module docstring).
@@ -63,12 +66,17 @@ class TiffWindow:
             return out
         ch, cw = self._chunk
         across = -(-self.shape[1] // cw)              # strips or tiles a row of them
-        with open(self.path, "rb") as fh:
-            for r, r0, r1 in _runs(rows // ch):
-                in_rows = rows[r0:r1] - r * ch
-                for c, c0, c1 in _runs(cols // cw):
-                    chunk = self._read(fh, r * across + c)
-                    out[r0:r1, c0:c1] = chunk[in_rows][:, cols[c0:c1] - c * cw]
+        try:
+            with open(self.path, "rb") as fh, quiet_reading("tifffile"):
+                for r, r0, r1 in _runs(rows // ch):
+                    in_rows = rows[r0:r1] - r * ch
+                    for c, c0, c1 in _runs(cols // cw):
+                        chunk = self._read(fh, r * across + c)
+                        out[r0:r1, c0:c1] = chunk[in_rows][:, cols[c0:c1] - c * cw]
+        except Exception as exc:  # noqa: BLE001 - a damaged strip or tile surfaces as many exception types
+            from .terrain import _describe
+            raise InputError(f"cannot read heightfield {self.path} ({_describe(exc)}); check that the file is "
+                             "intact") from None
         return out
 
     def _read(self, fh, index: int) -> np.ndarray:
@@ -80,7 +88,7 @@ class TiffWindow:
         self.chunks_read += 1
         if segment is None:
             raise ValueError(f"strip or tile {index} of {self.path} could not be decoded")
-        return np.asarray(segment).reshape(shape[1:3]).astype(self.dtype, copy=False)
+        return np.asarray(segment).reshape(shape[1:3]).astype(self.dtype, copy=False)   # a short strip: refused
 
 
 def _runs(chunk_of: np.ndarray) -> list[tuple[int, int, int]]:
@@ -96,7 +104,6 @@ def open_window(path: str) -> TiffWindow | None:
     strip or tile is decoded here, so that a file that would fail part-way is read whole instead."""
     import tifffile
 
-    from .quiet import quiet_reading
     try:
         with quiet_reading("tifffile"), tifffile.TiffFile(path) as tif:
             page = tif.pages[0]
