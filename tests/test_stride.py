@@ -316,9 +316,26 @@ def test_a_tiff_that_cannot_be_read_by_window_is_read_whole(tmp_path):
     a, b = to_source(str(tmp_path / "lzw.tif"), stride=3), to_source(str(tmp_path / "dem.npy"), stride=3)
     assert np.array_equal(a.positions, b.positions) and np.array_equal(a.faces, b.faces)
     tifffile.imwrite(tmp_path / "rgb.tif", np.zeros((20, 20, 3), np.uint8), photometric="rgb")
-    assert open_window(str(tmp_path / "rgb.tif")) is None
-    with pytest.raises(InputError, match="single-channel 2-D grid"):
-        to_source(str(tmp_path / "rgb.tif"), stride=2)
+    tifffile.imwrite(tmp_path / "stack.tif", np.zeros((2, 20, 20), np.float32))         # two bands as pages
+    for name in ("rgb.tif", "stack.tif"):
+        assert open_window(str(tmp_path / name)) is None
+        with pytest.raises(InputError, match="single-channel 2-D grid"):
+            to_source(str(tmp_path / name), stride=2)
+
+
+def test_a_cloud_optimized_geotiffs_full_resolution_is_read_by_window(tmp_path):
+    """A cloud-optimized GeoTIFF: tiles, deflate, overviews as further pages; the window reads
+    the full resolution, as the whole-file reader does, from its tiles alone."""
+    from caveclod.builder.tiffwindow import open_window
+    h = _rough(100, 90).astype(np.float32)
+    with tifffile.TiffWriter(tmp_path / "cog.tif") as tif:
+        tif.write(h, tile=(32, 32), compression="zlib")
+        tif.write(np.ascontiguousarray(h[::2, ::2]), tile=(32, 32), compression="zlib", subfiletype=1)
+    w = open_window(str(tmp_path / "cog.tif"))
+    assert w is not None and w.shape == h.shape
+    np.save(tmp_path / "dem.npy", h.astype(np.float64))
+    a, b = to_source(str(tmp_path / "cog.tif"), stride=3), to_source(str(tmp_path / "dem.npy"), stride=3)
+    assert np.array_equal(a.positions, b.positions, equal_nan=True) and np.array_equal(a.faces, b.faces)
 
 
 def test_a_tiff_damaged_past_its_first_strip_is_refused_in_one_line(tmp_path):

@@ -11,14 +11,13 @@ decoding only the strips or tiles that hold one of them: a file of one
 row a strip at stride K reads 1/K of its strips.
 
 Only a file tifffile decodes on its own is read so (uncompressed or
-deflate, one band, one page); :func:`open_window` returns None for the
-others (LZW without the imagecodecs package, several bands, ...), which
-the reader reads whole as before.
+deflate, one band; a cloud-optimized GeoTIFF's full resolution, its
+overviews left alone); :func:`open_window` returns None for the others
+(LZW without the imagecodecs package, several bands, ...), which the
+reader reads whole as before.
 """
 
 from __future__ import annotations
-
-import threading
 
 import numpy as np
 
@@ -38,17 +37,17 @@ class TiffWindow:
     ndim = 2
 
     def __init__(self, path: str, shape: tuple[int, int], dtype: np.dtype, chunk: tuple[int, int],
-                 offsets: np.ndarray, counts: np.ndarray, decode, lock: threading.Lock | None = None):
+                 offsets: np.ndarray, counts: np.ndarray, decode):
         self.path = path
         self.shape = shape
         self.dtype = dtype
         self._chunk = chunk               # (rows, cols) of one strip or tile
         self._offsets, self._counts = offsets, counts
-        self._decode = decode
-        self._lock = lock or threading.Lock()
+        self._decode = decode             # tifffile's decoder of this page's strips or tiles
         self.chunks_read = 0              # strips or tiles read so far (tests: how much a window read)
 
     def __array__(self, dtype=None, copy=None):
+        """Every sample (``np.asarray(window)``): what the whole-file reader would have read."""
         whole = self[:, :]
         return whole if dtype is None else whole.astype(dtype)
 
@@ -83,12 +82,15 @@ class TiffWindow:
         """Strip or tile ``index`` decoded: (rows, cols) of this file's chunk (the last strip may be shorter)."""
         fh.seek(int(self._offsets[index]))
         data = fh.read(int(self._counts[index]))
-        with self._lock:                              # tifffile's decoder keeps state of its own
-            segment, _, shape = self._decode(data, index, jpegtables=None)
+        segment, _, shape = self._decode(data, index, jpegtables=None)
         self.chunks_read += 1
         if segment is None:
             raise ValueError(f"strip or tile {index} of {self.path} could not be decoded")
         return np.asarray(segment).reshape(shape[1:3]).astype(self.dtype, copy=False)   # a short strip: refused
+
+
+def _squeezed(shape) -> tuple:
+    return tuple(n for n in shape if n != 1)
 
 
 def _runs(chunk_of: np.ndarray) -> list[tuple[int, int, int]]:
@@ -106,9 +108,13 @@ def open_window(path: str) -> TiffWindow | None:
 
     try:
         with quiet_reading("tifffile"), tifffile.TiffFile(path) as tif:
-            page = tif.pages[0]
-            if len(tif.pages) != 1 or page.samplesperpixel != 1 or page.imagedepth != 1 or page.dtype is None \
-                    or page.dtype.kind not in "biuf" or len(page.shaped) != 5:
+            page, series = tif.pages[0], tif.series[0]
+            # What the whole-file reader reads (tifffile's first series) must be this one page: a
+            # cloud-optimized GeoTIFF's overviews are further pages, a stack of bands is not read so.
+            if len(series.pages) != 1 or series.pages[0].offset != page.offset \
+                    or _squeezed(series.shape) != _squeezed((page.imagelength, page.imagewidth)) \
+                    or page.samplesperpixel != 1 or page.imagedepth != 1 or page.dtype is None \
+                    or page.dtype.kind not in "iuf" or page.bitspersample != 8 * page.dtype.itemsize:
                 return None
             n = int(np.prod(page.chunked))
             offsets, counts = np.asarray(page.dataoffsets, np.int64), np.asarray(page.databytecounts, np.int64)
