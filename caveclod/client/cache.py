@@ -4,13 +4,15 @@
 XDG_CACHE_HOME is unset; ``$CAVECLOD_CACHE_DIR/<hash>`` when that is set),
 or a directory given by the caller. Each file is
 the payload followed by its CRC-32 (4 bytes, little-endian), checked on
-every read from disk; writes go to a temporary file renamed into place, so
-readers never see half a file. A cache object also keeps the payloads it
+every read from disk (files are memory-mapped, not read: :func:`_map`);
+writes go to a temporary file renamed into place, so readers never see
+half a file. A cache object also keeps the payloads it
 read or wrote last in memory, for the other sessions of its client.
 """
 
 from __future__ import annotations
 
+import mmap
 import os
 import re
 import struct
@@ -29,6 +31,23 @@ def default_cache_dir() -> Path:
         return Path(os.environ["CAVECLOD_CACHE_DIR"])
     base = os.environ.get("XDG_CACHE_HOME") or os.path.join(os.path.expanduser("~"), ".cache")
     return Path(base) / "caveclod" / "vertex-buffers"
+
+
+def _map(path: Path) -> mmap.mmap | bytes | None:
+    """``path`` memory-mapped read-only (an empty file as empty bytes: nothing to map), or None
+    where it cannot be (absent, unreadable).
+
+    Mapped, not read: reading a 755 MB file into a bytes object took 2.2 s here (a fresh
+    allocation's page faults and a copy), its CRC 0.4 s; mapped, the CRC reads the page cache
+    directly and the payload's views (positions, normals) are the file's pages. The cache only
+    ever replaces a file by renaming another over it, so a mapping never sees a file change."""
+    try:
+        with open(path, "rb") as fh:
+            if os.fstat(fh.fileno()).st_size == 0:
+                return b""
+            return mmap.mmap(fh.fileno(), 0, access=mmap.ACCESS_READ)
+    except (OSError, ValueError):
+        return None
 
 
 class VertexBufferCache:
@@ -58,15 +77,19 @@ class VertexBufferCache:
         loop on that)."""
         if key in self._memory:
             return self._memory[key]
-        path = self._path(key)
-        try:
-            blob = path.read_bytes()
-        except OSError:
+        mapped = _map(self._path(key))
+        if mapped is None:
             return None
-        view = memoryview(blob)                 # read-only: a slice of it copies nothing
+        if len(mapped) < 4:                     # not even a CRC: corrupt
+            self.discard(key)
+            return None
+        view = memoryview(mapped)               # read-only: a slice of it copies nothing
         payload, trailer = view[:-4], bytes(view[-4:])
         crc = zlib.crc32(payload)
         if len(trailer) < 4 or struct.unpack("<I", trailer)[0] != crc:
+            payload.release()
+            view.release()
+            mapped.close()
             self.discard(key)
             return None
         self._remember(key, payload, crc)
