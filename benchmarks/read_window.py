@@ -2,7 +2,7 @@
 
 ``caveclod build big.tif --stride K`` reads only the strips or tiles that
 hold a kept sample, and keeps only the kept samples
-(:mod:`caveclod.builder.tiffwindow`); before, the file was read whole and
+(:mod:`caveclod.builder.rasterwindow`); before, the file was read whole and
 then strided. Each run is a fresh process that reads the file and makes the
 build's input mesh (:func:`caveclod.api.to_source`), the step the window
 changes; its peak resident memory is the process's ``ru_maxrss``.

@@ -127,7 +127,7 @@ def make_seeds(rng: np.random.Generator) -> list[Seed]:
     if _have_tifffile():
         grids.append(("tiff", "seed.tif", "tiff", _heights(rng, holes=True).astype(np.float32), _tiff_bytes))
         grids.append(("geotiff", "seed.tif", "tiff", _heights(rng, holes=True).astype(np.float32), _geotiff_bytes))
-        # Strips and tiles, deflated: a strided build reads these by window (caveclod.builder.tiffwindow).
+        # Strips and tiles, deflated: a strided build reads these by window (caveclod.builder.rasterwindow).
         grids.append(("tiff-strips", "seed.tif", "tiff", _heights(rng, holes=True).astype(np.float32),
                       lambda g: _tiff_bytes(g, rowsperstrip=3, compression="zlib")))
         grids.append(("tiff-tiles", "seed.tif", "tiff", _heights(rng, holes=True).astype(np.float32),

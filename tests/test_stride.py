@@ -215,9 +215,15 @@ def test_a_grid_too_large_is_refused_before_its_samples_are_read(tmp_path, monke
     read = []
     real = terrain._read_grid
     monkeypatch.setattr(terrain, "_read_grid", lambda *a, **k: read.append(1) or real(*a, **k))
-    from caveclod.builder import tiffwindow
-    real_window = tiffwindow.open_window           # a strided TIFF is read by window instead
-    monkeypatch.setattr(tiffwindow, "open_window", lambda *a: read.append(1) or real_window(*a))
+    from caveclod.builder import rasterwindow
+    real_window = rasterwindow.open_window           # a strided TIFF or ASCII grid is read by window instead
+
+    def window(*a):
+        found = real_window(*a)
+        if found is not None:
+            read.append(1)
+        return found
+    monkeypatch.setattr(rasterwindow, "open_window", window)
     monkeypatch.setattr(memory, "available_bytes",
                         lambda root="/": 2 * 120 * 120 * PEAK_BYTES_PER_TRIANGLE // 3)
     with pytest.raises(InputError, match=r"--stride 2 \("):
@@ -253,7 +259,7 @@ def test_an_npy_header_claiming_an_overflowing_shape_is_one_line(tmp_path, capsy
 def test_a_tiff_window_reads_what_the_whole_file_holds(tmp_path_factory, rows, cols, k, r0, layout, dtype):
     """Strips or tiles (padded at the edges), deflate, big-endian: every slice a window reads
     is the whole file's slice, from only the strips or tiles that slice touches."""
-    from caveclod.builder.tiffwindow import open_window
+    from caveclod.builder.rasterwindow import open_window
     a = (np.random.default_rng(rows * 100 + cols).normal(size=(rows, cols)) * 1000).astype(dtype)
     path = tmp_path_factory.mktemp("win") / "dem.tif"
     tifffile.imwrite(path, a, **layout)
@@ -304,7 +310,7 @@ def test_a_tiff_that_cannot_be_read_by_window_is_read_whole(tmp_path):
     """LZW (tifffile needs imagecodecs for it; Pillow's libtiff reads it whole), several bands
     (refused by the whole-file reader, as before), a missing strip (refused, as before)."""
     from PIL import Image
-    from caveclod.builder.tiffwindow import open_window
+    from caveclod.builder.rasterwindow import open_window
     h = (_rough(40, 50) * 10).astype(np.float32)
     h[np.isnan(h)] = 0.0
     Image.fromarray(h, mode="F").save(tmp_path / "lzw.tif", compression="tiff_lzw")
@@ -326,7 +332,7 @@ def test_a_tiff_that_cannot_be_read_by_window_is_read_whole(tmp_path):
 def test_a_cloud_optimized_geotiffs_full_resolution_is_read_by_window(tmp_path):
     """A cloud-optimized GeoTIFF: tiles, deflate, overviews as further pages; the window reads
     the full resolution, as the whole-file reader does, from its tiles alone."""
-    from caveclod.builder.tiffwindow import open_window
+    from caveclod.builder.rasterwindow import open_window
     h = _rough(100, 90).astype(np.float32)
     with tifffile.TiffWriter(tmp_path / "cog.tif") as tif:
         tif.write(h, tile=(32, 32), compression="zlib")
@@ -356,3 +362,56 @@ def test_a_tiff_damaged_past_its_first_strip_is_refused_in_one_line(tmp_path):
     with pytest.raises(InputError, match="check that the file is intact") as err:
         to_source(str(tmp_path / "short.tif"), stride=2)
     assert "\n" not in str(err.value)
+
+
+# -- an ESRI ASCII grid parsed a block at a time ------------------------------------------------
+
+@settings(max_examples=150, deadline=None)
+@given(rows=st.integers(2, 25), cols=st.integers(2, 25), k=st.integers(1, 6), r0=st.integers(0, 5),
+       per_line=st.integers(1, 40), block=st.integers(1, 120), crlf=st.booleans(), seed=st.integers(0, 99))
+def test_an_ascii_grid_read_in_blocks_is_its_samples(tmp_path_factory, rows, cols, k, r0, per_line, block, crlf,
+                                                     seed):
+    """Blocks of any size (numbers cut across them), lines wrapped anywhere, CRLF: every slice is
+    the grid's slice, and the whole file reads as it was written."""
+    from caveclod.builder import rasterwindow
+    rng = np.random.default_rng(seed)
+    h = np.round(rng.normal(size=(rows, cols)) * 10 ** rng.integers(0, 5), int(rng.integers(0, 4)))
+    h[rng.random(h.shape) < 0.1] = -9999
+    tokens = [repr(float(v)) for v in h.ravel()]
+    nl = "\r\n" if crlf else "\n"
+    body = nl.join(" ".join(tokens[i:i + per_line]) for i in range(0, len(tokens), per_line))
+    path = tmp_path_factory.mktemp("asc") / "dem.asc"
+    path.write_bytes(f"ncols {cols}{nl}nrows {rows}{nl}xllcorner 0{nl}yllcorner 0{nl}cellsize 2{nl}"
+                     f"NODATA_value -9999{nl}{body}{nl}".encode())
+    with pytest.MonkeyPatch.context() as patch:
+        patch.setattr(rasterwindow, "ASCII_BLOCK", block)
+        w = rasterwindow.AsciiGridWindow(str(path))
+        assert w.shape == (rows, cols)
+        assert np.array_equal(w[r0::k, ::k], h[r0::k, ::k])
+        assert np.array_equal(np.asarray(w), h)
+
+
+def test_a_strided_ascii_grid_never_holds_its_text(tmp_path):
+    """A 4,000 x 4,000 ASCII grid (137 MB of text) at one sample in 8: reading it allocates
+    (tracemalloc: numpy's and Python's) under a quarter of the text, which reading the file at
+    once held whole, beside every sample as float64 (128 MB) and their concatenation (128 MB more)."""
+    import tracemalloc
+    from caveclod.builder import terrain
+    rows = cols = 4000
+    lines = [" ".join(f"{v:.3f}" for v in np.random.default_rng(r).uniform(1000, 2000, cols)).encode()
+             for r in range(7)]
+    path = tmp_path / "dem.asc"
+    with open(path, "wb") as f:
+        f.write(f"ncols {cols}\nnrows {rows}\nxllcorner 0\nyllcorner 0\ncellsize 1\n".encode())
+        f.write(b"\n".join(lines[r % 7] for r in range(rows)) + b"\n")
+    text = path.stat().st_size
+    tracemalloc.start()
+    try:
+        kept, _ = every_kth_sample(terrain.read_heightfield(path, window=True), 8)
+        _, peak = tracemalloc.get_traced_memory()
+    finally:
+        tracemalloc.stop()
+    assert kept.shape == (500, 500)
+    assert np.array_equal(kept[-1], np.array(lines[(rows - 1) % 7].split(), float)[::8])     # the southernmost row
+    assert peak < text / 4, f"{peak / 2**20:.1f} MiB allocated reading {text / 2**20:.0f} MiB of text at one in 8"
+    assert to_source(str(path), stride=8).positions.shape[0] == 500 * 500

@@ -123,12 +123,12 @@ def read_heightfield(path: str | os.PathLike, window: bool = False):
     """A heightfield file's samples as stored (any real dtype), not yet
     :func:`heights_of`: a ``.npy`` memory-mapped, so that its shape is known and
     a part of it (:func:`every_kth_sample`) read without reading the rest.
-    ``window``: a TIFF that can be read so comes back as a
-    :class:`caveclod.builder.tiffwindow.TiffWindow` (a shape, a dtype, and the
+    ``window``: a TIFF or ESRI ASCII grid that can be read so comes back as a
+    :class:`caveclod.builder.rasterwindow.RasterWindow` (a shape, a dtype, and the
     samples of a slice read on demand) for :func:`every_kth_sample`, instead of
     being read whole."""
-    if window and os.path.splitext(os.fspath(path))[1].lower() in (".tif", ".tiff") and os.path.isfile(path):
-        from .tiffwindow import open_window
+    if window and os.path.isfile(path):
+        from .rasterwindow import open_window
         lazy = open_window(os.fspath(path))
         if lazy is not None:
             return lazy
@@ -367,36 +367,10 @@ def ascii_grid_header(path) -> dict[str, float]:
 
 
 def _read_ascii_grid(path: str, what: str) -> np.ndarray:
-    """An ESRI ASCII grid's samples, (nrows, ncols) float64, rows from north to south."""
-    header = ascii_grid_header(path)
-    rows, cols = int(header["nrows"]), int(header["ncols"])
-    if rows * cols > MAX_ASCII_GRID_SAMPLES:
-        raise InputError(f"{what} {path}: {rows:,} x {cols:,} samples are more than this reader takes; "
-                         "convert it to a GeoTIFF")
-    with open(path, "rb") as f:
-        f.seek(int(header["_data_at"]))
-        text = f.read()
-    try:
-        values = np.array(text.split(), dtype=np.float64) if len(text) < (1 << 20) else _parse_numbers(text)
-    except ValueError as exc:
-        raise InputError(f"{what} {path} holds a sample that is not a number ({_one_line(exc)[:80]}); an ESRI "
-                         "ASCII grid writes them with '.' decimals, separated by spaces") from None
-    if len(values) != rows * cols:
-        raise InputError(f"{what} {path} holds {len(values):,} samples after its header, which says nrows {rows} x "
-                         f"ncols {cols} = {rows * cols:,}; check that the file is whole (and uses '.' decimals)")
-    return values.reshape(rows, cols)
-
-
-def _parse_numbers(text: bytes) -> np.ndarray:
-    """Whitespace-separated numbers, in blocks of lines (a list of every token of a large grid at once
-    would hold about 60 bytes a sample)."""
-    out, start, block = [], 0, 1 << 24
-    while start < len(text):
-        end = text.find(b"\n", start + block)
-        end = len(text) if end < 0 else end + 1
-        out.append(np.array(text[start:end].split(), dtype=np.float64))
-        start = end
-    return np.concatenate(out) if out else np.zeros(0)
+    """An ESRI ASCII grid's samples, (nrows, ncols) float64, rows from north to south, parsed a block
+    at a time (:class:`caveclod.builder.rasterwindow.AsciiGridWindow`)."""
+    from .rasterwindow import AsciiGridWindow
+    return AsciiGridWindow(path, what)[:, :]
 
 
 def _too_many_pixels(what: str, path: str, limit: int) -> InputError:
@@ -481,8 +455,8 @@ def every_kth_sample(heights: np.ndarray, k: int, materials: np.ndarray | None =
         ((rows', cols') heights, the materials map sampled alike or None),
         rows' = (rows - 1) // k + 1, cols' = (cols - 1) // k + 1.
     """
-    from .tiffwindow import TiffWindow
-    h = heights if isinstance(heights, TiffWindow) else np.asarray(heights)     # a window: only the kept samples read
+    from .rasterwindow import RasterWindow
+    h = heights if isinstance(heights, RasterWindow) else np.asarray(heights)   # a window: only the kept samples read
     if k == 1 or h.ndim != 2:
         return heights, materials
     rows, cols = h.shape
