@@ -282,7 +282,7 @@ def to_source(source, *, cell_size=None, z_scale=1.0, materials=None, size=DEFAU
             shape = terrain.heightfield_shape(path)          # from the header: refused before the samples are read
             if shape is not None:
                 check_grid(grid_triangles(shape, stride), shape)
-            samples = terrain.read_heightfield(path, window=stride > 1)    # a .npy mapped, a TIFF read by window
+            samples = terrain.read_heightfield(path, window=stride > 1)    # a .npy mapped, TIFF and .asc by window
             check_grid(grid_triangles(samples.shape, stride), samples.shape)
             classes = None
             if materials is not None:

@@ -66,11 +66,19 @@ class RasterWindow:
             raise ValueError("a window reads with positive steps only")
         out = np.empty((len(rows), len(cols)), self.dtype)
         if out.size:
-            self._fill(out, rows, cols)
+            try:
+                self._fill(out, rows, cols)
+            except InputError:
+                raise
+            except Exception as exc:  # noqa: BLE001 - a damaged file surfaces as many exception types
+                from .terrain import _describe
+                raise InputError(f"cannot read heightfield {self.path} ({_describe(exc)}); check that the file "
+                                 "is intact") from None
         return out
 
     def _fill(self, out: np.ndarray, rows: np.ndarray, cols: np.ndarray) -> None:
-        """Write the samples at ``rows`` x ``cols`` (ascending) into ``out``."""
+        """Write the samples at ``rows`` x ``cols`` (ascending) into ``out``; any exception but an
+        InputError is a damaged file (:meth:`__getitem__` says so)."""
         raise NotImplementedError
 
 
@@ -88,17 +96,12 @@ class TiffWindow(RasterWindow):
     def _fill(self, out, rows, cols) -> None:
         ch, cw = self._chunk
         across = -(-self.shape[1] // cw)              # strips or tiles a row of them
-        try:
-            with open(self.path, "rb") as fh, quiet_reading("tifffile"):
-                for r, r0, r1 in _runs(rows // ch):
-                    in_rows = rows[r0:r1] - r * ch
-                    for c, c0, c1 in _runs(cols // cw):
-                        chunk = self._read(fh, r * across + c)
-                        out[r0:r1, c0:c1] = chunk[in_rows][:, cols[c0:c1] - c * cw]
-        except Exception as exc:  # noqa: BLE001 - a damaged strip or tile surfaces as many exception types
-            from .terrain import _describe
-            raise InputError(f"cannot read heightfield {self.path} ({_describe(exc)}); check that the file is "
-                             "intact") from None
+        with open(self.path, "rb") as fh, quiet_reading("tifffile"):
+            for r, r0, r1 in _runs(rows // ch):
+                in_rows = rows[r0:r1] - r * ch
+                for c, c0, c1 in _runs(cols // cw):
+                    chunk = self._read(fh, r * across + c)
+                    out[r0:r1, c0:c1] = chunk[in_rows][:, cols[c0:c1] - c * cw]
 
     def _read(self, fh, index: int) -> np.ndarray:
         """Strip or tile ``index`` decoded: (rows, cols) of this file's chunk (the last strip may be shorter)."""

@@ -449,7 +449,7 @@ def every_kth_sample(heights: np.ndarray, k: int, materials: np.ndarray | None =
     No-data samples (NaN) that are kept stay holes.
 
     Args:
-        heights: (rows, cols) raster (or a TIFF read by window), first row
+        heights: (rows, cols) raster (or a file read by window), first row
             north unless ``north_first`` is False. k: 1 or more (1: returned as given).
     Returns:
         ((rows', cols') heights, the materials map sampled alike or None),
