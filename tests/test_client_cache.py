@@ -28,23 +28,6 @@ def test_put_get_and_corruption(tmp_path):
     assert fresh.get(KEY) is None and not path.exists()
 
 
-def test_a_payload_read_from_disk_is_the_files_mapped_pages(tmp_path):
-    """Read from disk, a payload is a read-only view of the file memory-mapped (no copy of it in
-    the process's own memory); it stays whole when the file is replaced or removed."""
-    import mmap
-
-    data = np.random.default_rng(0).integers(0, 255, 1 << 20, dtype=np.uint8).tobytes()
-    VertexBufferCache(tmp_path).put(KEY, data)
-    payload = VertexBufferCache(tmp_path).get(KEY)
-    assert isinstance(payload, memoryview) and payload.readonly and isinstance(payload.obj, mmap.mmap)
-    assert payload == data
-    VertexBufferCache(tmp_path / "other").put(KEY, b"x" * 100)
-    (tmp_path / "other" / KEY).replace(tmp_path / KEY)                # renamed over it, as put does
-    assert payload == data
-    (tmp_path / KEY).unlink()
-    assert payload == data and np.frombuffer(payload, np.uint8).sum() == np.frombuffer(data, np.uint8).sum()
-
-
 def test_payloads_read_lately_are_shared_from_memory(tmp_path):
     import zlib
 

@@ -4,15 +4,13 @@
 XDG_CACHE_HOME is unset; ``$CAVECLOD_CACHE_DIR/<hash>`` when that is set),
 or a directory given by the caller. Each file is
 the payload followed by its CRC-32 (4 bytes, little-endian), checked on
-every read from disk (files are memory-mapped, not read: :func:`_map`);
-writes go to a temporary file renamed into place, so readers never see
-half a file. A cache object also keeps the payloads it
+every read from disk; writes go to a temporary file renamed into place, so
+readers never see half a file. A cache object also keeps the payloads it
 read or wrote last in memory, for the other sessions of its client.
 """
 
 from __future__ import annotations
 
-import mmap
 import os
 import re
 import struct
@@ -31,24 +29,6 @@ def default_cache_dir() -> Path:
         return Path(os.environ["CAVECLOD_CACHE_DIR"])
     base = os.environ.get("XDG_CACHE_HOME") or os.path.join(os.path.expanduser("~"), ".cache")
     return Path(base) / "caveclod" / "vertex-buffers"
-
-
-def _map(path: Path) -> mmap.mmap | bytes | None:
-    """``path`` memory-mapped read-only (a file too short to hold a CRC as empty bytes: corrupt,
-    nothing to map), or None where it cannot be (absent, unreadable).
-
-    Mapped, not read: a 537 MB payload read into a bytes object and checked took 0.59 s here (a
-    fresh allocation's page faults and a copy, then the CRC), mapped and checked 0.32 s (the CRC
-    reads the page cache directly), and the payload's views (positions, normals) are the file's
-    pages. The cache only ever replaces a file by renaming another over it, so a mapping never
-    sees a file change."""
-    try:
-        with open(path, "rb") as fh:
-            if os.fstat(fh.fileno()).st_size < 4:
-                return b""
-            return mmap.mmap(fh.fileno(), 0, access=mmap.ACCESS_READ)
-    except (OSError, ValueError):
-        return None
 
 
 class VertexBufferCache:
@@ -78,19 +58,15 @@ class VertexBufferCache:
         loop on that)."""
         if key in self._memory:
             return self._memory[key]
-        mapped = _map(self._path(key))
-        if mapped is None:
+        path = self._path(key)
+        try:
+            blob = path.read_bytes()
+        except OSError:
             return None
-        if len(mapped) < 4:                     # not even a CRC: corrupt
-            self.discard(key)
-            return None
-        view = memoryview(mapped)               # read-only: a slice of it copies nothing
+        view = memoryview(blob)                 # read-only: a slice of it copies nothing
         payload, trailer = view[:-4], bytes(view[-4:])
         crc = zlib.crc32(payload)
-        if struct.unpack("<I", trailer)[0] != crc:
-            payload.release()
-            view.release()
-            mapped.close()
+        if len(trailer) < 4 or struct.unpack("<I", trailer)[0] != crc:
             self.discard(key)
             return None
         self._remember(key, payload, crc)
