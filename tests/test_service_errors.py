@@ -211,9 +211,9 @@ def _served_until_we_broke_it(port, messages, timeout=1.5, until=None):
 def test_an_up_vector_too_short_to_square_is_a_direction_like_any_other(server):
     """Issue 17, a protocol fuzzer's find: an up of 5e-324 passed the parallel test (its length
     squared to 0) and then divided by zero where the frustum is made (UNKNOWN)."""
+    def answered(frames):
+        return any(c.pose_seq == 1 for f in frames for c in f.cameras)
     for up in ((0.0, 0.0, 5e-324), (0.0, 0.0, 2.2250738585072014e-308), (0.0, 1e-200, 1e308)):
-        def answered(frames):
-            return any(c.pose_seq == 1 for f in frames for c in f.cameras)
         frames = _served_until_we_broke_it(server.port, [open_message(), pose(eye=(1e154, 0.0, 500.0), up=up)],
                                            until=answered)
         assert answered(frames), up

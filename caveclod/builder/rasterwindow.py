@@ -26,6 +26,7 @@ them and a piece of the file at a time:
 from __future__ import annotations
 
 import os
+from abc import ABC, abstractmethod
 
 import numpy as np
 
@@ -36,7 +37,7 @@ ASCII_BLOCK = 1 << 20
 """Bytes of an ESRI ASCII grid's text parsed at a time."""
 
 
-class RasterWindow:
+class RasterWindow(ABC):
     """A (rows, cols) grid of samples in a file, read by window (see the module docstring).
 
     Attributes:
@@ -76,10 +77,10 @@ class RasterWindow:
                                  "is intact") from None
         return out
 
+    @abstractmethod
     def _fill(self, out: np.ndarray, rows: np.ndarray, cols: np.ndarray) -> None:
         """Write the samples at ``rows`` x ``cols`` (ascending) into ``out``; any exception but an
         InputError is a damaged file (:meth:`__getitem__` says so)."""
-        raise NotImplementedError
 
 
 class TiffWindow(RasterWindow):

@@ -127,7 +127,7 @@ def read_heightfield(path: str | os.PathLike, window: bool = False):
     :class:`caveclod.builder.rasterwindow.RasterWindow` (a shape, a dtype, and the
     samples of a slice read on demand) for :func:`every_kth_sample`, instead of
     being read whole."""
-    if window and os.path.isfile(path):
+    if window:                              # a file that is not there: open_window says None, the reader why
         from .rasterwindow import open_window
         lazy = open_window(os.fspath(path))
         if lazy is not None:
