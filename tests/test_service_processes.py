@@ -71,17 +71,25 @@ def test_processes_share_the_port_drain_together_and_sum_their_metrics(terrain_p
         # Both listening (a child still starting takes no connection: on a loaded machine the
         # other one got all eight).
         assert wait_until(lambda: len(log_events(sup.lines, "server.ready")) >= 2)
-        status = cli.main(["loadtest", "--target", f"127.0.0.1:{sup.port}", "--sessions", "8", "--duration", "2",
-                           "--rate", "20", "--json", "--cache-dir", str(tmp_path)])
-        report = json.loads(capsys.readouterr().out)
-        assert status == 0 and report["divergences"] == 0 and report["errors"] == {}
-        # Eight connections, spread by the kernel: both processes held sessions.
-        holders = {e["pid"] for e in log_events(sup.lines, "session.opened")}
+        # Eight connections, spread by the kernel: both processes hold sessions. The kernel hashes
+        # each connection to a listener, so all eight land on one process in 1 run of 128 (seen
+        # once, in a fresh checkout's test run): a run whose sessions all went to one process is
+        # followed by another, at most three in all.
+        frames = 0
+        for runs in range(1, 4):
+            status = cli.main(["loadtest", "--target", f"127.0.0.1:{sup.port}", "--sessions", "8", "--duration",
+                               "2", "--rate", "20", "--json", "--cache-dir", str(tmp_path)])
+            report = json.loads(capsys.readouterr().out)
+            assert status == 0 and report["divergences"] == 0 and report["errors"] == {}
+            frames += report["frames"]
+            holders = {e["pid"] for e in log_events(sup.lines, "session.opened")}
+            if holders == set(children):
+                break
         assert holders == set(children), holders
         m = sup.metrics()
         assert m["caveclod_processes"] == 2
-        assert m["caveclod_frames_total"] >= report["frames"]
-        assert m['caveclod_session_ends_total{reason="closed"}'] == 8
+        assert m["caveclod_frames_total"] >= frames
+        assert m['caveclod_session_ends_total{reason="closed"}'] == 8 * runs
     finally:
         status = stop_process(sup.proc, signal.SIGTERM)
     assert status == 0
