@@ -19,7 +19,7 @@ from __future__ import annotations
 import io
 import json
 import os
-import select
+import selectors
 import signal
 import subprocess
 import sys
@@ -213,17 +213,21 @@ class CliWorker:
         return CallResult(exit=code, seconds=time.monotonic() - t0, died=True)
 
     def _readline(self, timeout: float) -> bytes | None:
+        # A selector, as tests/service.py's readline_within: select.select() refuses descriptors above
+        # 1023, which a test process running many files reaches (four fuzzer tests failed so when two
+        # test processes shared the files).
         fd, buf, deadline = self.proc.stdout.fileno(), b"", time.monotonic() + timeout
-        while not buf.endswith(b"\n"):
-            left = deadline - time.monotonic()
-            if left <= 0:
-                return None
-            ready, _, _ = select.select([fd], [], [], left)
-            if ready:
-                chunk = os.read(fd, 1 << 20)
-                if not chunk:
-                    return b""
-                buf += chunk
+        with selectors.DefaultSelector() as sel:
+            sel.register(fd, selectors.EVENT_READ)
+            while not buf.endswith(b"\n"):
+                left = deadline - time.monotonic()
+                if left <= 0:
+                    return None
+                if sel.select(left):
+                    chunk = os.read(fd, 1 << 20)
+                    if not chunk:
+                        return b""
+                    buf += chunk
         return buf
 
     def close(self) -> None:
