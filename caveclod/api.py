@@ -169,10 +169,18 @@ def _raster_file_to_source(path: Path, samples, classes, cell_size, z_scale, str
         cell, notes, origin = (spacing.x, spacing.y), [spacing.note], spacing.origin
     if not north_first:
         notes.append("the file's rows run northwards (its transformation says so): read as they are")
+    valid = terrain.tiff_mask(path)
+    if valid is not None and valid.all():
+        valid = None
+    if valid is not None:
+        notes.append(f"the GeoTIFF's no-data mask leaves out {int(valid.size - np.count_nonzero(valid)):,} of its "
+                     f"{valid.size:,} samples: they are holes")
     if stride > 1:
         samples, classes, cell, note = _every_kth(samples, classes, stride, cell, north_first)
         notes.append(note)
-    heights = terrain.heights_of(samples, path, nodata)
+        if valid is not None:
+            valid = terrain.every_kth_sample(valid, stride, north_first=north_first)[0]
+    heights = terrain.heights_of(samples, path, nodata, valid=valid)
     source = terrain.raster_to_source(heights, cell_size=cell, z_scale=z_scale, materials=classes, notes=notes,
                                       north_first=north_first)
     if origin is not None:

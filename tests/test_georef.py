@@ -278,6 +278,146 @@ def test_an_lzw_geotiff_builds_at_its_pixel_scale_with_its_voids(tmp_path):
     assert any("dropped 30 cells" in n for n in source.notes)
 
 
+
+def _imagecodecs() -> bool:
+    try:
+        import imagecodecs  # noqa: F401
+    except ImportError:
+        return False
+    return True
+
+
+@pytest.mark.parametrize("name, words", [
+    ("dem-lzw-float-bigendian.tif", ["big-endian", "float32", "LZW", "pip install imagecodecs"]),
+    ("dem-lerc-float.tif", ["LERC", "pip install imagecodecs"]),
+])
+def test_a_tiff_only_imagecodecs_reads_right_is_read_right_or_refused_saying_so(capsys, name, words):
+    """Without imagecodecs, Pillow read a big-endian LZW float32 GeoTIFF with its bytes swapped
+    (heights of 1e-38: a flat terrain, built without a word) and could not open a LERC one, which
+    was refused as damaged. Either file is now read right (imagecodecs installed) or refused
+    naming what it is and what to do; never built wrong."""
+    from caveclod.builder.terrain import load_heightfield
+    if _imagecodecs():
+        assert np.array_equal(load_heightfield(DATA / name), _fixture_dem().astype(np.float32).astype(np.float64))
+        return
+    status, err = build_cli(capsys, DATA / name)
+    assert status == 2 and all(w in err for w in words), err
+    assert "intact" not in err                              # not called damaged
+
+
+@pytest.mark.parametrize("dtype, nodata", [
+    (np.float32, "-3.402823e+38"),          # float32's lowest as 7 digits write it
+    (np.float32, "-3.40282346638529e+38"),  # ... and as 15
+    (np.float32, "-9999.9"),                # not a float32: its samples hold the nearest one
+    (np.float64, "-9999.9"),
+    (np.int16, "-9999"),
+    (np.uint16, " 65535\x00"),
+])
+def test_gdal_nodata_is_compared_in_the_samples_own_type(tmp_path, dtype, nodata):
+    """GDAL compares a raster's no-data value after writing it in the raster's type; compared as
+    float64, a float32 grid's -3.402823e+38 or -9999.9 matched none of its samples (the first was
+    refused as heights beyond any terrain, the second built as pits)."""
+    h = _raster(6, 7)
+    marked = h.astype(dtype)
+    void = np.zeros(h.shape, bool)
+    void[0, :3] = void[4, 5] = True
+    marked[void] = np.array(float(nodata.strip().strip("\x00"))).astype(dtype)
+    _write_geotiff(tmp_path / "dem.tif", marked, nodata=nodata)
+    from caveclod.builder.terrain import load_heightfield
+    heights = load_heightfield(tmp_path / "dem.tif")
+    assert np.array_equal(np.isnan(heights), void)
+    assert np.array_equal(heights[~void], marked[~void].astype(np.float64))
+
+
+def test_an_integer_grids_nodata_that_is_not_a_whole_number_in_range_marks_nothing(tmp_path):
+    h = _raster(4, 4).astype(np.int16)
+    for nodata in ("100.5", "70000", "nan"):
+        _write_geotiff(tmp_path / "dem.tif", h, nodata=nodata)
+        from caveclod.builder.terrain import load_heightfield
+        assert not np.isnan(load_heightfield(tmp_path / "dem.tif")).any()
+
+
+def _write_masked_geotiff(path, heights, valid, **tiff):
+    """A GeoTIFF with GDAL's internal no-data mask: a further page of NewSubfileType 4, one bit a sample."""
+    with tifffile.TiffWriter(path) as tw:
+        tw.write(heights, extratags=[(PIXEL_SCALE, 12, 3, (30.0, 30.0, 0.0))], **tiff)
+        tw.write(valid, subfiletype=4, photometric="mask", **tiff)
+
+
+@pytest.mark.parametrize("tiff", [{}, {"tile": (16, 16), "compression": "deflate"}])
+def test_a_geotiffs_internal_mask_makes_holes(tmp_path, tiff):
+    """GDAL keeps no-data as a mask page, often with no GDAL_NODATA tag: the masked samples hold 0,
+    which were built as heights (a cliff down to a plain at 0, without a word)."""
+    h = _raster(40, 36)
+    valid = np.ones(h.shape, bool)
+    valid[:6] = False                                        # a border strip, as a scan's edge
+    valid[20:25, 10:14] = False
+    h[~valid] = 0.0
+    _write_masked_geotiff(tmp_path / "dem.tif", h, valid, **tiff)
+    from caveclod.builder.terrain import load_heightfield, tiff_mask
+    assert np.array_equal(tiff_mask(tmp_path / "dem.tif"), valid)
+    assert np.array_equal(np.isnan(load_heightfield(tmp_path / "dem.tif")), ~valid)
+    source = to_source(str(tmp_path / "dem.tif"))
+    assert source.positions[:, 2].min() >= 100.0                 # no sample at 0 left
+    assert any("mask leaves out 236 of its 1,440 samples" in n for n in source.notes)
+    strided = to_source(str(tmp_path / "dem.tif"), stride=3)      # the mask sampled as the heights are
+    assert strided.positions[:, 2].min() >= 100.0
+    kept = h[(40 - 1) % 3::3, ::3][valid[(40 - 1) % 3::3, ::3]]
+    assert np.array_equal(np.sort(np.unique(strided.positions[:, 2])), np.sort(np.unique(kept)))
+
+
+def test_a_mask_of_an_overview_is_not_the_grids(tmp_path):
+    """A cloud-optimized GeoTIFF's overviews carry masks of their own (NewSubfileType 5): only the
+    full-resolution mask applies; a file with none has no mask."""
+    h = _raster(32, 32)
+    with tifffile.TiffWriter(tmp_path / "dem.tif") as tw:
+        tw.write(h)
+        tw.write(h[::2, ::2], subfiletype=1)
+        tw.write(np.zeros((16, 16), bool), subfiletype=5, photometric="mask")
+    from caveclod.builder.terrain import tiff_mask
+    assert tiff_mask(tmp_path / "dem.tif") is None
+
+
+def test_a_geotiff_naming_only_a_geographic_system_is_in_degrees(tmp_path):
+    """GTModelTypeGeoKey missing, GeographicTypeGeoKey EPSG:4326 and no projected system: degrees
+    (GDAL reads it so), not 0.00028 metres a cell."""
+    deg = 1.0 / 3600.0
+    _write_geotiff(tmp_path / "dem.tif", _raster(), scale=(deg, deg), tie=(7.0, 47.0),
+                   geokeys=[1, 1, 0, 2, 2048, 0, 1, 4326, 2054, 0, 1, 9102])
+    spacing, _ = grid_spacing(tmp_path / "dem.tif", (5, 7))
+    assert spacing.y == pytest.approx(deg * METRES_PER_DEGREE)
+    assert "degrees" in spacing.note
+
+
+def test_a_rotated_transformation_is_said_and_gives_no_origin(tmp_path):
+    """A ModelTransformation that turns the grid: built unrotated at its spacing, saying so, with no
+    origin (the file's corner is not the mesh's (0, 0) once turned)."""
+    a = math.radians(30.0)
+    m = (10 * math.cos(a), -10 * math.sin(a), 0, 5e5, -10 * math.sin(a), -10 * math.cos(a), 0, 4e6,
+         0, 0, 0, 0, 0, 0, 0, 1)
+    tifffile.imwrite(tmp_path / "dem.tif", _raster(), extratags=[(34264, 12, 16, m)])
+    spacing, _ = grid_spacing(tmp_path / "dem.tif", (5, 7))
+    assert (spacing.x, spacing.y) == (pytest.approx(10.0), pytest.approx(10.0))
+    assert "rotates the grid by -30 degrees" in spacing.note and spacing.origin is None
+    straight = (10.0, 0, 0, 5e5, 0, -10.0, 0, 4e6, 0, 0, 0, 0, 0, 0, 0, 1)
+    tifffile.imwrite(tmp_path / "dem.tif", _raster(), extratags=[(34264, 12, 16, straight)])
+    spacing, _ = grid_spacing(tmp_path / "dem.tif", (5, 7))
+    assert "rotates" not in spacing.note and spacing.origin is not None
+
+
+def test_a_tiff_of_one_row_is_refused_as_too_small_not_as_one_dimensional(tmp_path, capsys):
+    tifffile.imwrite(tmp_path / "dem.tif", _raster(1, 9))
+    status, err = build_cli(capsys, tmp_path / "dem.tif")
+    assert status == 2 and "(1, 9)" in err and "at least 2x2 samples" in err, err
+
+
+def test_an_ascii_grid_with_a_byte_order_mark_reads(tmp_path):
+    h = _raster(4, 5)
+    path = _write_asc(tmp_path / "dem.asc", h)
+    path.write_bytes(b"\xef\xbb\xbf" + path.read_bytes())
+    source = to_source(str(path))
+    assert tuple(_sample_xy(source, h[0, 0])) == (0.0, 3 * 30.0)
+
 # ------------------------------------------------------------------ ESRI ASCII grids
 
 

@@ -36,6 +36,7 @@ _HGT_NAME = re.compile(r"^([NS])(\d{1,2})([EW])(\d{1,3})", re.IGNORECASE)
 # GeoTIFF tag and key numbers (GeoTIFF 1.1, OGC 19-008r4).
 _PIXEL_SCALE, _TIEPOINT, _TRANSFORMATION, _GEOKEYS = 33550, 33922, 34264, 34735
 _MODEL_TYPE, _RASTER_TYPE, _ANGULAR_UNITS, _LINEAR_UNITS = 1024, 1025, 2054, 3076
+_GEOGRAPHIC_TYPE, _PROJECTED_CS = 2048, 3072          # GeographicTypeGeoKey, ProjectedCSTypeGeoKey
 _PIXEL_IS_POINT = 2
 _PROJECTED, _GEOGRAPHIC = 1, 2
 _LINEAR_NAMES = {9001: "metres", 9002: "feet", 9003: "US survey feet"}   # ProjLinearUnitsGeoKey values
@@ -166,7 +167,8 @@ def _geotiff_spacing(path, shape) -> tuple[Spacing | None, str | None]:
         return None, None           # a plain TIFF: nothing stated
     sx, sy = scale
     keys = _geokeys(values.get(_GEOKEYS))
-    if keys.get(_MODEL_TYPE) == _GEOGRAPHIC:
+    turned = _turned(values)
+    if _is_geographic(keys):
         unit = keys.get(_ANGULAR_UNITS, _DEGREE)
         if unit not in _DEGREES + (_RADIAN,):
             return None, f"the GeoTIFF's angular unit (EPSG {unit}) is not degrees or radians: give --cell-size"
@@ -178,11 +180,38 @@ def _geotiff_spacing(path, shape) -> tuple[Spacing | None, str | None]:
             return None, ("the GeoTIFF is geographic (degrees) but has no tie point to give its latitude: "
                           "give --cell-size")
         spacing = _degrees_to_metres(sx, sy, lat, f"GeoTIFF pixel scale {sx:.9g} x {sy:.9g} degrees")
-        return replace(spacing, north_first=north_first), None
+        return replace(spacing, north_first=north_first, note=spacing.note + turned), None
     units = _LINEAR_NAMES.get(keys.get(_LINEAR_UNITS), "in the units of the file's coordinate system")
     origin, north_first = _projected_origin(values, keys, shape, sx, sy)
-    return Spacing(sx, sy, f"cell size {sx:g} x {sy:g} ({units}) from the GeoTIFF's pixel scale", origin,
+    source = "pixel scale" if _PIXEL_SCALE in values else "transformation"
+    return Spacing(sx, sy, f"cell size {sx:g} x {sy:g} ({units}) from the GeoTIFF's {source}{turned}", origin,
                    north_first), None
+
+
+def _is_geographic(keys: dict) -> bool:
+    """Whether the GeoKeys put the grid in angles: GTModelTypeGeoKey says geographic, or, with no
+    model type, a geographic coordinate system is named and no projected one (GDAL reads such
+    files as geographic too)."""
+    model = keys.get(_MODEL_TYPE)
+    if model is not None:
+        return model == _GEOGRAPHIC
+    return _GEOGRAPHIC_TYPE in keys and _PROJECTED_CS not in keys
+
+
+def _turned(values: dict) -> str:
+    """A note's tail for a ModelTransformation (with no pixel scale) that rotates or shears the
+    grid, else "": the build lays the samples on an axis-aligned grid with the spacing between
+    neighbouring samples, and states no origin (the file's corner is not the mesh's (0, 0))."""
+    m = values.get(_TRANSFORMATION)
+    if _PIXEL_SCALE in values or m is None or len(m) < 8:
+        return ""
+    a, b, c, d = (float(m[i]) for i in (0, 1, 4, 5))
+    if b == 0.0 and c == 0.0:
+        return ""
+    angle = math.degrees(math.atan2(c, a))
+    sheared = abs(a * b + c * d) > 1e-9 * math.hypot(a, c) * math.hypot(b, d)
+    return (f"; the transformation {'shears and ' if sheared else ''}rotates the grid by {angle:.4g} degrees in the "
+            "file's coordinates: built unrotated, with no origin")
 
 
 def _projected_origin(values: dict, keys: dict, shape, sx: float, sy: float):

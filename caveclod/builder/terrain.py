@@ -28,6 +28,7 @@ remove. The built-in terrains live in :mod:`caveclod.builder.builtin`.
 
 from __future__ import annotations
 
+import math
 import os
 from collections.abc import Sequence
 
@@ -65,11 +66,13 @@ def load_heightfield(path: str | os.PathLike, nodata: float | None = None) -> np
     ``z_scale`` to :func:`heightfield_to_source` to turn them into heights.
 
     Missing samples become NaN (holes): NaN itself, ``nodata`` when given,
-    the GeoTIFF ``GDAL_NODATA`` tag's value, and -32768 in signed 16-bit
-    grids (the SRTM void marker). Real elevation data marks voids that way;
-    read as heights they would be pits kilometres deep.
+    the GeoTIFF ``GDAL_NODATA`` tag's value (compared in the samples' own
+    type, as GDAL does), the samples a GeoTIFF's internal mask leaves out
+    (:func:`tiff_mask`), and -32768 in signed 16-bit grids (the SRTM void
+    marker). Real elevation data marks voids that way; read as heights they
+    would be pits kilometres deep.
     """
-    return heights_of(read_heightfield(path), path, nodata)
+    return heights_of(read_heightfield(path), path, nodata, valid=tiff_mask(path))
 
 
 def heightfield_shape(path: str | os.PathLike) -> tuple[int, int] | None:
@@ -138,9 +141,11 @@ def read_heightfield(path: str | os.PathLike, window: bool = False):
     return array
 
 
-def heights_of(array: np.ndarray, path: str | os.PathLike, nodata: float | None = None) -> np.ndarray:
+def heights_of(array: np.ndarray, path: str | os.PathLike, nodata: float | None = None,
+               valid: np.ndarray | None = None) -> np.ndarray:
     """(rows, cols) float64 heights of samples :func:`read_heightfield` read from ``path`` (all
-    of them or a part), the file's no-data values NaN (see :func:`load_heightfield`)."""
+    of them or a part), the file's no-data values NaN (see :func:`load_heightfield`); ``valid``
+    (rows, cols) bool, False where the file's mask (:func:`tiff_mask`, sampled alike) says no data."""
     voids = [] if nodata is None else [float(nodata)]
     if os.path.splitext(os.fspath(path))[1].lower() in (".tif", ".tiff"):
         voids += _tiff_nodata(path)
@@ -150,12 +155,33 @@ def heights_of(array: np.ndarray, path: str | os.PathLike, nodata: float | None 
         nodata_value = ascii_grid_header(path).get("nodata_value")
         if nodata_value is not None:
             voids.append(nodata_value)
+    void = np.zeros(np.shape(array), bool) if valid is None else ~np.asarray(valid, bool)
+    for value in voids:
+        void |= _equals_in_type(array, value)
     heights = _as_float64(array)
     if not heights.flags.writeable:
         heights = np.array(heights)         # a float64 .npy still mapped: read now, into memory of its own
-    for value in voids:
-        heights[heights == value] = np.nan
+    heights[void] = np.nan
     return heights
+
+
+def _equals_in_type(array: np.ndarray, value: float) -> np.ndarray:
+    """(rows, cols) bool: the samples equal to no-data ``value`` once it is written in the samples'
+    own type, as GDAL compares them. A float32 grid cannot hold -9999.9 or -3.402823e+38 exactly:
+    its no-data samples hold the nearest float32, which the float64 value never equals (such files
+    were refused for heights beyond any terrain, or built with pits). An integer grid's no-data is
+    a whole number within its type's range, or matches nothing."""
+    dtype = np.asarray(array).dtype
+    if dtype.kind == "f":
+        with np.errstate(over="ignore"):
+            typed = dtype.type(value)
+        return np.asarray(array) == typed
+    if dtype.kind in "iu":
+        info = np.iinfo(dtype)
+        if not (math.isfinite(value) and value == int(value) and info.min <= value <= info.max):
+            return np.zeros(np.shape(array), bool)
+        return np.asarray(array) == dtype.type(int(value))
+    return np.asarray(array) == value
 
 
 def _as_float64(array) -> np.ndarray:
@@ -190,6 +216,35 @@ def _tiff_nodata(path) -> list[float]:
         return [float(text.strip().strip("\x00"))]
     except ValueError:
         return []
+
+
+MASK_FILE_TYPE = 4
+"""NewSubfileType of a TIFF page that is the transparency mask of another (TIFF 6.0): GDAL's
+internal no-data mask (GDAL_TIFF_INTERNAL_MASK, the default for masks of GeoTIFFs it writes)."""
+
+
+def tiff_mask(path) -> np.ndarray | None:
+    """(rows, cols) bool, True where a GeoTIFF's internal mask says a sample holds data, or None
+    (not a TIFF, or no full-resolution mask page of the first page's size).
+
+    GDAL keeps a raster's no-data mask as a further page of the file, often with no GDAL_NODATA
+    tag at all: the masked samples hold some value (0, usually), which read as heights would be
+    pits or plains. A mask that cannot be decoded is refused: building past it would do that."""
+    if os.path.splitext(os.fspath(path))[1].lower() not in (".tif", ".tiff"):
+        return None
+    import tifffile
+    try:
+        with quiet_reading("tifffile"), tifffile.TiffFile(path) as tif:
+            first = tif.pages[0]
+            for page in tif.pages[1:]:
+                # A mask of an overview is MASK | REDUCEDIMAGE (5): only the full-resolution one counts.
+                if int(page.subfiletype) == MASK_FILE_TYPE and page.shaped[-3:-1] == first.shaped[-3:-1]:
+                    return np.asarray(page.asarray()).reshape(first.imagelength, first.imagewidth) != 0
+    except Exception as exc:  # noqa: BLE001 - the pixels were read; a mask that is not is refused
+        raise InputError(f"cannot read the no-data mask of heightfield {path} ({_describe(exc)}); check that the "
+                         "file is intact, or save it with its no-data as a GDAL_NODATA value instead of a mask "
+                         "(gdal_translate -b 1 -a_nodata -9999 in.tif out.tif)") from None
+    return None
 
 
 def load_material_map(path: str | os.PathLike) -> np.ndarray:
@@ -284,13 +339,19 @@ def _read_tiff(path: str, what: str) -> np.ndarray:
             raise InputError(f"{what} {path} is damaged: it holds {held} of the {needed} strips or tiles its "
                              f"{page.imagewidth}x{page.imagelength} pixels need; check that the file is intact")
         try:
-            return np.squeeze(tif.asarray())
+            array = tif.asarray()
+            if array.size == page.imagelength * page.imagewidth:
+                return array.reshape(page.imagelength, page.imagewidth)   # one row or column stays a grid
+            return np.squeeze(array)
         except (ValueError, ImportError) as exc:
             # tifffile names imagecodecs in a ValueError, or fails importing a codec module of its own.
             if not isinstance(exc, ImportError) and "imagecodecs" not in str(exc):
                 raise
             dtype, compression = page.dtype, getattr(page.compression, "name", page.compression)
-    return _tiff_through_pillow(path, what, dtype, compression)
+            if int(getattr(page, "predictor", 1) or 1) > 1:
+                compression = f"{compression} (predictor {int(page.predictor)})"
+            big_endian = tif.byteorder == ">"
+    return _tiff_through_pillow(path, what, dtype, compression, big_endian)
 
 
 def _tiff_chunks(page) -> tuple[int, int]:
@@ -300,13 +361,30 @@ def _tiff_chunks(page) -> tuple[int, int]:
     return int(held), int(np.prod(page.chunked))
 
 
-def _tiff_through_pillow(path: str, what: str, dtype, compression) -> np.ndarray:
+def _tiff_through_pillow(path: str, what: str, dtype, compression, big_endian: bool = False) -> np.ndarray:
     """A TIFF whose compression tifffile decodes only with the imagecodecs package (LZW, the usual
     compression of real elevation GeoTIFFs, zstd, predictors), read through Pillow's libtiff instead,
     as ``dtype`` (tifffile's reading of the header: Pillow widens int16 to int32, which would hide
-    SRTM's -32768 voids)."""
-    array = _pillow_pixels(path, what, ("F", "I", "L"), f"compressed with {compression}, it must be one band of "
-                           "numbers here: save it so, or install the imagecodecs package (pip install imagecodecs)")
+    SRTM's -32768 voids).
+
+    Refused, saying why: a big-endian file of samples wider than a byte (Pillow 13's libtiff path
+    swapped the bytes of float32 and int16 samples that libtiff had already put in this machine's
+    order: a terrain read as noise, or flat), and a compression Pillow cannot open either (LERC,
+    float64 with a predictor), which would otherwise read as a damaged file."""
+    install = ("install the imagecodecs package (pip install imagecodecs), with which tifffile reads it, or save it "
+               "little-endian with deflate or LZW (gdal_translate -co COMPRESS=DEFLATE in.tif out.tif)")
+    if big_endian and dtype is not None and dtype.itemsize > 1:
+        raise InputError(f"{what} {path} is a big-endian TIFF of {dtype} samples compressed with {compression}: "
+                         f"without the imagecodecs package only Pillow reads it, and Pillow swaps such samples' "
+                         f"bytes (a wrong terrain, not an error), so it is refused; {install}")
+    from PIL import UnidentifiedImageError
+    try:
+        array = _pillow_pixels(path, what, ("F", "I", "L"), f"compressed with {compression}, it must be one band "
+                               "of numbers here: save it so, or install the imagecodecs package (pip install "
+                               "imagecodecs)")
+    except UnidentifiedImageError:
+        raise InputError(f"{what} {path} is compressed with {compression}, which neither tifffile without the "
+                         f"imagecodecs package nor Pillow decodes; {install}") from None
     if dtype is not None and array.dtype != dtype and np.can_cast(dtype, array.dtype):
         narrowed = array.astype(dtype)
         if np.array_equal(narrowed, array):
@@ -345,6 +423,8 @@ def ascii_grid_header(path) -> dict[str, float]:
         while len(header) < len(ASCII_GRID_KEYS):
             at = f.tell()
             line = f.readline(256)
+            if at == 0 and line.startswith(b"\xef\xbb\xbf"):
+                line = line[3:]                 # a UTF-8 byte order mark, as Windows editors write
             words = line.split()
             key = words[0].decode("ascii", "replace").lower() if words else ""
             if key not in ASCII_GRID_KEYS:     # the samples begin (GDAL writes voids as nan, so not "a letter")
