@@ -135,3 +135,13 @@ def test_a_built_file_is_remembered_as_checked_where_serve_looks(tmp_path, monke
     monkeypatch.chdir(tmp_path)                   # a directory named "none" would land here
     assert main(["build", "default", "--size", "16", "-o", str(tmp_path / "u.cvc"), "--quiet"]) == 0
     assert not (tmp_path / "none").exists() and len(list(checked.iterdir())) == 1
+
+
+def test_python_dash_m_caveclod_is_the_command_line():
+    """``python -m caveclod`` (no script on PATH, another interpreter) runs the same commands."""
+    proc = subprocess.run([sys.executable, "-m", "caveclod", "build", "--help"], capture_output=True, text=True,
+                          timeout=120)
+    assert proc.returncode == 0 and "--stride" in proc.stdout, proc.stderr
+    proc = subprocess.run([sys.executable, "-m", "caveclod", "build", "no-such-file.obj", "-o", "x.cvc"],
+                          capture_output=True, text=True, timeout=120)
+    assert proc.returncode == 2 and "no-such-file.obj" in proc.stderr

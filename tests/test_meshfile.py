@@ -394,6 +394,39 @@ def test_glb_texture_with_vertex_colors_and_normals(tmp_path):
     assert colors_by_position(src.positions, src.vertex_position, src.vertex_color) == expected
 
 
+@pytest.mark.parametrize("name", ["scan.ply", "scan.obj"])
+def test_vertex_colors_beside_texture_coordinates_are_kept(tmp_path, name):
+    """Photogrammetry exports carry both; trimesh keeps a PLY's or OBJ's colours in the mesh's
+    vertex attributes when it makes a texture visual for the UVs, where they were not looked for
+    (dropped without a note)."""
+    rng = np.random.default_rng(11)
+    grid = trimesh.creation.box().subdivide().subdivide()
+    n = len(grid.vertices)
+    colors = rng.integers(0, 256, (n, 3), dtype=np.uint8)
+    uv = rng.random((n, 2))
+    path = tmp_path / name
+    if name.endswith(".ply"):
+        header = ["ply", "format ascii 1.0", f"element vertex {n}"] + \
+            [f"property float {a}" for a in "xyz"] + [f"property uchar {c}" for c in ("red", "green", "blue")] + \
+            ["property float s", "property float t", f"element face {len(grid.faces)}",
+             "property list uchar int vertex_indices", "end_header"]
+        rows = [f"{x:.6f} {y:.6f} {z:.6f} {r} {g} {b} {u:.6f} {v:.6f}"
+                for (x, y, z), (r, g, b), (u, v) in zip(grid.vertices, colors, uv)]
+        faces = [f"3 {a} {b} {c}" for a, b, c in grid.faces]
+    else:
+        header = []
+        rows = [f"v {x:.6f} {y:.6f} {z:.6f} {r / 255:.6f} {g / 255:.6f} {b / 255:.6f}"
+                for (x, y, z), (r, g, b) in zip(grid.vertices, colors)] + [f"vt {u:.6f} {v:.6f}" for u, v in uv]
+        faces = [f"f {a + 1}/{a + 1} {b + 1}/{b + 1} {c + 1}/{c + 1}" for a, b, c in grid.faces]
+    path.write_text("\n".join(header + rows + faces) + "\n")
+    src = load_mesh_file(path)
+    check_contract(src)
+    assert src.vertex_color is not None and src.vertex_uv is not None
+    positions = np.asarray(grid.vertices, np.float32).astype(np.float64).round(6)
+    expected = colors_by_position(positions, np.arange(n), np.c_[colors, np.full(n, 255, np.uint8)])
+    assert colors_by_position(src.positions.round(6), src.vertex_position, src.vertex_color) == expected
+
+
 def test_glb_scene_transforms_instances_and_mirroring(tmp_path):
     scene = trimesh.Scene()
     box = trimesh.creation.box()

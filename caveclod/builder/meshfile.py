@@ -466,11 +466,12 @@ def _colors_of(geom) -> tuple[np.ndarray | None, np.ndarray | None]:
     if kind == "face":
         return None, _as_rgba8(visual.face_colors)
     if kind == "texture":
-        # glTF COLOR_0 next to a texture lands in vertex_attributes.
-        attributes = getattr(visual, "vertex_attributes", None) or {}
-        color = attributes.get("color")
-        if color is not None and len(color) == len(geom.vertices):
-            return _as_rgba8(color), None
+        # glTF COLOR_0 next to a texture lands in the visual's vertex_attributes; a PLY's or OBJ's
+        # colours next to texture coordinates (photogrammetry exports have both) in the mesh's.
+        for attributes in (getattr(visual, "vertex_attributes", None), getattr(geom, "vertex_attributes", None)):
+            color = (attributes or {}).get("color")
+            if color is not None and len(color) == len(geom.vertices):
+                return _as_rgba8(color), None
     return None, None
 
 
