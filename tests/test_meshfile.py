@@ -301,6 +301,86 @@ def test_obj_with_nan_vertex_is_refused(tmp_path):
     assert "2 vertices" in message and "NaN" in message
 
 
+def _corners(src: SourceMesh) -> list:
+    """Each face as its corners' (position, uv or None), sorted: what a file's faces say,
+    whatever order the reader gave vertices and faces."""
+    uv = src.vertex_uv
+    return sorted(tuple((tuple(src.positions[src.vertex_position[v]]),
+                         None if uv is None else tuple(np.round(uv[v], 6))) for v in face)
+                  for face in src.faces.tolist())
+
+
+def _grid_obj(rng, n=6, relative=False, uv_every=1, indent="", sep=" ") -> str:
+    """A textured n x n grid written part by part (each quad's 4 vertices, then its 2 faces), the
+    way interleaving exporters write; ``relative``: faces name their corners by negative indices;
+    quads whose number is not a multiple of ``uv_every`` have no texture coordinates."""
+    lines, at = [], 0
+    for k in range(n * n):
+        i, j = divmod(k, n)
+        quad = [(i, j), (i + 1, j), (i + 1, j + 1), (i, j + 1)]
+        for x, y in quad:
+            lines.append(f"{indent}v{sep}{x} {y} {rng.random():.6f}")
+        for x, y in quad:
+            lines.append(f"{indent}vt{sep}{x / n:.6f} {y / n:.6f}")
+        textured = k % uv_every == 0
+        for tri in ((0, 1, 2), (0, 2, 3)):
+            idx = [(c - 4 if relative else at + c + 1) for c in tri]
+            corner = (lambda a: f"{a}/{a}") if textured else (lambda a: f"{a}")
+            lines.append(f"{indent}f{sep}" + " ".join(corner(a) for a in idx))
+        at += 4
+    return "\n".join(lines) + "\n"
+
+
+def test_obj_relative_indices_name_the_vertices_before_the_face(tmp_path):
+    """trimesh counts negative indices from the end of the file: an interleaved file's 72 faces
+    all named the last quad's vertices (read as 2 faces, 70 dropped as duplicates)."""
+    rng = np.random.default_rng(3)
+    relative = load_mesh_file(write_text(tmp_path, "rel.obj", _grid_obj(rng, relative=True)))
+    absolute = load_mesh_file(write_text(tmp_path, "abs.obj", _grid_obj(np.random.default_rng(3))))
+    check_contract(relative)
+    assert len(relative.faces) == 72 and _corners(relative) == _corners(absolute)
+    assert any("72 of its 72 faces use relative (negative) indices" in n for n in relative.notes)
+    assert not any("duplicate" in n for n in relative.notes)
+
+
+def test_obj_faces_without_texture_coordinates_beside_textured_ones(tmp_path):
+    """trimesh drops every texture coordinate of a file where some faces have none: the textured
+    faces keep theirs, the others get (0, 0), and the report counts them."""
+    rng = np.random.default_rng(4)
+    mixed = load_mesh_file(write_text(tmp_path, "mixed.obj", _grid_obj(rng, uv_every=3)))
+    full = load_mesh_file(write_text(tmp_path, "full.obj", _grid_obj(np.random.default_rng(4))))
+    check_contract(mixed)
+    assert mixed.vertex_uv is not None and len(mixed.faces) == 72
+    expected = {tuple(p for p, _ in f): f for f in _corners(full)}
+    for face in _corners(mixed):
+        uvs = [uv for _, uv in face]
+        if any(uv != (0.0, 0.0) for uv in uvs):
+            assert face == expected[tuple(p for p, _ in face)]        # a textured face, as written
+    untextured = sum(all(uv == (0.0, 0.0) for _, uv in f) for f in _corners(mixed))
+    assert untextured >= 48 and any("48 of its 72 faces have no texture coordinates" in n for n in mixed.notes)
+
+
+@pytest.mark.parametrize("indent, sep", [("  ", " "), ("\t", " "), ("", "\t")])
+@pytest.mark.parametrize("relative, uv_every", [(False, 1), (True, 3)])
+def test_obj_indented_lines_or_a_tab_after_the_keyword(tmp_path, indent, sep, relative, uv_every):
+    """trimesh read no geometry ("empty file?") from lines indented or with a tab after their
+    keyword; they read as the plain file does, relative indices and untextured faces too."""
+    odd = load_mesh_file(write_text(tmp_path, "odd.obj", _grid_obj(np.random.default_rng(5), indent=indent,
+                                                                   sep=sep, relative=relative, uv_every=uv_every)))
+    plain = load_mesh_file(write_text(tmp_path, "plain.obj", _grid_obj(np.random.default_rng(5),
+                                                                       uv_every=uv_every)))
+    assert _corners(odd) == _corners(plain) and len(odd.faces) == 72
+
+
+def test_a_plain_obj_is_read_as_it_is():
+    from caveclod.builder.objtext import normalized_obj
+    import tempfile
+    with tempfile.TemporaryDirectory() as d:
+        path = Path(d) / "plain.obj"
+        path.write_text(_grid_obj(np.random.default_rng(6)))
+        assert normalized_obj(path) == (None, [])
+
+
 def test_obj_points_only_is_refused(tmp_path):
     path = write_text(tmp_path, "points.obj", "v 0 0 0\nv 1 0 0\nv 0 1 0\n")
     with pytest.raises(InputError) as excinfo:

@@ -75,9 +75,11 @@ def load_mesh_file(path: str | os.PathLike) -> SourceMesh:
     label = str(path)
     _check_is_file(path)
     file_type = _file_type_of(path)
-    scene = [_read_scene(path, file_type)]       # a list, so that the conversion can let go of it
+    read_notes: list[str] = []
+    scene = [_read_scene(path, file_type, read_notes)]      # a list, so that the conversion can let go of it
     try:
         source = _source_from_scene(scene, default_material=path.stem or "mesh", label=label)
+        source.notes.extend(read_notes)
         if file_type == "obj":
             source.notes.extend(_undefined_obj_materials(path, len(source.materials)))
         return source
@@ -213,8 +215,9 @@ def _file_type_of(path: Path) -> str:
     )
 
 
-def _read_scene(path: Path, file_type: str):
-    """Load ``path`` with trimesh into a ``trimesh.Scene``, merging nothing.
+def _read_scene(path: Path, file_type: str, notes: list[str] | None = None):
+    """Load ``path`` with trimesh into a ``trimesh.Scene``, merging nothing; an OBJ that trimesh
+    would misread is rewritten first (:mod:`caveclod.builder.objtext`), saying so in ``notes``.
 
     Every exception trimesh raises becomes an InputError that names the file
     and the cause; warnings trimesh or numpy emit while parsing, and what
@@ -226,10 +229,17 @@ def _read_scene(path: Path, file_type: str):
     from .gltfcodecs import UndecodedWatch, refuse_undecodable
 
     from .gltfquant import dequantized_gltf
+    from .objtext import normalized_obj
 
     refuse_undecodable(path, file_type)           # compressed glTF geometry nothing here decodes
     rewritten = dequantized_gltf(path, file_type)  # quantized glTF attributes, which trimesh reads raw
     source, kind = (str(path), file_type) if rewritten is None else (io.BytesIO(rewritten), "glb")
+    if file_type == "obj":
+        text, obj_notes = normalized_obj(path)
+        if text is not None:
+            source = io.BytesIO(text)                # its .mtl and textures still found beside ``path``
+            if notes is not None:
+                notes.extend(obj_notes)
     try:
         with quiet_reading("trimesh"), UndecodedWatch() as watch:
             if hasattr(trimesh, "load_scene"):  # trimesh >= 4.6
