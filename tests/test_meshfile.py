@@ -507,6 +507,37 @@ def test_vertex_colors_beside_texture_coordinates_are_kept(tmp_path, name):
     assert colors_by_position(src.positions.round(6), src.vertex_position, src.vertex_color) == expected
 
 
+def _two_boxes_glb(path, colours) -> None:
+    """Two boxes, each with a PBR material named "Material" of the given base colour (one shared
+    object where the colours are the same object)."""
+    from trimesh.visual.material import PBRMaterial
+    scene = trimesh.Scene()
+    materials = {}
+    for k, colour in enumerate(colours):
+        box = trimesh.creation.box()
+        box.apply_translation([3.0 * k, 0.0, 0.0])
+        material = materials.setdefault(id(colour), PBRMaterial(name="Material", baseColorFactor=colour))
+        box.visual = TextureVisuals(uv=np.random.default_rng(k).random((len(box.vertices), 2)), material=material)
+        scene.add_geometry(box, geom_name=f"box{k}")
+    scene.export(path)
+
+
+def test_glb_materials_that_differ_but_share_a_name_stay_apart(tmp_path):
+    """glTF names need not be unique: two materials called "Material", red and blue, were one
+    material (the blue box drawn with the red one's, no seam); one material two primitives
+    share stays one."""
+    red, blue = [255, 0, 0, 255], [0, 0, 255, 255]
+    _two_boxes_glb(tmp_path / "two.glb", [red, blue])
+    src = load_mesh_file(tmp_path / "two.glb")
+    check_contract(src)
+    assert src.materials == ["Material", "Material #2"]
+    assert sorted(np.bincount(src.face_material).tolist()) == [12, 12]
+    assert any("'Material'" in n and "shared by materials that differ" in n for n in src.notes)
+    _two_boxes_glb(tmp_path / "one.glb", [red, red])
+    src = load_mesh_file(tmp_path / "one.glb")
+    assert src.materials == ["Material"] and not any("differ" in n for n in src.notes)
+
+
 def test_glb_scene_transforms_instances_and_mirroring(tmp_path):
     scene = trimesh.Scene()
     box = trimesh.creation.box()

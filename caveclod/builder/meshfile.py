@@ -355,15 +355,38 @@ def _collect_parts(scene, default_material: str, label: str, notes: list[str]) -
     # geometries would otherwise all get the same default name.
     several = len(with_faces) > 1
     parts: list[_Part] = []
+    named: dict[str, dict] = {}               # name -> {material's content hash: the name it was given}
     for transform, geom_key in placed:
         if geom_key not in with_faces:
             continue
         geom = scene.geometry[geom_key]
-        material = _material_name(geom, geom_key if several else default_material)
+        material = _distinct_name(_material_name(geom, geom_key if several else default_material),
+                                  getattr(geom.visual, "material", None), named)
         parts.append(_part_from_trimesh(geom, transform, material, notes))
     if not parts:
         _refuse_no_triangles(scene, label)
+    renamed = sorted(n for n, kinds in named.items() if len(kinds) > 1)
+    if renamed:
+        shown = ", ".join(repr(n) for n in renamed[:5]) + (", ..." if len(renamed) > 5 else "")
+        k = len(renamed)
+        notes.append(f"{k} material name{'s' if k > 1 else ''} ({shown}) {'are' if k > 1 else 'is'} shared by "
+                     "materials that differ: kept apart as 'NAME #2', ... (glTF does not make names unique)")
     return parts
+
+
+def _distinct_name(name: str, material, named: dict) -> str:
+    """``name``, or ``name #k`` when materials that differ share it (glTF names need not be unique:
+    two materials both called "Material", red and blue, became one material, the blue parts
+    drawn with the red one's texture and no seam between them). Materials are told apart by
+    trimesh's content hash (a material shared by several primitives is one object; equal
+    copies hash alike)."""
+    if material is None:
+        return name
+    kinds = named.setdefault(name, {})
+    key = hash(material)
+    if key not in kinds:
+        kinds[key] = name if not kinds else f"{name} #{len(kinds) + 1}"
+    return kinds[key]
 
 
 def _placed_geometries(scene, label: str) -> list[tuple[np.ndarray, str]]:
