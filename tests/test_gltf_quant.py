@@ -154,3 +154,81 @@ def test_a_file_with_meshopt_fallbacks_reads_without_the_decoder(monkeypatch):
     assert np.array_equal(p0, p1) and np.array_equal(uv0, uv1) and np.array_equal(n0, n1)
     with pytest.raises(InputError, match="pip install --pre meshoptimizer"):       # no fallback to read
         gq.dequantized_gltf(DATA / "sphere-gltfpack-c.glb", "glb")
+
+
+# ------------------------------------------------------------------ primitives trimesh leaves out
+
+
+def _glb(path: Path, primitives: list, positions: np.ndarray, uv: np.ndarray | None = None,
+         materials: int = 0) -> Path:
+    """A GLB of one mesh: ``primitives`` [(mode, indices or None, with a material)] over shared
+    float32 ``positions`` (and texture coordinates)."""
+    from caveclod.builder.gltfquant import glb_bytes
+    data = bytearray()
+    views, accessors = [], []
+
+    def add(array, component, kind):
+        array = np.ascontiguousarray(array)
+        views.append({"buffer": 0, "byteOffset": len(data), "byteLength": array.nbytes})
+        data.extend(array.tobytes() + b"\0" * (-array.nbytes % 4))
+        acc = {"bufferView": len(views) - 1, "componentType": component, "count": len(array), "type": kind}
+        if kind == "VEC3":
+            acc.update(min=array.min(axis=0).tolist(), max=array.max(axis=0).tolist())
+        accessors.append(acc)
+        return len(accessors) - 1
+
+    attributes = {"POSITION": add(positions.astype("<f4"), 5126, "VEC3")}
+    if uv is not None:
+        attributes["TEXCOORD_0"] = add(uv.astype("<f4"), 5126, "VEC2")
+    prims = []
+    for mode, indices, with_material in primitives:
+        prim = {"attributes": attributes, "mode": mode}
+        if indices is not None:
+            prim["indices"] = add(np.asarray(indices, "<u2"), 5123, "SCALAR")
+        if with_material:
+            prim["material"] = 0
+        prims.append(prim)
+    tree = {"asset": {"version": "2.0"}, "scene": 0, "scenes": [{"nodes": [0]}], "nodes": [{"mesh": 0}],
+            "meshes": [{"primitives": prims}], "accessors": accessors, "bufferViews": views,
+            "buffers": [{"byteLength": len(data)}]}
+    if materials:
+        tree["materials"] = [{"name": f"m{k}"} for k in range(materials)]
+    path.write_bytes(glb_bytes(tree, bytes(data)))
+    return path
+
+
+def _hexagon():
+    """(7, 3) a hexagon's centre and corners, z rising with the angle (every position distinct)."""
+    angles = np.arange(6) * math.pi / 3
+    ring = np.c_[np.cos(angles), np.sin(angles), angles / 10]
+    return np.vstack([[0.0, 0.0, 1.0], ring]).astype(np.float32).astype(np.float64)   # as the file holds them
+
+
+@pytest.mark.parametrize("indexed", [True, False])
+def test_a_triangle_fan_is_read_as_its_triangles(tmp_path, indexed):
+    """trimesh skips glTF's TRIANGLE_FAN (mode 6) without a word (a file of fans alone read as
+    "no geometry"); its triangles are p_i = (v[i+1], v[i+2], v[0]), wound alike."""
+    P = _hexagon()
+    fan = [0, 1, 2, 3, 4, 5, 6, 1]                          # centre, the ring, closed
+    positions = P[fan] if not indexed else P
+    source = load_mesh_file(_glb(tmp_path / "fan.glb", [(6, fan if indexed else None, False)], positions))
+    got = sorted(tuple(sorted(map(tuple, source.positions[source.vertex_position[f]]))) for f in source.faces)
+    expected = sorted(tuple(sorted(map(tuple, P[[0, fan[i + 1], fan[i + 2]]]))) for i in range(6))
+    assert got == expected
+    normals = np.cross(*(source.positions[source.vertex_position[source.faces[:, k]]]
+                         - source.positions[source.vertex_position[source.faces[:, 0]]] for k in (1, 2)))
+    assert (normals[:, 2] > 0).all()                        # counter-clockwise seen from +z, as the fan
+    mixed = load_mesh_file(_glb(tmp_path / "mixed.glb", [(4, [0, 1, 2], False), (6, fan, False)], P))
+    assert len(mixed.faces) == 7
+
+
+def test_texture_coordinates_on_a_primitive_with_no_material_are_kept(tmp_path):
+    """trimesh reads a primitive's texture coordinates only when it has a material: without one
+    they came out (0, 0), without a word."""
+    P = _hexagon()
+    uv = np.c_[np.linspace(0.1, 0.9, 7), np.linspace(0.9, 0.2, 7)]
+    source = load_mesh_file(_glb(tmp_path / "bare.glb", [(4, [0, 1, 2, 0, 2, 3], False)], P, uv))
+    assert source.vertex_uv is not None
+    for v in range(len(source.vertex_position)):
+        at = int(np.flatnonzero((P == source.positions[source.vertex_position[v]]).all(axis=1))[0])
+        np.testing.assert_allclose(source.vertex_uv[v], [uv[at, 0], 1.0 - uv[at, 1]], atol=1e-6)   # trimesh flips v

@@ -54,8 +54,10 @@ MAX_DECODED_BYTES = 1 << 31         # largest bufferView decoded (a damaged coun
 
 
 def dequantized_gltf(path: Path, file_type: str) -> bytes | None:
-    """``path`` as GLB bytes with its normalized attributes and texture transforms applied, or
-    None when it has neither (or is not glTF, or does not parse: trimesh then reads it and reports)."""
+    """``path`` as GLB bytes with its normalized attributes and texture transforms applied, and
+    the primitives trimesh would leave out made readable (:func:`_primitives_to_rewrite`), or
+    None when it has none of them (or is not glTF, or does not parse: trimesh then reads it and
+    reports)."""
     if file_type not in ("glb", "gltf"):
         return None
     try:
@@ -63,7 +65,7 @@ def dequantized_gltf(path: Path, file_type: str) -> bytes | None:
     except Exception:       # any damage: left to trimesh, whose error the loader turns into one line
         return None
     try:
-        todo = _attributes_to_rewrite(tree)
+        todo = _attributes_to_rewrite(tree) + _primitives_to_rewrite(tree)
         if not todo and not _compressed_views(tree):
             return None                          # nothing to rewrite: the buffers need not be read
     except Exception as exc:
@@ -207,6 +209,9 @@ def _rewrite(tree: dict, buffers: list, out: bytearray, todo: list) -> bool:
         view["buffer"] = 0
     made = {}
     for prim, name, index, transform in todo:
+        if name in (_FAN, _BARE):
+            _rewrite_primitive(tree, accessors, views, out, prim, name)
+            continue
         key = (index, transform)
         if key not in made:
             values = _values(accessors[index], views, out)
@@ -222,6 +227,49 @@ def _rewrite(tree: dict, buffers: list, out: bytearray, todo: list) -> bool:
             info = material.get("pbrMetallicRoughness", {}).get("baseColorTexture", {})
             info.get("extensions", {}).pop("KHR_texture_transform", None)
     return True
+
+
+_FAN, _BARE = " fan", " no material"        # todo entries of primitives (no attribute is named so)
+_TRIANGLE_FAN = 6
+
+
+def _primitives_to_rewrite(tree: dict) -> list[tuple]:
+    """[(primitive, _FAN or _BARE, None, None)]: primitives trimesh would leave out, whole or in
+    part, without a word. A triangle fan (mode 6) it skips (a file of fans alone read as "no
+    geometry"); texture coordinates on a primitive with no material it drops (read as (0, 0)).
+    Each becomes what trimesh reads: a triangle list, a plain material of its own."""
+    todo = []
+    for mesh in tree.get("meshes", []):
+        for prim in mesh.get("primitives", []):
+            if prim.get("mode") == _TRIANGLE_FAN:
+                todo.append((prim, _FAN, None, None))
+            if "material" not in prim and any(n.startswith("TEXCOORD_") for n in prim.get("attributes", {})):
+                todo.append((prim, _BARE, None, None))
+    return todo
+
+
+def _rewrite_primitive(tree: dict, accessors: list, views: list, out: bytearray, prim: dict, what: str) -> None:
+    """A fan's triangles as a list (uint32 indices appended to ``out``), or a material of its own
+    (unnamed, white: the glTF default) for a primitive with texture coordinates and none."""
+    if what == _BARE:
+        tree.setdefault("materials", []).append({})
+        prim["material"] = len(tree["materials"]) - 1
+        return
+    if "indices" in prim:
+        order = _values(accessors[prim["indices"]], views, out)[:, 0].astype(np.int64)
+    else:
+        order = np.arange(int(accessors[prim["attributes"]["POSITION"]]["count"]), dtype=np.int64)
+    k = np.arange(1, max(len(order) - 1, 1))
+    triangles = np.stack([np.full(len(k), order[0] if len(order) else 0), order[k], order[k + 1]], axis=1) \
+        if len(order) >= 3 else np.zeros((0, 3), np.int64)
+    indices = np.ascontiguousarray(triangles.reshape(-1), "<u4")
+    out += b"\0" * (-len(out) % 4)
+    views.append({"buffer": 0, "byteOffset": len(out), "byteLength": indices.nbytes})
+    out += indices.tobytes()
+    tree["bufferViews"] = views
+    accessors.append({"bufferView": len(views) - 1, "componentType": 5125, "type": "SCALAR",
+                      "count": int(len(indices))})
+    prim["indices"], prim["mode"] = len(accessors) - 1, 4
 
 
 MESHOPT_FILTERS = {"OCTAHEDRAL": ("decode_filter_oct", (4, 8)), "QUATERNION": ("decode_filter_quat", (8,)),
