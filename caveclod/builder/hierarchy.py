@@ -714,6 +714,13 @@ def _base_mesh_reasons(hier: Hierarchy, face_pos: np.ndarray, topo: Topology, la
     if components > 1:
         reasons.append(f"{components:,} separate pieces, each keeping at least one face (cameras hide a piece "
                        "while it is smaller than their tolerance or out of view)")
+    # An edge two faces use in the same direction: faces wound inconsistently (a scan's export, a
+    # mirrored part), cut apart like a non-manifold edge; the cause is the file's, and fixable.
+    flipped = int(np.count_nonzero((topo.edge_faces == 2) & (topo.nbrs < 0))) // 2
+    if flipped:
+        reasons.append(f"{flipped:,} edges between faces wound in opposite directions, which split pieces and "
+                       "pin positions (orient the faces consistently first: MeshLab's 'Re-Orient all faces "
+                       "coherently', trimesh.repair.fix_winding)")
     if pinned:
         reasons.append(f"{pinned:,} non-manifold positions that never move")
     if rigid:
@@ -725,7 +732,7 @@ def _base_mesh_reasons(hier: Hierarchy, face_pos: np.ndarray, topo: Topology, la
     why = f"base mesh is {base:,} faces ({100 * base / p:.1f}% of {p:,})"
     why += ": " + "; ".join(reasons) if reasons else ""
     return {"faces": base, "fraction": round(base / p, 6), "components": components,
-            "nonmanifold_positions": pinned, "rigid_positions": rigid, "rigid_positions_smooth": smooth_rigid,
+            "nonmanifold_positions": pinned, "flipped_edges": flipped, "rigid_positions": rigid, "rigid_positions_smooth": smooth_rigid,
             "surface_groups": lay.n_groups,
             "material_border_faces": material_faces, "large": large, "why": why}
 
