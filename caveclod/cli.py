@@ -178,7 +178,7 @@ def _parser() -> argparse.ArgumentParser:
     s.add_argument("--transport", choices=("grpc", "h2"), default="grpc",
                    help="grpc: grpc.aio (the default; TLS, every gRPC feature); h2: caveclod's own HTTP/2 on the "
                         "same event loop, the same services (Lod, health, reflection) at less CPU a frame, "
-                        "plaintext only (README, \"Server model\")")
+                        "plaintext only (docs/server.md, \"Server model\")")
     s.add_argument("--checked-dir", default=default_checked_dir(), metavar="DIR",
                    help="where meshes that passed the structural check at start are remembered, so that a start "
                         "on an unchanged file (the same inode, size, mtime and ctime) skips reading it again "

@@ -6,7 +6,7 @@ kernels are loaded on a thread of their own afterwards; health says SERVING
 at once, and an Open that arrives before the kernels are ready waits for
 them.
 
-The server model, chosen by measurement (README, "How the server works"):
+The server model, chosen by measurement (docs/server.md):
 grpc.aio on one event loop, which reads and writes every stream, and a pool
 of worker threads, one per core, that make the frames (refinement releases
 the GIL, so sessions refine in parallel). A thread per stream, the other

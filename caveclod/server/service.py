@@ -8,8 +8,8 @@ frames each took under ``session.CHEAP_SECONDS`` of CPU, makes and writes
 the frame that is due right there; and a writer that wakes only for what
 the reader does not see (convergence timers, ends) and for costly frames,
 which it has made on a worker thread (the kernels release the GIL, so
-sessions refine on every core). docs/frame-path.md says why; the README's
-"How the server works" why grpc.aio and not a thread per stream.
+sessions refine on every core). docs/frame-path.md says why; docs/server.md
+why grpc.aio and not a thread per stream.
 """
 
 from __future__ import annotations
