@@ -28,6 +28,8 @@ import os
 import re
 from dataclasses import dataclass, replace
 
+import numpy as np
+
 EARTH_RADIUS_M = 6_371_008.8
 """Mean radius of the Earth (IUGG), metres."""
 
@@ -160,6 +162,10 @@ def _geotiff_spacing(path, shape) -> tuple[Spacing | None, str | None]:
             tags = tif.pages[0].tags
             values = {code: tags[code].value for code in (_PIXEL_SCALE, _TIEPOINT, _TRANSFORMATION, _GEOKEYS)
                       if code in tags}
+        # Each tag's numbers as a flat tuple: a damaged file's tag of one value reads as a bare
+        # number (len() of it raised TypeError, found by the source fuzzer), of text as a string.
+        values = {code: tuple(float(x) for x in np.atleast_1d(np.asarray(v, dtype=np.float64)).ravel())
+                  for code, v in values.items()}
     except Exception:   # the pixels were read; damaged tags only cost the spacing
         return None, "the GeoTIFF's georeference tags could not be read: give --cell-size"
     scale = _pixel_scale(values)
