@@ -104,3 +104,18 @@ def test_loadtest_in_several_processes_merges_their_figures(server, tmp_path, ca
     assert report["frames"] >= 4 * 20 and len(report["latencies_ms"]) == report["poses_timed"] > 0
     assert report["client_cpu_ms_per_frame"] > 0
     assert server.metrics.total("frames") >= report["frames"]
+
+
+def test_a_run_in_which_no_frame_came_exits_1_saying_so(monkeypatch, capsys):
+    """A sweep saw a load test count 1,444 poses sent and no frame at all (a stalled server) and
+    exit 0, as if it had measured something; every session's first frame is its keyframe, so
+    none is a failure, said in one line."""
+    from caveclod.client import loadtest
+
+    async def stalled(args):
+        return {"frames": 0, "keyframes": 0, "poses_sent": 1444, "divergences": 0, "errors": {},
+                "latencies_ms": []}
+    monkeypatch.setattr(loadtest, "run", stalled)
+    assert cli.main(["loadtest", "--target", "127.0.0.1:1", "--duration", "2", "--json"]) == 1
+    err = capsys.readouterr().err
+    assert "no frame came in 2 s (1,444 poses sent)" in err and err.count("\n") == 1

@@ -441,6 +441,12 @@ def main(args) -> int:
     else:
         for key, value in figures.items():
             print(f"{key:<28} {value}")
+    if not figures["frames"]:
+        # Every session's first frame is its keyframe: none at all is a server that did not answer
+        # (a run that counted 1,444 poses and no frame used to exit 0, as if measured).
+        print(f"caveclod: error: {args.target}: no frame came in {args.duration:g} s ({figures['poses_sent']:,} "
+              "poses sent): the server did not answer; check its log and load", file=sys.stderr)
+        return 1
     return 1 if figures["divergences"] or figures["errors"] else 0
 
 
