@@ -246,6 +246,36 @@ def test_refcounts_follow_the_camera_and_keyframes_start_over():
     assert len(morphs.moving(2.5)[0]) == 0
 
 
+def test_a_sessions_first_refinement_is_shown_at_once_not_grown_out_of_the_base_mesh():
+    """A session's first keyframe goes out before the camera's first pose (the base mesh); the frame
+    answering that pose holds the whole first refinement. Morphed, every render's first half second
+    was drawn from the base mesh (found by a sweep of textured meshes: each patch one smeared
+    triangle for 15 frames). It is shown as it is; the frames after it morph as before."""
+    from caveclod.paths import flyover
+    mesh = caveclod.build("rough", size=32)
+    cam = mesh.new_camera()
+    morphs = Geomorphs(mesh.vertex_positions, morph_targets(mesh), cam.n_materials, duration=0.5)
+    morphs.apply(_keyframe(cam), True, 0.0, posed=False)           # the base mesh, before any pose
+    lo, hi = mesh.bounds()
+    first = _surfaces(cam.update(caveclod.View.from_pose(flyover(lo, hi, 0, 0.0), tolerance_px=1.0)))
+    assert sum(len(s.slots) for s in first) > 100
+    ch = morphs.apply(first, False, 0.02)
+    assert ch.reset and not morphs.active
+    for m in range(cam.n_materials):
+        assert np.array_equal(morphs.display(m), cam.index_buffer(m))
+    moving = 0
+    for f in range(1, 30):                                          # then a flight morphs as before
+        view = caveclod.View.from_pose(flyover(lo, hi, 0, f / 2), tolerance_px=1.0)
+        ch = morphs.apply(_surfaces(cam.update(view)), False, 0.02 + f / 30)
+        assert not ch.reset
+        moving += bool(morphs.active)
+    assert moving > 10
+    posed = Geomorphs(mesh.vertex_positions, morph_targets(mesh), cam.n_materials, duration=0.5)
+    posed.apply(_keyframe(cam), True, 0.0)                          # a keyframe that answered a pose
+    view = caveclod.View.from_pose(flyover(lo, hi, 0, 40.0), tolerance_px=1.0)
+    assert not posed.apply(_surfaces(cam.update(view)), False, 0.02).reset and posed.active
+
+
 def test_bad_input_is_refused():
     p = np.zeros((4, 3), np.float32)
     with pytest.raises(ValueError, match="positive duration"):

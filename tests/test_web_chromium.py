@@ -419,8 +419,8 @@ GEOMORPH_IN_PAGE = """async ([positions, targets, materials, duration, speed, st
     if (eye !== null) g.lookFrom(eye, kappa);
     if (kind === 'frame') {
       g.apply(surfaces.map(([m, count, slots, tris]) => ({ material: m, count, slots: Uint32Array.from(slots), tris: Uint32Array.from(tris) })), false, now);
-    } else if (kind === 'key') {
-      g.apply(surfaces.map(([m, count, slots, tris]) => ({ material: m, count, slots: Uint32Array.from(slots), tris: Uint32Array.from(tris) })), true, now);
+    } else if (kind === 'key' || kind === 'basekey') {
+      g.apply(surfaces.map(([m, count, slots, tris]) => ({ material: m, count, slots: Uint32Array.from(slots), tris: Uint32Array.from(tris) })), true, now, kind === 'key');
     } else {
       g.tick(now);
     }
@@ -433,7 +433,8 @@ GEOMORPH_IN_PAGE = """async ([positions, targets, materials, duration, speed, st
 
 @pytest.mark.parametrize("speed, cut", [(None, False), (20.0, False), (None, True)])
 def test_the_pages_geomorphs_agree_with_pythons(browser, make_server, terrain_path, speed, cut):
-    """The page's geomorph.js, fed the frames of a flight with splits, collapses and a keyframe, draws
+    """The page's geomorph.js, fed the frames of a flight with splits, collapses and a keyframe (its
+    first frame, after a keyframe of no pose, shown as it is), draws
     the display buffers and moving positions that caveclod.client.geomorph draws, step for step; with
     a speed too, each morph timed by its path on screen from the frame's camera; and fed every
     material's writes in pieces (a frame cut across parts), what Python draws fed them whole."""
@@ -465,12 +466,12 @@ def test_the_pages_geomorphs_agree_with_pythons(browser, make_server, terrain_pa
         if kind == "tick":
             morphs.tick(now)
         else:
-            morphs.apply(objs, kind == "key", now)
+            morphs.apply(objs, kind in ("key", "basekey"), now, posed=kind != "basekey")
         v, p = morphs.moving(now)
         spans.update(m.span for m in morphs.active.values())
         want.append(([morphs.display(m).ravel().tolist() for m in range(cam.n_materials)],
                      dict(zip(v.tolist(), map(tuple, p.tolist()))), len(morphs.active), morphs.snaps))
-    step("key", 0.0, key())
+    step("basekey", 0.0, key())                     # a session's first keyframe: the base mesh, no pose yet
     for f in range(1, 70):
         now = f / 30
         view = caveclod.View.from_pose(flyover(lo, hi, 0, f / 1.5), width=640, height=360, tolerance_px=1.0)

@@ -113,6 +113,7 @@ class Geomorphs:
         self.point, self.point_target, self._start, self._members = points or points_of(self.positions, self.targets)
         self.point_refs = np.zeros(len(self.point_target), np.int32)  # logical triangle corners at each point
         self.rows = [np.zeros((0, 3), np.int64) for _ in range(materials)]    # the logical buffers
+        self._unposed = False                               # showing a keyframe that answered no pose
         self.held = [dict() for _ in range(materials)]      # slot -> (3,) display triangle
         self.kept = [[] for _ in range(materials)]          # display triangles after the buffer
         self.active: dict[int, _Morph] = {}                 # point -> its morph
@@ -205,14 +206,23 @@ class Geomorphs:
         return self._vertices(pts), np.repeat(self.points_at(pts, now), counts, axis=0).astype(np.float32)
 
     # -- frames in -------------------------------------------------------------------
-    def apply(self, surfaces, keyframe: bool, now: float) -> Changes:
+    def apply(self, surfaces, keyframe: bool, now: float, posed: bool = True) -> Changes:
         """Take one frame's writes of this camera (``caveclod.wire.Surface``-like: material, count,
         slots (k,), tris (k, 3)), after emptying its buffers when ``keyframe``: the display
         :class:`Changes`. Morphs over by ``now`` end first. A material's writes may come in pieces
-        (a frame cut across parts): they are joined first."""
+        (a frame cut across parts): they are joined first.
+
+        ``posed``: the frame answers a pose (its ``pose_seq`` is not 0). A session's first
+        keyframe goes out before the camera's first pose, so it holds the base mesh; the frame
+        answering that pose holds the whole first refinement, which morphed out of the base mesh
+        over the morph time (every render's first half second drawn from the base mesh). A frame
+        after a keyframe that answered no pose is shown as it is, as a keyframe is."""
         surfaces = joined(surfaces)
         out = self.tick(now)
-        if keyframe:
+        if keyframe or self._unposed:
+            if not keyframe:
+                surfaces = self._whole(surfaces)
+            self._unposed = not posed
             return self._restart(surfaces, out)
         before = self.point_refs.copy()
         touched, lost_display, new_at = [], [], {}
@@ -265,6 +275,19 @@ class Geomorphs:
         return out
 
     # -- internals ---------------------------------------------------------------------
+    def _whole(self, surfaces) -> list:
+        """Every material's buffer once ``surfaces``' writes are applied to it, as a keyframe's."""
+        rows = list(self.rows)
+        for s in surfaces:
+            m, count = s.material, int(s.count)
+            grown = np.zeros((count, 3), np.int64)
+            keep = min(count, len(rows[m]))
+            grown[:keep] = rows[m][:keep]
+            grown[np.asarray(s.slots, np.int64)] = np.asarray(s.tris, np.int64).reshape(-1, 3)
+            rows[m] = grown
+        return [Surface(m, len(r), np.arange(len(r), dtype=np.uint32), r.astype(np.uint32), None)
+                for m, r in enumerate(rows)]
+
     def _restart(self, surfaces, out: Changes) -> Changes:
         """A keyframe: the camera starts over, nothing morphs."""
         self._moved |= set(self.active)

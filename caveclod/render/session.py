@@ -113,7 +113,7 @@ class SessionRenderer:
                 for s in cam.surfaces:
                     self.renderer.apply(c, s.material, s.count, s.tris, s.slots)
             else:
-                self._display(c, self.morphs[c].apply(cam.surfaces, cam.keyframe, self.time))
+                self._display(c, self.morphs[c].apply(cam.surfaces, cam.keyframe, self.time, posed=cam.pose_seq > 0))
 
     def clock(self) -> float:
         """Seconds since this renderer was made: the geomorphs' clock when none is given."""

@@ -84,6 +84,7 @@ export class Geomorphs {
     Object.assign(this, points);
     this.pointRefs = new Int32Array(this.pointTarget.length);
     this.rows = Array.from({ length: materials }, () => new Uint32Array(0));
+    this.unposed = false; // showing a keyframe that answered no pose
     this.held = Array.from({ length: materials }, () => new Map());
     this.kept = Array.from({ length: materials }, () => []);
     this.active = new Map();
@@ -136,11 +137,18 @@ export class Geomorphs {
     return { vertices: Int32Array.from(verts), positions: Float32Array.from(where) };
   }
 
-  /** One frame's writes of this camera ([{material, count, slots, tris}]); the display writes. */
-  apply(surfaces, keyframe, now) {
+  /** One frame's writes of this camera ([{material, count, slots, tris}]); the display writes.
+   * `posed`: the frame answers a pose (poseSeq > 0). A frame after a keyframe that answered none (a
+   * session's first, the base mesh) is shown as it is, as a keyframe is, not grown out of the base
+   * mesh over the morph time (as caveclod/client/geomorph.py). */
+  apply(surfaces, keyframe, now, posed = true) {
     surfaces = joined(surfaces); // a material's pieces (a frame cut across parts) as one
     const out = this.tick(now);
-    if (keyframe) return this.restart(surfaces, out);
+    if (keyframe || this.unposed) {
+      if (!keyframe) surfaces = this.whole(surfaces);
+      this.unposed = !posed;
+      return this.restart(surfaces, out);
+    }
     const before = this.pointRefs.slice();
     const touched = new Set(), lost = [], newAt = new Map();
     for (const s of surfaces) {
@@ -190,6 +198,19 @@ export class Geomorphs {
     if (arrived.size) this.handOn(arrived, touched);
     this.emit(out, [], touched);
     return out;
+  }
+
+  /** Every material's buffer once `surfaces`' writes are applied to it, as a keyframe's. */
+  whole(surfaces) {
+    const rows = this.rows.slice();
+    for (const s of surfaces) {
+      const n = rows[s.material].length / 3;
+      const grown = new Uint32Array(3 * s.count);
+      grown.set(rows[s.material].subarray(0, 3 * Math.min(s.count, n)));
+      for (let i = 0; i < s.slots.length; i++) grown.set(s.tris.subarray(3 * i, 3 * i + 3), 3 * s.slots[i]);
+      rows[s.material] = grown;
+    }
+    return rows.map((r, m) => ({ material: m, count: r.length / 3, slots: Uint32Array.from({ length: r.length / 3 }, (_, i) => i), tris: r }));
   }
 
   restart(surfaces, out) {

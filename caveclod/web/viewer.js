@@ -167,7 +167,7 @@ async function main() {
       for (const [c, cu] of update.cameras) {
         if (poses[c]) morphs[c].lookFrom(poses[c].eye, kappa); // morphs timed from where the camera is
         const started = morphs[c].active.size;
-        applyDisplay(c, morphs[c].apply(cu.surfaces, cu.keyframe, t));
+        applyDisplay(c, morphs[c].apply(cu.surfaces, cu.keyframe, t, cu.poseSeq > 0));
         stats.morphsStarted += Math.max(0, morphs[c].active.size - started);
       }
     },
