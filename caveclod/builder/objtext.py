@@ -92,10 +92,11 @@ def _rewrite(data: bytes) -> tuple[bytes, list[str]]:
             counts[key] += 1
             out.append(b" ".join(words))
         elif key in (b"f", b"l", b"p"):
-            corners = [_absolute(w, counts) for w in words[1:]]
+            relative = b"-" in raw
+            corners = [_absolute(w, counts) for w in words[1:]] if relative else [w.split(b"/") for w in words[1:]]
             if key == b"f":
                 faces += 1
-                relative_faces += any(w.startswith(b"-") or b"/-" in w for w in words[1:])
+                relative_faces += relative
                 if any(len(c) < 2 or not c[1] for c in corners):
                     without += 1
                     corners = [[c[0], _NO_UV] + c[2:] if len(c) > 1 else [c[0], _LONE_NO_UV] for c in corners]
