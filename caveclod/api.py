@@ -279,6 +279,8 @@ def to_source(source, *, cell_size=None, z_scale=1.0, materials=None, size=DEFAU
             raise InputError(f"--stride applies to heightfield files and arrays, not to the built-in {source!r}: "
                              "give it a smaller --size instead")
         _refuse_heightfield_options(f"the built-in {source!r}", cell_size, z_scale, materials, nodata)
+        if seed is not None and (isinstance(seed, bool) or not isinstance(seed, (int, np.integer)) or seed < 0):
+            raise InputError(f"--seed must be a whole number from 0, got {seed!r}")
         if not isinstance(size, (int, np.integer)) or not 2 <= size <= 8192:
             raise InputError(f"--size must be an integer between 2 and 8192 cells, got {size!r}")
         if source in builtin.TERRAINS:

@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import os
 import sys
 
 from .builder.memory import PEAK_BYTES_PER_TRIANGLE
@@ -50,6 +51,12 @@ def main(argv: list[str] | None = None) -> int:
         return 130
     except BrokenPipeError:
         return _stdout_closed()
+    except OSError as exc:
+        # What the file system refused that no check above foresaw (a name too long, a
+        # directory where a file was wanted): one line naming the file, not a traceback.
+        where = f"{exc.filename}: " if exc.filename else ""
+        print(f"caveclod: error: {where}{exc.strerror or exc}", file=sys.stderr)
+        return EXIT_USAGE
 
 
 def _stdout_closed() -> int:
@@ -387,6 +394,7 @@ def _build(args) -> int:
         return 0
     if args.output is None:
         raise InputError("-o/--output is required: the .cvc file to write")
+    _check_output(args.output, args.input)       # before the build, not after minutes of it
     mesh = build(args.input, tiles_dir=args.tiles_dir, **options)
     _save(mesh, args.output)
     _remember_checked(args.output)
@@ -394,6 +402,20 @@ def _build(args) -> int:
     report["output"] = args.output
     _print(report, args.json)
     return 0
+
+
+def _check_output(output: str, source: str | None = None) -> None:
+    """Refuse in one line, before any work, an output the build could not write or must not: no
+    file name, not a regular file, a directory that is missing or not writable, or the input
+    itself (``build m.obj -o m.obj`` replaced the mesh with the .cvc)."""
+    from .staticmesh import refuse_output_path
+    refuse_output_path(output)
+    parent = os.path.dirname(os.path.abspath(output))
+    if not os.access(parent, os.W_OK | os.X_OK):
+        raise InputError(f"cannot write {output}: its directory {parent} is not writable")
+    if source is not None and os.path.exists(output) and os.path.exists(source) \
+            and os.path.samefile(output, source):
+        raise InputError(f"the output {output} is the input: writing it would replace the mesh; give another -o")
 
 
 def _whole_number(option: str, text: str) -> int:
@@ -407,10 +429,11 @@ def _whole_number(option: str, text: str) -> int:
 def _pack(args) -> int:
     from .staticmesh import load
     from .vertexpack import attach_packed
+    output = args.output or args.path
+    _check_output(output)
     mesh = load(args.path)       # checked, as serve would
     mesh.store_derived()
     attach_packed(mesh, progress=not args.quiet)
-    output = args.output or args.path
     _save(mesh, output)          # a new file renamed into place: the mapped one stays readable meanwhile
     _remember_checked(output)
     _print({"path": str(output), "attachments": mesh.summary()["attachments"], "derived_bytes": mesh.derived_bytes},

@@ -29,18 +29,21 @@ can open a multi-gigabyte mesh at once and share its pages between processes.
 
 from __future__ import annotations
 
+import contextlib
 import hashlib
 import itertools
 import json
 import math
 import os
+import stat
 import struct
+import tempfile
 from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
 
-from .errors import FileFormatError, MeshDamagedError
+from .errors import FileFormatError, InputError, MeshDamagedError
 
 MAGIC = b"CAVECLOD"
 VERSION = 2
@@ -378,8 +381,15 @@ class StaticMesh:
 
     # -- file -------------------------------------------------------------
     def save(self, path: str | os.PathLike) -> None:
-        """Write the versioned ``.cvc`` file (atomically: temp file + rename)."""
+        """Write the versioned ``.cvc`` file (atomically: temp file + rename).
+
+        The temp file is a new name beside ``path`` (``.NAME.XXXXXX.tmp``, short enough for a
+        255-byte name: ``NAME.tmp`` refused names of 252 to 255 bytes) and is removed on any
+        failure, an interrupt included (a killed build left a partial NAME.tmp, up to hundreds of
+        MB, and a full disk stayed full). ``path`` must not be anything but a regular file: run as
+        root, renaming over /dev/null or a FIFO replaced it with the mesh."""
         path = Path(path)
+        refuse_output_path(path)
         table, offset = {}, 0
         for name in _present(self.arrays):
             a = self.arrays[name]
@@ -396,26 +406,70 @@ class StaticMesh:
                   "arrays": table, "attachments": attached}
         blob = json.dumps(header, sort_keys=True).encode()
         data_start = _aligned(len(MAGIC) + 8 + len(blob))
-        tmp = path.with_name(path.name + ".tmp")
-        with open(tmp, "wb") as fh:
-            fh.write(MAGIC + struct.pack("<II", VERSION, len(blob)) + blob)
-            fh.write(b"\0" * (data_start - fh.tell()))
-            for name in table:
-                a = _as_declared(name, self.arrays[name])
-                fh.write(a.tobytes())
-                fh.write(b"\0" * (_aligned(a.nbytes) - a.nbytes))
-            for name in attached:
-                data = np.ascontiguousarray(self.attachments[name].data).reshape(-1).view(np.uint8)
-                fh.write(data)
-                fh.write(b"\0" * (_aligned(data.nbytes) - data.nbytes))
-        os.replace(tmp, path)
+        fd, tmp = tempfile.mkstemp(prefix="." + path.name[:200] + ".", suffix=".tmp", dir=path.parent)
+        try:
+            with os.fdopen(fd, "wb") as fh:
+                fh.write(MAGIC + struct.pack("<II", VERSION, len(blob)) + blob)
+                fh.write(b"\0" * (data_start - fh.tell()))
+                for name in table:
+                    a = _as_declared(name, self.arrays[name])
+                    fh.write(a.tobytes())
+                    fh.write(b"\0" * (_aligned(a.nbytes) - a.nbytes))
+                for name in attached:
+                    data = np.ascontiguousarray(self.attachments[name].data).reshape(-1).view(np.uint8)
+                    fh.write(data)
+                    fh.write(b"\0" * (_aligned(data.nbytes) - data.nbytes))
+            os.chmod(tmp, 0o666 & ~_umask())      # as open() would have made it (mkstemp makes 0600)
+            os.replace(tmp, path)
+        except BaseException:
+            with contextlib.suppress(OSError):
+                os.unlink(tmp)
+            raise
         self.path = str(path)
 
     def verify(self) -> None:
-        """Re-hash every array (reads the whole file); raise if it changed."""
+        """Re-hash every array and check every stored attachment's CRC-32s (reads the whole file);
+        raise if anything changed. (Attachments were not checked: a flipped byte in a stored packed
+        download passed ``inspect --verify``, which serve then refused.)"""
+        import zlib
+        from .vertexpack import stored_meta_crc32
         content, _ = _hashes(self.arrays)
         if content != self.content_hash or _optional_hash(self.arrays) != self.optional_hash:
             raise FileFormatError(f"{self.path}: content hash mismatch; the file is corrupt, rebuild it")
+        for name, att in sorted(self.attachments.items()):
+            meta = att.meta if isinstance(att.meta, dict) else {}
+            damaged = ("meta_crc32" in meta and meta["meta_crc32"] != stored_meta_crc32(meta)) or \
+                ("packed_crc32" in meta and meta["packed_crc32"] != zlib.crc32(att.data))
+            if damaged:
+                raise FileFormatError(f"{self.path}: attachment {name} does not match its CRC-32; the file is corrupt: "
+                                      f"'caveclod pack {self.path}' stores it again, or rebuild the file")
+
+
+def refuse_output_path(path: str | os.PathLike) -> None:
+    """InputError unless ``path`` can be written as a ``.cvc``: a name in an existing directory,
+    not an existing directory, device, FIFO or socket (only a regular file is replaced)."""
+    path = Path(path)
+    if not path.name or path.name in (".", ".."):
+        raise InputError(f"the output {str(path)!r} names no file: give a file name such as mesh.cvc")
+    if path.exists() and not path.is_file():
+        raise InputError(f"the output {path} exists and is not a regular file (a directory, device or FIFO): "
+                         "give the path of a file to write")
+    if not path.parent.is_dir():
+        raise InputError(f"the output's directory {path.parent} does not exist: create it first")
+
+
+def _umask() -> int:
+    """This process's umask, read where Linux shows it (setting it to read it races other threads)."""
+    try:
+        with open("/proc/self/status") as fh:
+            for line in fh:
+                if line.startswith("Umask:"):
+                    return int(line.split()[1], 8)
+    except (OSError, ValueError, IndexError):
+        pass
+    mask = os.umask(0o022)
+    os.umask(mask)
+    return mask
 
 
 PART_ARRAYS = ("part_sphere", "part_root_start", "part_roots", "part_face_start", "part_faces")
@@ -517,7 +571,11 @@ def damaged_error(path, what: str) -> FileFormatError:
 def _read_header(path: Path) -> tuple[int, int, bytes]:
     """(file size, header length, header bytes) after checking the magic and version."""
     try:
-        size = path.stat().st_size
+        st = path.stat()
+        if not stat.S_ISREG(st.st_mode) and not stat.S_ISDIR(st.st_mode):
+            # A FIFO's open() waits for a writer: inspect, pack and serve hung (serve past SIGTERM).
+            raise FileFormatError(f"{path}: not a regular file (a FIFO, device or socket); give a .cvc file")
+        size = st.st_size
         with open(path, "rb") as fh:
             head = fh.read(len(MAGIC) + 8)
             if len(head) < len(MAGIC) + 8 or head[:len(MAGIC)] != MAGIC:

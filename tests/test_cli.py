@@ -96,7 +96,7 @@ def test_garbage_files_are_refused(tmp_path):
 
 def test_unwritable_output_is_refused(tmp_path):
     proc = run("build", "default", "--size", 8, "-o", tmp_path / "no" / "such" / "dir" / "x.cvc", "--quiet")
-    assert_refused(proc, "cannot write")
+    assert_refused(proc, "does not exist", "create it first")
 
 
 def test_pack_stores_the_downloads_in_a_file_built_without_them(tmp_path):
@@ -145,3 +145,104 @@ def test_python_dash_m_caveclod_is_the_command_line():
     proc = subprocess.run([sys.executable, "-m", "caveclod", "build", "no-such-file.obj", "-o", "x.cvc"],
                           capture_output=True, text=True, timeout=120)
     assert proc.returncode == 2 and "no-such-file.obj" in proc.stderr
+
+
+# ----------------------------------------------------------------- outputs, names and numbers a sweep found
+
+from caveclod.cli import main as cli_main  # noqa: E402 - the in-process command line, for these tests
+
+
+@pytest.fixture(scope="module")
+def small_cvc(tmp_path_factory):
+    path = tmp_path_factory.mktemp("small") / "base.cvc"
+    assert cli_main(["build", "default", "--size", "8", "-o", str(path), "--quiet"]) == 0
+    return path
+
+
+def _one_line(capsys, status, *words):
+    err = capsys.readouterr().err
+    assert status == 2, err
+    lines = err.strip().splitlines()
+    assert len(lines) == 1 and lines[0].startswith("caveclod: error:") and "Traceback" not in err, err
+    for w in words:
+        assert w in lines[0], lines[0]
+
+
+def test_outputs_a_build_must_not_write_are_refused_before_it_starts(tmp_path, capsys):
+    """-o naming a directory, a device, a FIFO, no file, a missing directory or the input itself:
+    /dev/null became a regular file (run as root), `build m.obj -o m.obj` replaced the mesh, and
+    a missing directory was found after the whole build."""
+    mesh = tmp_path / "m.obj"
+    mesh.write_text("v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 3\n")
+    fifo = tmp_path / "fifo.cvc"
+    os.mkfifo(fifo)
+    # (Not /dev/null itself: were the check to go, a test run as root would replace the device.)
+    for output, words in [(str(tmp_path), "not a regular file"), (str(fifo), "not a regular file"), ("", "names no file"), (".", "names no file"),
+                          (str(tmp_path / "nodir" / "x.cvc"), "does not exist"), (str(mesh), "is the input")]:
+        _one_line(capsys, cli_main(["build", str(mesh), "-o", output]), *words.split("|"))
+    assert mesh.read_text().startswith("v 0 0 0") and fifo.is_fifo()
+
+
+def test_a_failed_write_leaves_the_old_file_and_no_temp_file(tmp_path, small_cvc, monkeypatch):
+    """A build killed while writing left NAME.cvc.tmp (hundreds of MB, a full disk stayed full)."""
+    from caveclod import staticmesh
+    mesh = caveclod.load(small_cvc)
+    out = tmp_path / "old.cvc"
+    out.write_bytes(small_cvc.read_bytes())
+
+    def interrupted(name, array):
+        raise KeyboardInterrupt
+    monkeypatch.setattr(staticmesh, "_as_declared", interrupted)
+    with pytest.raises(KeyboardInterrupt):
+        mesh.save(out)
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["old.cvc"]
+    assert out.read_bytes() == small_cvc.read_bytes()
+
+
+def test_a_255_byte_output_name_is_written(tmp_path, small_cvc):
+    """The temp file was NAME.tmp, too long for names of 252 to 255 bytes."""
+    mesh = caveclod.load(small_cvc)
+    out = tmp_path / ("a" * 251 + ".cvc")
+    mesh.save(out)
+    assert caveclod.load(out).content_hash == mesh.content_hash and len(list(tmp_path.iterdir())) == 1
+
+
+def test_numbers_and_names_said_in_one_line_not_a_traceback(tmp_path, capsys):
+    (tmp_path / "afile").write_text("x")
+    cases = [
+        (["build", "default", "--size", "8", "--seed", "-1", "-o", str(tmp_path / "n.cvc")], "--seed"),
+        (["build", str(tmp_path / ("b" * 296 + ".obj")), "-o", str(tmp_path / "x.cvc")], "too long"),
+        (["build", "default", "--size", "64", "--tiles", "2", "--tiles-dir", str(tmp_path / "afile"),
+          "--tile-job", "0/2"], "is a file, not a directory"),
+        (["serve", "--port", "-1", "x.cvc"], "--port"),
+        (["serve", "--port", "0", "--metrics-port", "70000", "x.cvc"], "--metrics-port"),
+        (["serve", "--port", "0", "--drain-seconds", "nan", "x.cvc"], "finite"),
+        (["serve", "--port", "0", "--drain-seconds", "inf", "x.cvc"], "finite"),
+        (["serve", "--port", "0", "--processes", "1000", "x.cvc"], "--processes"),
+        (["health", "--target", "127.0.0.1:99999"], "port"),
+        (["health", "--target", "127.0.0.1:1", "--timeout", "nan"], "--timeout"),
+    ]
+    for argv, words in cases:
+        _one_line(capsys, cli_main(argv), words)
+
+
+def test_a_fifo_named_as_a_mesh_is_refused_not_waited_on(tmp_path):
+    """open() of a FIFO waits for a writer: inspect and pack hung, serve past SIGTERM."""
+    fifo = tmp_path / "ff.cvc"
+    os.mkfifo(fifo)
+    for command in ("inspect", "serve"):
+        argv = [command, str(fifo)] + (["--port", "0", "--host", "127.0.0.1"] if command == "serve" else [])
+        proc = subprocess.run([sys.executable, "-m", "caveclod.cli", *argv], capture_output=True, text=True,
+                              timeout=60)
+        assert_refused(proc, "not a regular file")
+
+
+def test_inspect_verify_checks_the_stored_attachments(tmp_path, small_cvc, capsys):
+    """A flipped byte in a stored packed download passed --verify (serve then refused it)."""
+    path = tmp_path / "flip.cvc"
+    data = bytearray(small_cvc.read_bytes())
+    data[-100] ^= 0xFF                                       # inside the last attachment
+    path.write_bytes(bytes(data))
+    assert caveclod.load(path).attachments
+    _one_line(capsys, cli_main(["inspect", "--verify", str(path)]), "attachment", "CRC-32")
+    assert cli_main(["inspect", "--verify", str(small_cvc)]) == 0

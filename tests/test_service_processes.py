@@ -124,7 +124,7 @@ def test_summed_metrics_add_counters_gauges_and_buckets():
 
 def test_processes_must_be_positive(terrain_path, capsys):
     assert cli.main(["serve", str(terrain_path), "--processes", "0"]) == 2
-    assert "--processes must be at least 1" in capsys.readouterr().err
+    assert "--processes must be from 1 to 256" in capsys.readouterr().err
 
 
 def test_processes_share_the_web_port(terrain_path):

@@ -133,6 +133,13 @@ class TileStore:
     made: list = field(default_factory=list)
     level: int | None = None
 
+    def __post_init__(self) -> None:
+        self.path = Path(self.path)
+        if self.path.exists() and not self.path.is_dir():
+            # Found before the blocks are made, not when the first is written (a FileExistsError then).
+            raise InputError(f"--tiles-dir {self.path} is a file, not a directory: give a directory (it is made "
+                             "if missing)")
+
     def mine(self, block: int) -> bool:
         """Whether this process makes ``block``."""
         return self.job is None or block % self.job[1] == self.job[0]

@@ -6,6 +6,8 @@ once the server accepts sessions; logs go to stderr.
 
 from __future__ import annotations
 
+import math
+
 import gc
 import signal
 import threading
@@ -17,6 +19,10 @@ from .auth import read_tokens
 from .config import H2_PLAINTEXT_ONLY, ServerConfig
 
 
+MAX_PROCESSES = 256
+"""Most --processes: one a core is the point (README, "Scaling out"); 256 covers the largest machines."""
+
+
 def config_from_args(args) -> ServerConfig:
     """A ServerConfig from the parsed ``caveclod serve`` arguments; InputError for bad ones."""
     if (args.tls_cert is None) != (args.tls_key is None):
@@ -24,14 +30,18 @@ def config_from_args(args) -> ServerConfig:
     for name in ("max_sessions", "max_cameras", "ack_window", "max_faces", "max_ops"):
         if getattr(args, name) is not None and getattr(args, name) < 1:
             raise InputError(f"--{name.replace('_', '-')} must be at least 1, got {getattr(args, name)}")
-    if args.web_port is not None and not 0 <= args.web_port <= 65535:
-        raise InputError(f"--web-port must be a port number (0 to 65535; 0 picks a free one), got {args.web_port}")
+    for flag, port in (("--port", args.port), ("--web-port", args.web_port), ("--metrics-port", args.metrics_port)):
+        # Out of range, grpc.aio took --port -1 as 65535 and 65536 as a free port; the exporter raised.
+        if port is not None and not 0 <= port <= 65535:
+            raise InputError(f"{flag} must be a port number (0 to 65535; 0 picks a free one), got {port}")
     if args.web_port == 0 and args.processes > 1:
         raise InputError("--processes N shares one --web-port between its processes: give a port number, not 0")
     if getattr(args, "transport", "grpc") == "h2" and args.tls_cert is not None:
         raise InputError(H2_PLAINTEXT_ONLY)
-    if args.resume_ttl < 0 or args.drain_seconds < 0:
-        raise InputError("--resume-ttl and --drain-seconds must be >= 0")
+    if not (0 <= args.resume_ttl < math.inf and 0 <= args.drain_seconds < math.inf):
+        # NaN ended a drain at once, inf never let the server exit after SIGTERM.
+        raise InputError(f"--resume-ttl and --drain-seconds must be finite numbers >= 0, got {args.resume_ttl} and "
+                         f"{args.drain_seconds}")
     tls = [_read(p, flag) for p, flag in ((args.tls_cert, "--tls-cert"), (args.tls_key, "--tls-key"))]
     return ServerConfig(
         meshes=list(args.meshes), host=args.host, port=args.port, max_sessions=args.max_sessions,
@@ -55,8 +65,10 @@ def _read(path, flag: str) -> bytes | None:
 def serve(args) -> int:
     """Run the server of ``args`` (see ``caveclod serve --help``); returns the exit status."""
     from .app import LodServer
-    if args.processes < 1:
-        raise InputError(f"--processes must be at least 1, got {args.processes}")
+    if not 1 <= args.processes <= MAX_PROCESSES:
+        # Each process loads the meshes and the kernels; a thousand took longer to start than a
+        # SIGTERM waited for (it waits for every process to have started).
+        raise InputError(f"--processes must be from 1 to {MAX_PROCESSES}, got {args.processes}")
     config = config_from_args(args)
     if args.processes > 1:
         from .processes import supervise

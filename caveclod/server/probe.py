@@ -11,6 +11,8 @@ connection); the reason goes to stderr as one line.
 
 from __future__ import annotations
 
+import math
+
 import sys
 
 import grpc
@@ -28,9 +30,15 @@ def check(target: str, service: str = "", timeout: float = 2.0, tls_ca: bytes | 
 
 def main(args) -> int:
     """``caveclod health`` (see ``caveclod health --help``); returns the exit status."""
+    from ..errors import InputError
+    if not 0 < args.timeout < math.inf:
+        raise InputError(f"--timeout must be a positive number of seconds, got {args.timeout}")
+    port = args.target.rpartition(":")[2]
+    if port.isdigit() and not 0 < int(port) <= 65535:
+        # gRPC took port 99999 modulo 65536 (34463) and connected there.
+        raise InputError(f"the target {args.target}'s port must be from 1 to 65535")
     tls_ca = None
     if args.tls_ca:
-        from ..errors import InputError
         try:
             with open(args.tls_ca, "rb") as fh:
                 tls_ca = fh.read()
