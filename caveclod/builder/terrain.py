@@ -266,7 +266,8 @@ def _read_grid(path: str | os.PathLike, what: str, palette: bool = False, mmap: 
     """
     path = os.fspath(path)
     if not os.path.isfile(path):
-        raise InputError(f"{what} file {path} does not exist; check the path")
+        raise InputError(f"{what} file {path} " + ("is not a regular file (a directory?)" if os.path.exists(path)
+                                                    else "does not exist") + "; check the path")
     ext = os.path.splitext(path)[1].lower()
     try:
         # tifffile logs what it skips in a damaged file; the exception, if
@@ -727,7 +728,8 @@ def _cells_with_finite_corners(h: np.ndarray) -> np.ndarray:
     """(rows-1, cols-1) bool: the cells whose four samples are all finite."""
     finite = np.isfinite(h)
     if not finite.any():
-        raise InputError("every heightfield sample is NaN; give at least one 2x2 block of finite heights")
+        raise InputError("every heightfield sample is missing (NaN, or a no-data value: the file's, or --nodata's); "
+                         "give at least one 2x2 block of finite heights")
     a, b, c, d = _cell_corners(finite)
     kept = a & b & c & d
     if not kept.any():
