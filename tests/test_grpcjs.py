@@ -146,7 +146,9 @@ def test_a_grpcjs_client_runs_a_session(make_server, grpcjs_modules, transport):
     assert sess["vertex_crc_ok"] is True
     # every pose answered; every frame applied, CRC-checked and acked
     assert sess["poses_sent"] == 5 and sess["poses_answered"] == [1, 2, 3, 4, 5] and sess["last_pose_seq"] == 5
-    assert sess["frames"] >= 6 and sess["acks"] == sess["frames"] and sess["keyframes"] >= 1
+    # Frame 1 is the keyframe; it answers pose 1 too when that pose came before the frame was made
+    # (seen once with the machine loaded): five frames at least, not six.
+    assert sess["frames"] >= 5 and sess["acks"] == sess["frames"] and sess["keyframes"] >= 1
     assert sess["crc_mismatches"] == 0 and sess["crc_checks"] >= sess["frames"]
     assert sess["triangles"] > 0
 
