@@ -47,8 +47,11 @@ def _bytes_of(a: np.ndarray) -> np.ndarray:
 # -- small messages -----------------------------------------------------------------
 
 def vec3(v) -> pb.Vec3:
-    """A Vec3 from three numbers."""
-    x, y, z = (float(c) for c in v)
+    """A Vec3 from three numbers; ValueError saying so for anything else."""
+    try:
+        x, y, z = (float(c) for c in v)
+    except (TypeError, ValueError):
+        raise ValueError(f"a point or direction is three numbers (x, y, z), got {v!r}"[:200]) from None
     return pb.Vec3(x=x, y=y, z=z)
 
 

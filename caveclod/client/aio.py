@@ -27,8 +27,8 @@ from ..v1 import caveclod_pb2 as pb
 from ..v1 import caveclod_pb2_grpc as pb_grpc
 from .cache import VertexBufferCache
 from .protocol import FrameUpdate, SessionProtocol
-from .session import (CHANNEL_OPTIONS, SessionEnded, SessionState, backoff, cache_mode, credentials, metadata,
-                      refine_options, retriable)
+from .session import (CHANNEL_OPTIONS, SessionEnded, SessionState, _checked_timeout, backoff, cache_mode, credentials,
+                      metadata, refine_options, retriable)
 
 
 class AsyncClient:
@@ -156,17 +156,17 @@ class AsyncSession(SessionState):
             if resume and retriable(code, details) and self.protocol.token and not self._closed:
                 await self._resume(exc)
                 return None
-            raise SessionEnded(code, details) from None
+            raise self._end(SessionEnded(code, details)) from None
         if msg is grpc.aio.EOF:
             code = await self._stream.call.code()
             if code == grpc.StatusCode.OK:
                 self._closed = True
-                raise SessionEnded(None, "the server ended the session")
+                raise self._end(SessionEnded(None, "the server ended the session"))
             details = await self._stream.call.details()
             if resume and retriable(code, details) and self.protocol.token and not self._closed:
                 await self._resume(details)
                 return None
-            raise SessionEnded(code, details)
+            raise self._end(SessionEnded(code, details))
         return self._apply(msg)
 
     async def next_frame(self, timeout: float | None = None) -> FrameUpdate | None:
@@ -177,20 +177,25 @@ class AsyncSession(SessionState):
         Without a timeout no timer is armed (a load generator reads
         thousands of frames a second).
         """
+        timeout = _checked_timeout(timeout)
+        if self._ended is not None:
+            self._check_open()
         deadline = None if timeout is None else time.monotonic() + timeout
         while True:
             read = self._pending_read()
             if deadline is None:
                 update = await read
             else:
-                remaining = deadline - time.monotonic()
-                if remaining <= 0:
-                    return None
                 # asyncio.wait, not wait_for: a timeout must not cancel the
-                # read itself (grpc.aio would end the call).
+                # read itself (grpc.aio would end the call). With no time left
+                # it still takes what has already arrived (timeout=0 returned
+                # None before reading, so a render loop polling so got nothing).
+                remaining = max(deadline - time.monotonic(), 0.0)
                 done, _ = await asyncio.wait((read,), timeout=remaining)
                 if not done:
-                    return None
+                    await asyncio.sleep(0)             # a read whose message is here completes now
+                    if not read.done():
+                        return None
                 update = read.result()
             self._read_task = None
             if update is not None:
@@ -215,6 +220,7 @@ class AsyncSession(SessionState):
         if self._closed or self._stream is None:
             return
         self.begin_close(reason)
+        self._ended = SessionEnded(None, "the session was closed (close()); open a new one")
         async def until_end():
             if self._read_task is not None:
                 await asyncio.gather(self._read_task, return_exceptions=True)

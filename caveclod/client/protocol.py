@@ -251,13 +251,19 @@ class SessionProtocol:
 
     def pose_message(self, camera: int, eye, target, up, now: float | None = None) -> pb.ClientMessage:
         """A CameraPose with the next pose_seq; its send time is kept for the latency."""
+        # Everything checked before anything changes: a pose refused here was kept as the camera's
+        # latest and resent on a resume, where its error came out of next_frame and the session
+        # did not recover (and a refused pose used up a pose_seq).
+        if isinstance(camera, bool) or not isinstance(camera, (int, np.integer)):
+            raise TypeError(f"camera must be an int (0..{self.n_cameras - 1}), got {camera!r}")
         if not 0 <= camera < self.n_cameras:
             raise ValueError(f"camera {camera} out of range 0..{self.n_cameras - 1}")
+        vectors = dict(eye=wire.vec3(eye), target=wire.vec3(target), up=wire.vec3(up))
+        camera = int(camera)
         self.pose_seq += 1
         self._sent[camera][self.pose_seq] = time.perf_counter() if now is None else now
         self._latest[camera] = (eye, target, up)
-        pose = pb.CameraPose(camera=camera, pose_seq=self.pose_seq, eye=wire.vec3(eye), target=wire.vec3(target),
-                             up=wire.vec3(up))
+        pose = pb.CameraPose(camera=camera, pose_seq=self.pose_seq, **vectors)
         if self._ack_due > self.last_acked:        # the pose carries the ack (SessionInfo.acks_on_poses)
             pose.ack_frame_seq = self.last_acked = self._ack_due
         return pb.ClientMessage(pose=pose)

@@ -18,6 +18,7 @@ stream receives messages; they are applied in the caller's thread, in
 
 from __future__ import annotations
 
+import math
 import os
 import queue
 import random
@@ -70,6 +71,17 @@ def retriable(code: grpc.StatusCode | None, details: str | None) -> bool:
     if code in RETRIABLE:
         return True
     return code == grpc.StatusCode.INTERNAL and ("RST_STREAM" in (details or "") or details == LOCAL_WRITE_RACE)
+
+
+def _checked_timeout(timeout: float | None) -> float | None:
+    """A next_frame timeout: None, or seconds; infinite or beyond what the platform can wait is
+    None (1e12 raised OverflowError, inf too); NaN is refused (it waited as None, silently)."""
+    if timeout is None:
+        return None
+    timeout = float(timeout)
+    if math.isnan(timeout):
+        raise ValueError("timeout must be a number of seconds or None, got nan")
+    return None if timeout >= threading.TIMEOUT_MAX else timeout
 
 
 class SessionEnded(Exception):
@@ -263,9 +275,24 @@ class SessionState:
     ``self.protocol``, a :class:`SessionProtocol`, and ``self._stream``)."""
 
     protocol: SessionProtocol
+    _ended: "SessionEnded | None" = None      # set once the session is over: what ended it
+
+    def _check_open(self) -> None:
+        """SessionEnded when the session is over (ended, or closed here): calls after that were
+        silent (send_pose returned a pose_seq nothing carried) and next_frame() waited for ever."""
+        if self._ended is not None:
+            raise SessionEnded(self._ended.code, self._ended.details)
+        if self._closed:
+            raise SessionEnded(None, "the session was closed (close()); open a new one")
+
+    def _end(self, exc: "SessionEnded") -> "SessionEnded":
+        """Remember that ``exc`` ended the session (later calls raise it again); returns it."""
+        self._ended = exc
+        return exc
 
     def send_pose(self, camera: int, eye, target, up=(0.0, 0.0, 1.0)) -> int:
         """Send a camera's new pose (three 3-vectors, world units); returns its pose_seq."""
+        self._check_open()
         msg = self.protocol.pose_message(camera, eye, target, up)
         self._stream.send(msg)
         return msg.pose.pose_seq
@@ -273,6 +300,7 @@ class SessionState:
     def request_keyframe(self, camera: int | None = None,
                          reason: int = pb.KEYFRAME_REASON_CLIENT_RESET, detail: str = "") -> None:
         """Ask for full buffers of ``camera`` (None: every camera), e.g. after losing a GL context."""
+        self._check_open()
         self._stream.send(self.protocol.keyframe_message(camera, reason, detail))
 
     def _apply(self, msg: pb.ServerMessage) -> FrameUpdate | None:
@@ -283,7 +311,7 @@ class SessionState:
             out, update = self.protocol.receive(msg)
         except ProtocolError as exc:
             self._stream.end()
-            raise SessionEnded(grpc.StatusCode.DATA_LOSS, str(exc)) from None
+            raise self._end(SessionEnded(grpc.StatusCode.DATA_LOSS, str(exc))) from None
         for reply in out:
             self._stream.send(reply)
         return update
@@ -381,20 +409,25 @@ class Session(SessionState):
         if isinstance(item, _StreamEnd):
             if item.error is None:
                 self._closed = True
-                raise SessionEnded(None, "the server ended the session")
+                raise self._end(SessionEnded(None, "the server ended the session"))
             code, details = item.error.code(), item.error.details()
             if resume and retriable(code, details) and self.protocol.token and not self._closed:
                 self._resume(item.error)
                 return None
-            raise SessionEnded(code, details)
+            raise self._end(SessionEnded(code, details))
         return self._apply(item)
 
     def next_frame(self, timeout: float | None = None) -> FrameUpdate | None:
         """The next frame, applied in full and acked; None when ``timeout`` seconds pass first
         (``timeout=0``: None unless a frame has already arrived).
 
-        Raises SessionEnded when the stream ends and cannot be resumed.
+        Raises SessionEnded when the stream ends and cannot be resumed, and again on every call
+        after (and after close()). A timeout that is infinite or longer than the platform can
+        wait (``threading.TIMEOUT_MAX``) waits as None does.
         """
+        timeout = _checked_timeout(timeout)
+        if self._ended is not None:
+            self._check_open()
         deadline = None if timeout is None else time.monotonic() + timeout
         while True:
             # timeout=0 still takes what has already arrived (a render loop polls so).
@@ -413,6 +446,7 @@ class Session(SessionState):
         self._closed = True
         self._stream.send(self.protocol.close_message(reason))
         self._stream.requests.put(None)
+        self._ended = SessionEnded(None, "the session was closed (close()); open a new one")
         deadline = time.monotonic() + timeout
         while time.monotonic() < deadline:
             try:

@@ -1,0 +1,95 @@
+"""The client library used as a program uses it: what a session does once it is over, poses it
+refuses, and timeouts. Found by a sweep of the library's API (each failed before its fix)."""
+
+from __future__ import annotations
+
+import asyncio
+import math
+
+import pytest
+
+from caveclod.client import Client, SessionEnded
+from caveclod.client.aio import AsyncClient
+
+EYE, TARGET = (50.0, -200.0, 300.0), (200.0, 200.0, 0.0)
+
+
+@pytest.fixture
+def session(server, tmp_path):
+    with Client(f"127.0.0.1:{server.port}", cache_dir=tmp_path) as client:
+        s = client.session("terrain", cameras=2, width=640, height=360)
+        try:
+            yield s
+        finally:
+            s.close()
+
+
+def test_a_closed_session_says_so_instead_of_waiting_for_ever(session):
+    """After close(), send_pose returned a pose_seq nothing carried and next_frame() with no
+    timeout never returned (15 s and on). (Called with timeouts here, so that a regression fails
+    instead of hanging.)"""
+    session.send_pose(0, EYE, TARGET)
+    assert session.next_frame(timeout=30) is not None
+    session.close()
+    for call in (lambda: session.send_pose(0, EYE, TARGET), lambda: session.request_keyframe(),
+                 lambda: session.next_frame(timeout=5), lambda: session.next_frame(timeout=0)):
+        with pytest.raises(SessionEnded, match="closed"):
+            call()
+    session.close()                                          # twice: nothing
+
+
+def test_a_session_the_server_ended_raises_again_on_every_call(session):
+    session.send_pose(0, (math.nan, 0.0, 0.0), TARGET)      # the server refuses it: INVALID_ARGUMENT
+    with pytest.raises(SessionEnded) as first:
+        for _ in range(200):
+            session.next_frame(timeout=0.5)
+    # (With a timeout: were the fix to go, next_frame() with none would wait for ever, not fail.)
+    for call in (lambda: session.next_frame(timeout=5), lambda: session.send_pose(0, EYE, TARGET)):
+        with pytest.raises(SessionEnded) as again:
+            call()
+        assert again.value.code == first.value.code and again.value.details == first.value.details
+
+
+def test_a_pose_refused_here_changes_nothing(session):
+    """A refused pose was kept as the camera's latest (resent, and failing, on a resume) and used
+    up a pose_seq; bool and float cameras were taken or failed unclearly."""
+    seq = session.send_pose(0, EYE, TARGET)
+    latest = list(session.protocol._latest)
+    for camera, eye, error in [(0, (1.0, 2.0), ValueError), (True, EYE, TypeError), (1.0, EYE, TypeError),
+                               (2, EYE, ValueError), (0, "abc", ValueError)]:
+        with pytest.raises(error):
+            session.send_pose(camera, eye, TARGET)
+    assert session.protocol._latest == latest and session.protocol.pose_seq == seq
+    assert session.send_pose(1, EYE, TARGET) == seq + 1
+
+
+def test_next_frame_takes_any_timeout(session):
+    """1e12 and inf raised OverflowError; NaN waited silently as None."""
+    session.send_pose(0, EYE, TARGET)
+    assert session.next_frame(timeout=math.inf) is not None          # waits as None: a frame comes
+    session.send_pose(0, TARGET, EYE)
+    assert session.next_frame(timeout=1e12) is not None              # beyond threading.TIMEOUT_MAX
+    with pytest.raises(ValueError, match="nan"):
+        session.next_frame(timeout=math.nan)
+
+
+def test_async_next_frame_with_no_time_left_takes_what_has_arrived(server, tmp_path):
+    """AsyncSession.next_frame(timeout=0) returned None before reading: a render loop polling so
+    got no frame at all, where the blocking session's takes what has arrived."""
+    async def fly():
+        async with AsyncClient(f"127.0.0.1:{server.port}", cache_dir=tmp_path) as client:
+            s = await client.session("terrain", width=640, height=360)
+            s.send_pose(0, EYE, TARGET)
+            got = 0
+            for _ in range(400):                             # bounded: 400 polls, 20 s at most
+                got += await s.next_frame(timeout=0) is not None
+                if got >= 2:
+                    break
+                await asyncio.sleep(0.05)
+            await s.close()
+            with pytest.raises(SessionEnded):
+                await s.next_frame(timeout=1)
+            with pytest.raises(SessionEnded):
+                s.send_pose(0, EYE, TARGET)
+            return got
+    assert asyncio.run(fly()) >= 2
