@@ -413,3 +413,23 @@ def test_the_ceiling_view_works_at_huge_extents(tmp_path):
                          tolerance_px=0.01)
     delta = cc.update(view)
     assert cc.active.count <= base and delta.tolerance_px > 0.01
+
+
+def test_a_camera_at_the_ceiling_draws_the_base_mesh_not_nothing(terrain):
+    """At the ceiling a cached camera shows the base mesh, which fits; with parts hidden below
+    the tolerance (the default) every part was hidden at 1e30 px, and a session drew nothing
+    at all for 300 poses (a sweep of the client library: 200 slots, a 30-vertex base mesh)."""
+    from caveclod.refine.cachedcamera import CEILING_PX
+    base_cam = terrain.new_camera()
+    base = len(active_vertices(base_cam.triangles()))
+    base_faces = sum(len(t) for t in base_cam.triangles().values())
+    cc = CachedCamera(terrain.new_camera(), base, "lru")
+    lo, hi = terrain.bounds()
+    centre = (lo + hi) / 2
+    view = caveclod.View(eye=(float(centre[0]), float(centre[1]), float(hi[2]) + 1.0),
+                         target=tuple(map(float, centre)), up=(0, 1, 0), width=640, height=360,
+                         tolerance_px=0.01, prune=True)
+    delta = cc.update(view)
+    assert delta.tolerance_px >= CEILING_PX                  # nothing finer fits in the base's slots
+    drawn = sum(len(cc.slot_buffer(m)) for m in range(terrain.n_materials))
+    assert drawn == base_faces > 0
