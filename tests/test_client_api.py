@@ -93,3 +93,12 @@ def test_async_next_frame_with_no_time_left_takes_what_has_arrived(server, tmp_p
                 s.send_pose(0, EYE, TARGET)
             return got
     assert asyncio.run(fly()) >= 2
+
+
+def test_bad_session_arguments_are_named(server, tmp_path):
+    """cameras=-1 and cache_vertices=-5 were protobuf's bare "Value out of range: -1"."""
+    with Client(f"127.0.0.1:{server.port}", cache_dir=tmp_path) as client:
+        for kwargs, name in [({"cameras": -1}, "cameras"), ({"cameras": 0}, "cameras"),
+                             ({"cache_vertices": -5}, "cache_vertices")]:
+            with pytest.raises(ValueError, match=name):
+                client.session("terrain", **kwargs)

@@ -176,6 +176,12 @@ class SessionProtocol:
                  ack_window: int = 0, client: str = CLIENT_NAME, cache_mode: dict | None = None,
                  frame_encoding: str = "ops", vertex_encoding: str = "packed", position_bits: int | None = None,
                  morph_targets: bool = False):
+        # Checked here, named: protobuf's own refusal of -1 said "Value out of range: -1" only.
+        if isinstance(cameras, bool) or not isinstance(cameras, (int, np.integer)) or cameras < 1:
+            raise ValueError(f"cameras must be a whole number from 1, got {cameras!r}")
+        slots = (cache_mode or {}).get("vertices")
+        if slots is not None and (isinstance(slots, bool) or not isinstance(slots, (int, np.integer)) or slots < 1):
+            raise ValueError(f"cache_vertices must be a whole number from 1 (slots per camera), got {slots!r}")
         if frame_encoding not in FRAME_ENCODINGS:
             raise ValueError(f"frame_encoding {frame_encoding!r}: use one of {', '.join(FRAME_ENCODINGS)}")
         if vertex_encoding not in VERTEX_ENCODINGS:
