@@ -277,11 +277,12 @@ def test_a_stopped_server_with_a_web_port_lets_go_of_its_meshes(terrain_path):
     server = LodServer(ServerConfig(meshes=[str(terrain_path)], host="127.0.0.1", port=0, web_port=0)).start()
     try:
         assert server.sessions.ready.wait(60)
-        async def fetch():
+
+        async def fetch(url):
             async with aiohttp.ClientSession() as http:
-                async with http.get(_url(server, "/v1/meshes", "http")) as r:
+                async with http.get(url) as r:
                     assert r.status == 200
-        _run(fetch())
+        _run(fetch(_url(server, "/v1/meshes", "http")))
         mesh = weakref.ref(next(iter(server.catalogue.meshes.values())).mesh)
     finally:
         server.stop(grace=0)

@@ -732,7 +732,8 @@ def _base_mesh_reasons(hier: Hierarchy, face_pos: np.ndarray, topo: Topology, la
     why = f"base mesh is {base:,} faces ({100 * base / p:.1f}% of {p:,})"
     why += ": " + "; ".join(reasons) if reasons else ""
     return {"faces": base, "fraction": round(base / p, 6), "components": components,
-            "nonmanifold_positions": pinned, "flipped_edges": flipped, "rigid_positions": rigid, "rigid_positions_smooth": smooth_rigid,
+            "nonmanifold_positions": pinned, "flipped_edges": flipped, "rigid_positions": rigid,
+            "rigid_positions_smooth": smooth_rigid,
             "surface_groups": lay.n_groups,
             "material_border_faces": material_faces, "large": large, "why": why}
 
