@@ -383,8 +383,8 @@ class StaticMesh:
     def save(self, path: str | os.PathLike) -> None:
         """Write the versioned ``.cvc`` file (atomically: temp file + rename).
 
-        The temp file is a new name beside ``path`` (``.NAME.XXXXXX.tmp``, short enough for a
-        255-byte name: ``NAME.tmp`` refused names of 252 to 255 bytes) and is removed on any
+        The temp file is a new name beside ``path`` (``.NAME.XXXXXXXX.tmp``, NAME cut to 200 bytes:
+        ``NAME.tmp`` refused names of 252 to 255 bytes) and is removed on any
         failure, an interrupt included (a killed build left a partial NAME.tmp, up to hundreds of
         MB, and a full disk stayed full). ``path`` must not be anything but a regular file: run as
         root, renaming over /dev/null or a FIFO replaced it with the mesh."""
@@ -406,7 +406,10 @@ class StaticMesh:
                   "arrays": table, "attachments": attached}
         blob = json.dumps(header, sort_keys=True).encode()
         data_start = _aligned(len(MAGIC) + 8 + len(blob))
-        fd, tmp = tempfile.mkstemp(prefix="." + path.name[:200] + ".", suffix=".tmp", dir=path.parent)
+        stem = path.name
+        while len(os.fsencode(stem)) > 200:     # bytes, not characters: 'é' * 121 + '.cvc' is 246 bytes
+            stem = stem[:-1]
+        fd, tmp = tempfile.mkstemp(prefix="." + stem + ".", suffix=".tmp", dir=path.parent)
         try:
             with os.fdopen(fd, "wb") as fh:
                 fh.write(MAGIC + struct.pack("<II", VERSION, len(blob)) + blob)

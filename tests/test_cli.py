@@ -246,3 +246,12 @@ def test_inspect_verify_checks_the_stored_attachments(tmp_path, small_cvc, capsy
     assert caveclod.load(path).attachments
     _one_line(capsys, cli_main(["inspect", "--verify", str(path)]), "attachment", "CRC-32")
     assert cli_main(["inspect", "--verify", str(small_cvc)]) == 0
+
+
+def test_a_long_name_of_many_bytes_a_character_is_written(tmp_path, small_cvc):
+    """The temp name kept 200 characters of the output's name: 'é' * 121 + '.cvc' (246 bytes)
+    made a 260-byte temp name, too long, where NAME.tmp had fitted (found by a review)."""
+    mesh = caveclod.load(small_cvc)
+    out = tmp_path / ("é" * 121 + ".cvc")
+    mesh.save(out)
+    assert caveclod.load(out).content_hash == mesh.content_hash and len(list(tmp_path.iterdir())) == 1

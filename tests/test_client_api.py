@@ -102,3 +102,63 @@ def test_bad_session_arguments_are_named(server, tmp_path):
                              ({"cache_vertices": -5}, "cache_vertices")]:
             with pytest.raises(ValueError, match=name):
                 client.session("terrain", **kwargs)
+
+
+def test_a_resume_mended_at_its_second_try_leaves_the_session_open(monkeypatch):
+    """A resume's try that failed (UNAVAILABLE: the server still restarting) was recorded as the
+    session's end, and the session resumed at the next try then raised it on every call (found
+    by a review). Only what ends the session for good is recorded."""
+    import queue
+
+    import grpc
+
+    from caveclod.client import session as S
+
+    class Failed(grpc.RpcError):
+        def code(self):
+            return grpc.StatusCode.UNAVAILABLE
+
+        def details(self):
+            return "connect failed"
+
+    opened = []
+
+    class Stream:
+        def __init__(self, stub, first, md):
+            opened.append(self)
+            self.responses, self.requests = queue.Queue(), queue.Queue()
+            self.responses.put(S._StreamEnd(Failed()) if len(opened) == 2 else "info")
+
+        def send(self, msg):
+            pass
+
+        def end(self):
+            pass
+
+    class Protocol:
+        token, cache_mode, ready = "t", {}, False
+
+        def open_message(self):
+            Protocol.ready = False
+
+        def metadata(self, md):
+            return md
+
+        def receive(self, msg):
+            Protocol.ready = True
+            return [], None
+
+        def pose_message(self, *args):
+            return type("M", (), {"pose": type("P", (), {"pose_seq": 7})})
+
+    class FakeClient:
+        cache, stub, metadata = None, None, ()
+
+    monkeypatch.setattr(S, "_Stream", Stream)
+    monkeypatch.setattr(S, "backoff", lambda attempt: 0.0)
+    s = S.Session(FakeClient(), Protocol(), retries=3)
+    s._open(1.0)
+    s._stream.responses.put(S._StreamEnd(Failed()))          # the stream breaks: resume
+    assert s.next_frame(timeout=0.01) is None
+    assert len(opened) == 3 and s._ended is None               # try 1 failed, try 2 opened
+    assert s.send_pose(0, EYE, TARGET) == 7

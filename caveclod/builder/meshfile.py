@@ -235,7 +235,11 @@ def _read_scene(path: Path, file_type: str, notes: list[str] | None = None):
     rewritten = dequantized_gltf(path, file_type)  # quantized glTF attributes, which trimesh reads raw
     source, kind = (str(path), file_type) if rewritten is None else (io.BytesIO(rewritten), "glb")
     if file_type == "obj":
-        text, obj_notes = normalized_obj(path)
+        try:
+            text, obj_notes = normalized_obj(path)
+        except OSError as exc:
+            raise InputError(f"{path}: cannot read it ({exc.strerror or exc}); check that the file is readable") \
+                from None
         if text is not None:
             source = io.BytesIO(text)                # its .mtl and textures still found beside ``path``
             if notes is not None:

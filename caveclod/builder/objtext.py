@@ -46,15 +46,15 @@ def normalized_obj(path: Path) -> tuple[bytes | None, list[str]]:
     """(the OBJ's text rewritten, notes for the report), or (None, []) when the file needs none
     of the rewrites the module docstring lists."""
     found = dict.fromkeys(("indented", "relative", "with_uv", "without_uv"), False)
-    rest, first = b"", True
+    rest = b""
     with open(path, "rb") as f:
         while True:
             block = f.read(_BLOCK)
             text = rest + block
             cut = text.rfind(b"\n") + 1 if block else len(text)     # whole lines; the last block all of it
-            if first:                             # the first line has no newline before it
-                _scan(b"\n" + text[:text.find(b"\n") + 1 or len(text)], 0, None, found)
-                first = False
+            # A block's first line (the file's, or the one the last block's cut left) has no newline
+            # before it for the patterns: scanned alone (a relative face there went unseen).
+            _scan(b"\n" + text[:min(text.find(b"\n") + 1 or len(text), cut or len(text))], 0, None, found)
             _scan(text, 0, cut, found)
             rest = text[cut:]
             if _needed(found) or not block:
@@ -104,7 +104,9 @@ def _rewrite(data: bytes) -> tuple[bytes, list[str]]:
                     textured = True
             out.append(key + b" " + b" ".join(b"/".join(c) for c in corners))
         else:
-            out.append(raw.strip())            # names (usemtl, mtllib, o, g) keep their inner spaces
+            # Names (usemtl, mtllib, o, g) keep their inner spaces; the keyword is followed by one
+            # space, which trimesh looks for ("usemtl\tred" read as no material at all).
+            out.append(b" ".join(raw.strip().split(None, 1)))
     notes = []
     if relative_faces:
         notes.append(f"{relative_faces:,} of its {faces:,} faces use relative (negative) indices: read as OBJ "

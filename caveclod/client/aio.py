@@ -144,9 +144,10 @@ class AsyncSession(SessionState):
                 return
             except SessionEnded as exc:
                 if not retriable(exc.code, exc.details):
-                    raise
+                    raise self._end(exc) from None
                 error = exc
-        raise SessionEnded(grpc.StatusCode.UNAVAILABLE, f"could not resume after {self.retries} tries: {error}")
+        raise self._end(SessionEnded(grpc.StatusCode.UNAVAILABLE,
+                                     f"could not resume after {self.retries} tries: {error}"))
 
     async def _receive(self, resume: bool = True) -> FrameUpdate | None:
         try:
@@ -156,17 +157,17 @@ class AsyncSession(SessionState):
             if resume and retriable(code, details) and self.protocol.token and not self._closed:
                 await self._resume(exc)
                 return None
-            raise self._end(SessionEnded(code, details)) from None
+            raise self._end(SessionEnded(code, details), final=resume) from None
         if msg is grpc.aio.EOF:
             code = await self._stream.call.code()
             if code == grpc.StatusCode.OK:
                 self._closed = True
-                raise self._end(SessionEnded(None, "the server ended the session"))
+                raise self._end(SessionEnded(None, "the server ended the session"), final=resume)
             details = await self._stream.call.details()
             if resume and retriable(code, details) and self.protocol.token and not self._closed:
                 await self._resume(details)
                 return None
-            raise self._end(SessionEnded(code, details))
+            raise self._end(SessionEnded(code, details), final=resume)
         return self._apply(msg)
 
     async def next_frame(self, timeout: float | None = None) -> FrameUpdate | None:

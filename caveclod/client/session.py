@@ -285,9 +285,12 @@ class SessionState:
         if self._closed:
             raise SessionEnded(None, "the session was closed (close()); open a new one")
 
-    def _end(self, exc: "SessionEnded") -> "SessionEnded":
-        """Remember that ``exc`` ended the session (later calls raise it again); returns it."""
-        self._ended = exc
+    def _end(self, exc: "SessionEnded", final: bool = True) -> "SessionEnded":
+        """Remember that ``exc`` ended the session (later calls raise it again), unless it is not
+        ``final``: a try of a resume failing, which the next try may mend (recorded so, a session
+        resumed at its second try raised the first try's error on every call); returns it."""
+        if final:
+            self._ended = exc
         return exc
 
     def send_pose(self, camera: int, eye, target, up=(0.0, 0.0, 1.0)) -> int:
@@ -395,9 +398,10 @@ class Session(SessionState):
                 return
             except SessionEnded as exc:
                 if not retriable(exc.code, exc.details):
-                    raise
+                    raise self._end(exc) from None
                 error = exc
-        raise SessionEnded(grpc.StatusCode.UNAVAILABLE, f"could not resume after {self.retries} tries: {error}")
+        raise self._end(SessionEnded(grpc.StatusCode.UNAVAILABLE,
+                                     f"could not resume after {self.retries} tries: {error}"))
 
     # -- receiving ------------------------------------------------------------------------
     def _receive(self, timeout: float | None, resume: bool = True) -> FrameUpdate | None:
@@ -409,12 +413,12 @@ class Session(SessionState):
         if isinstance(item, _StreamEnd):
             if item.error is None:
                 self._closed = True
-                raise self._end(SessionEnded(None, "the server ended the session"))
+                raise self._end(SessionEnded(None, "the server ended the session"), final=resume)
             code, details = item.error.code(), item.error.details()
             if resume and retriable(code, details) and self.protocol.token and not self._closed:
                 self._resume(item.error)
                 return None
-            raise self._end(SessionEnded(code, details))
+            raise self._end(SessionEnded(code, details), final=resume)
         return self._apply(item)
 
     def next_frame(self, timeout: float | None = None) -> FrameUpdate | None:
