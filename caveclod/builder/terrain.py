@@ -155,13 +155,17 @@ def heights_of(array: np.ndarray, path: str | os.PathLike, nodata: float | None 
         nodata_value = ascii_grid_header(path).get("nodata_value")
         if nodata_value is not None:
             voids.append(nodata_value)
-    void = np.zeros(np.shape(array), bool) if valid is None else ~np.asarray(valid, bool)
+    # A mask only where something can be missing: a grid with no no-data value and no mask (most
+    # .npy inputs) allocates none and makes no pass over it.
+    void = None if valid is None else ~np.asarray(valid, bool)
     for value in voids:
-        void |= _equals_in_type(array, value)
+        found = _equals_in_type(array, value)
+        void = found if void is None else np.logical_or(void, found, out=void)
     heights = _as_float64(array)
     if not heights.flags.writeable:
         heights = np.array(heights)         # a float64 .npy still mapped: read now, into memory of its own
-    heights[void] = np.nan
+    if void is not None:
+        heights[void] = np.nan
     return heights
 
 
