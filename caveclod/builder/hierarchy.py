@@ -11,10 +11,12 @@ from __future__ import annotations
 import math
 import os
 import queue
+import threading
 import time
 from collections.abc import Callable
 from concurrent.futures import ThreadPoolExecutor
-from dataclasses import dataclass, replace
+from contextlib import contextmanager
+from dataclasses import dataclass, field, replace
 
 import numba as nb
 import numpy as np
@@ -241,7 +243,7 @@ def collapse_all(positions: np.ndarray, face_pos: np.ndarray, topo: Topology, la
     if store is not None and store.job is None:
         start, m, passes = read_blocks(store, st, grid, e)      # (0, 0, 0) for a grid of one tile
         bar.update(m)
-    with ThreadPoolExecutor(workers) as pool:
+    with _pool_stopped_on_interrupt(workers, st.stop) as pool:
         if store is not None and store.job is not None:
             _make_blocks(st, grid, store, topo.nonmanifold, scratch, pool, bar)
             bar.close()
@@ -269,6 +271,26 @@ def collapse_all(positions: np.ndarray, face_pos: np.ndarray, topo: Topology, la
                      rotation=st.rotation,
                      base=base, base_nodes=st.cur_node[F[base]].astype(np.int32), base_nbrs=N[base].astype(np.int32),
                      tiles=grid.per_side)
+
+
+@contextmanager
+def _pool_stopped_on_interrupt(workers: int, stop: threading.Event):
+    """A pool of ``workers`` threads for the collapses that, when the block raises (Ctrl-C), sets
+    ``stop`` and drops the tiles not started before waiting for the rest.
+
+    A plain pool's exit waits for every tile queued: the rest of the level,
+    so a Ctrl-C in a 4.2M-triangle build ended the process 11-16 s later.
+    With ``stop`` set, a tile at work ends after its current pass
+    (:func:`_collapse_region`), and the pool ends within one pass.
+    """
+    pool = ThreadPoolExecutor(workers)
+    try:
+        yield pool
+    except BaseException:
+        stop.set()
+        pool.shutdown(wait=True, cancel_futures=True)
+        raise
+    pool.shutdown(wait=True)
 
 
 def _thread_scratch(e: int) -> tuple[np.ndarray, np.ndarray]:
@@ -372,6 +394,8 @@ class _CollapseState:
     face_nbrs: np.ndarray
     star_start: np.ndarray
     star_faces: np.ndarray
+    stop: threading.Event = field(default_factory=threading.Event)
+    """Set when the build is interrupted: a tile at work stops after its pass."""
 
 
 def _collapse_region(st: _CollapseState, region: np.ndarray, base: int, scratch: queue.SimpleQueue,
@@ -387,12 +411,13 @@ def _collapse_region(st: _CollapseState, region: np.ndarray, base: int, scratch:
     try:
         k = len(region)
         m, pass_id = base, 0
-        while True:
+        while not st.stop.is_set():
             before = m
             m = _one_pass(st, region, [region], [held], m, pass_id, None)
             pass_id += 1
             if m == before or k - (m - base) <= keep:
-                return m - base, pass_id
+                break
+        return m - base, pass_id
     finally:
         scratch.put(held)
 
