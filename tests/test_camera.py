@@ -173,7 +173,9 @@ def full_view(case) -> View:
 def far_view(case, cull=False, prune=False) -> View:
     """A view that needs no detail anywhere: the base mesh (``prune``: nothing at all)."""
     if cull:   # looking away from the mesh: everything is culled
-        eye = case.centre + case.radius * np.array([0.0, -3.0, 0.5])
+        # Far enough that no bounding sphere reaches the eye: nested spheres grow up the tree (the
+        # uv sphere's top node's reaches 3.1 radii from the centre), and at 3 radii one took in the eye.
+        eye = case.centre + case.radius * np.array([0.0, -10.0, 0.5])
         target = eye + np.array([0.0, -1.0, 0.0])
         return View(eye=tuple(eye), target=tuple(target), up=(0, 0, 1), tolerance_px=1.0, cull=True, prune=prune)
     eye = case.centre + case.radius * np.array([1e4, 2e3, 3e3])

@@ -104,3 +104,49 @@ def test_clients_learn_the_origin_from_list_meshes(tmp_path, make_server, terrai
     assert tank.HasField("origin") and (tank.origin.x, tank.origin.y, tank.origin.z) == (500123.0, 4100234.0, 312.0)
     assert not terrain.HasField("origin")
     assert tank.bounds_max.x < 40.0               # bounds are in the mesh's own coordinates
+
+
+def test_the_bound_holds_on_the_positions_the_file_stores(tmp_path):
+    """Errors were measured on the float64 input while the file stores float32: a far grid of 0.5 m
+    cells (float32's step at x = 500,000 m is 3 cm, its relief centimetres) built without --origin drew
+    original positions up to 1.4 t from what cameras showed, the strict bound's included."""
+    from caveclod.refine.measure import hidden_positions, pixel_errors
+    rng = np.random.default_rng(1)
+    n, cell = 80, 0.5
+    ys, xs = np.mgrid[0:n, 0:n] * cell
+    z = 5 * np.sin(xs / 17.0) + 3 * np.cos(ys / 11.0) + 0.03 * rng.standard_normal(xs.shape)
+    V = np.stack([xs, ys, z], -1).reshape(-1, 3) + UTM
+    V[:, :2] += rng.uniform(-0.05, 0.05, (len(V), 2))
+    i = np.arange(n * n).reshape(n, n)
+    a, b, c, d = i[:-1, :-1].ravel(), i[:-1, 1:].ravel(), i[1:, :-1].ravel(), i[1:, 1:].ravel()
+    path = tmp_path / "far.obj"
+    trimesh.Trimesh(V, np.concatenate([np.stack([a, b, d], 1), np.stack([a, d, c], 1)]), process=False).export(path)
+    mesh = caveclod.build(str(path), packed=False)
+    assert any("--origin auto" in note for note in mesh.info["notes"])
+    lo, hi = mesh.bounds()
+    centre, ext = (lo + hi) / 2, hi - lo
+    worst = 0.0
+    for k in range(5):
+        angle = 0.7 + 1.1 * k
+        eye = centre + np.array([np.cos(angle) * ext[0] * 0.6, np.sin(angle) * ext[1] * 0.6, 12.0 + 5 * k])
+        view = caveclod.View(eye=tuple(eye), target=tuple(centre - [0, 0, 5.0]), up=(0, 0, 1), tolerance_px=0.5)
+        for strict in (False, True):
+            cam = mesh.new_camera(strict_bound=strict)
+            for _ in range(10):
+                if cam.update(view).operations == 0:
+                    break
+            px = pixel_errors(mesh, cam.triangles(), view, points=np.asarray(mesh.positions)[~hidden_positions(cam)])
+            worst = max(worst, float(px.max()) / 0.5)
+    assert worst <= 1.0 + 1e-6, f"an original position drawn {worst:.2f} t away"
+
+
+def test_an_origin_west_of_greenwich_is_read_as_a_value(tmp_path, capsys):
+    """argparse took ``--origin -2700000,...`` (an ECEF point in the Americas) for an option of its own
+    and said "expected one argument"; only ``--origin=...`` worked."""
+    path = tmp_path / "tank.obj"
+    mesh = trimesh.creation.icosphere(subdivisions=2, radius=30.0)
+    mesh.vertices += [-2700000.0, -4300000.0, 3800000.0]
+    path.write_text(trimesh.exchange.obj.export_obj(mesh, digits=6))
+    status, err = build_cli(capsys, path, "--origin", "-2700000,-4300000,3800000", "--quiet")
+    assert status == 0, err
+    assert caveclod.load(tmp_path / "out.cvc").info["origin"] == [-2700000.0, -4300000.0, 3800000.0]
