@@ -18,6 +18,7 @@ from __future__ import annotations
 import argparse
 import json
 import os
+import re
 import sys
 
 from .builder.memory import PEAK_BYTES_PER_TRIANGLE
@@ -29,9 +30,31 @@ DEFAULT_MORPH_MS = 500.0     # geomorph duration of render, view and demo (bench
 EXIT_USAGE = 2
 
 
+NEGATIVE_VALUE_OPTIONS = ("--origin", "--nodata", "--z-scale", "--cell-size", "--seed")
+"""Options whose value may start with a minus sign that argparse takes for an option of its own."""
+
+
+def _join_negative_values(argv: list[str]) -> list[str]:
+    """``--origin -2700000,-4300000,3800000`` as ``--origin=-2700000,...``.
+
+    argparse reads a value starting with ``-`` as the value only when it looks
+    like one negative number (``-9999``); a point (an ECEF origin west of
+    Greenwich) or an exponent (``--nodata -3.4e38``) it took for an unknown
+    option and said "expected one argument".
+    """
+    out: list[str] = []
+    for i, token in enumerate(argv):
+        if (i and argv[i - 1] in NEGATIVE_VALUE_OPTIONS and out and out[-1] == argv[i - 1]
+                and re.match(r"-\.?\d", token)):
+            out[-1] = f"{out[-1]}={token}"
+        else:
+            out.append(token)
+    return out
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = _parser()
-    args = parser.parse_args(argv)
+    args = parser.parse_args(_join_negative_values(sys.argv[1:] if argv is None else list(argv)))
     try:
         code = args.run(args)
         sys.stdout.flush()           # a reader that left shows here (BrokenPipeError), not at exit
