@@ -160,6 +160,21 @@ def test_uvs_tile_each_material_at_its_own_scale():
         np.testing.assert_allclose(uv[:, b] - uv[:, a], (p[:, b, :2] - p[:, a, :2]) / tile, atol=1e-5)
 
 
+def test_a_map_of_thousands_of_classes_builds_with_usable_uvs():
+    """A tile of 11 * 1.5 ** id units made a 64-class map's UVs near 0 for most vertices, and past
+    1,750 classes the sizes reached infinity, where the build never ended."""
+    from caveclod.builder.terrain import _tile_sizes
+    sizes = _tile_sizes([f"class {k}" for k in range(65535)] + ["grass"] * 3)
+    assert len(set(sizes.tolist())) == len(sizes) and np.isfinite(sizes).all()
+    assert 8.0 <= sizes.min() and sizes.max() <= 88.0
+    classes = (np.arange(48 * 48).reshape(48, 48) * 7) % 2000
+    source = heightfield_to_source(rng.normal(size=(49, 49)), cell_size=1.0, materials=classes)
+    assert len(source.materials) == 2000
+    assert_seams_where_materials_meet(source, classes, np.ones_like(classes, bool), 1.0)
+    uv = np.abs(source.vertex_uv).max(axis=1)
+    assert np.count_nonzero(uv < 1e-4) <= 1, "UVs collapsed to the corner"
+
+
 def test_repeated_or_unknown_names_still_make_seams():
     classes = rng.integers(0, 5, size=(7, 7))
     names = ["grass", "grass", "lava", "mud", "grass"]

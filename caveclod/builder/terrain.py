@@ -863,13 +863,24 @@ def _tiled_uvs(vertex_sample: np.ndarray, vertex_material: np.ndarray, cols: int
 def _tile_sizes(names: list[str]) -> np.ndarray:
     """(k,) world units per texture repeat, pairwise different.
 
-    Known names use :data:`TILE_SIZES`, others an odd size per material id; a
-    size already taken (a repeated name) is stretched by 10 % until it is free.
+    Known names use :data:`TILE_SIZES`; other materials, and a known name
+    met again, a size from 11 to 88 units picked by their id (11 * 8 **
+    frac(id * golden ratio): different for every id, spread over the range).
+    A size growing with the id (``11 * 1.5 ** id``, before) made a map of
+    64 classes give most vertices UVs near 0, and past 1,750 classes reached
+    infinity, where making room for a repeated size never ended.
     """
     sizes: list[float] = []
+    taken: set[float] = set()
     for material_id, name in enumerate(names):
-        size = TILE_SIZES.get(name, 11.0 * 1.5 ** material_id)
-        while size in sizes:
-            size *= 1.1
+        size = TILE_SIZES.get(name)
+        if size is None or size in taken:
+            size = 11.0 * 8.0 ** math.modf(material_id * GOLDEN_RATIO)[0]
+        while size in taken:                  # a known name's size met by chance: the next float up
+            size = math.nextafter(size, math.inf)
+        taken.add(size)
         sizes.append(size)
     return np.array(sizes)
+
+
+GOLDEN_RATIO = (1.0 + math.sqrt(5.0)) / 2.0
