@@ -295,6 +295,26 @@ def test_sessions_fail_over_to_fresh_ones_when_the_server_restarts(make_server, 
     assert restarted[0].metrics.total("frames") > 0
 
 
+def test_a_server_that_dies_mid_run_is_an_error_not_a_pass(make_server, tmp_path, capsys):
+    """Sessions still waiting to resume when the run ended were closed as "not connected", no error:
+    a load test whose server died within the retries' 9-17 s reported errors {} and exited 0."""
+    server = make_server(port=free_port())
+    stop = threading.Event()
+
+    def kill_mid_flight():
+        if wait_until(lambda: stop.is_set() or server.sessions.counts()[0] == 3, timeout=20) and not stop.wait(0.5):
+            server.stop(grace=0)
+    killer = threading.Thread(target=kill_mid_flight, daemon=True)
+    killer.start()
+    try:
+        status, report = _loadtest(server.port, tmp_path, capsys)
+    finally:
+        stop.set()
+        killer.join(30)
+    assert status == 1, report
+    assert report["errors"] == {"UNAVAILABLE": 3} and report["frames"] > 0
+
+
 def test_sessions_a_server_never_opens_are_errors_not_a_hang(tmp_path, capsys):
     """A server that lists a mesh but never answers an Open: each session counts DEADLINE_EXCEEDED."""
     from caveclod.v1 import caveclod_pb2 as pb

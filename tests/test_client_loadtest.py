@@ -119,3 +119,21 @@ def test_a_run_in_which_no_frame_came_exits_1_saying_so(monkeypatch, capsys):
     assert cli.main(["loadtest", "--target", "127.0.0.1:1", "--duration", "2", "--json"]) == 1
     err = capsys.readouterr().err
     assert "no frame came in 2 s (1,444 poses sent)" in err and err.count("\n") == 1
+
+
+@pytest.mark.parametrize("transport", ["grpc", "h2"])
+def test_a_run_the_server_refused_names_the_refusal_not_a_silent_server(server, tmp_path, capsys, transport):
+    """Five cameras against a server allowing four: refused at once, but the last line said "the
+    server did not answer; check its log and load", and over h2 the run waited out its duration."""
+    import time
+    if transport == "h2":
+        pytest.importorskip("hpack", reason="the hpack library (the loadtest extra) is not installed")
+    t0 = time.perf_counter()
+    status = cli.main(["loadtest", "--target", f"127.0.0.1:{server.port}", "--sessions", "2", "--cameras", "5",
+                       "--duration", "60", "--transport", transport, "--json", "--cache-dir", str(tmp_path)])
+    took = time.perf_counter() - t0
+    out, err = capsys.readouterr()
+    report = json.loads(out)
+    assert status == 1 and report["frames"] == 0 and report["errors"] == {"INVALID_ARGUMENT": 2}
+    assert "every session ended with an error (2 INVALID_ARGUMENT" in err.splitlines()[-1]
+    assert took < 40, f"the refused run waited {took:.0f} s of its 60"

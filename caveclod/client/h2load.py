@@ -120,7 +120,9 @@ async def fly_h2(args, shard: tuple) -> tuple:
             at = max(phase for _, _, phase in members)
             loop.call_at(offset + t0 + at, send, members, at, 0.0)
 
-        await asyncio.sleep(max(t0 + args.duration + TAIL_SECONDS - time.perf_counter(), 0.0))
+        end = t0 + args.duration + TAIL_SECONDS
+        while time.perf_counter() < end and not all(s.over for s in sessions):    # all refused: no wait
+            await asyncio.sleep(min(0.1, max(end - time.perf_counter(), 0.0)))
         for index, session in zip(mine, sessions):
             if not session.ready.done():          # never opened: as the grpc.aio flights' open timeout
                 ended(index, SessionEnded(grpc.StatusCode.DEADLINE_EXCEEDED,

@@ -443,9 +443,14 @@ def main(args) -> int:
             print(f"{key:<28} {value}")
     if not figures["frames"]:
         # Every session's first frame is its keyframe: none at all is a server that did not answer
-        # (a run that counted 1,444 poses and no frame used to exit 0, as if measured).
+        # (a run that counted 1,444 poses and no frame used to exit 0, as if measured), or one
+        # that refused every session, whose errors are then named, not blamed on its silence.
+        why = ("every session ended with an error (" + ", ".join(f"{n} {code}" for code, n in
+                                                                 figures["errors"].items())
+               + "; the first is said above)" if figures["errors"] else
+               "the server did not answer; check its log and load")
         print(f"caveclod: error: {args.target}: no frame came in {args.duration:g} s ({figures['poses_sent']:,} "
-              "poses sent): the server did not answer; check its log and load", file=sys.stderr)
+              f"poses sent): {why}", file=sys.stderr)
         return 1
     return 1 if figures["divergences"] or figures["errors"] else 0
 
