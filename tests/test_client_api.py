@@ -162,3 +162,27 @@ def test_a_resume_mended_at_its_second_try_leaves_the_session_open(monkeypatch):
     assert s.next_frame(timeout=0.01) is None
     assert len(opened) == 3 and s._ended is None               # try 1 failed, try 2 opened
     assert s.send_pose(0, EYE, TARGET) == 7
+
+
+def test_a_buffer_offered_from_the_cache_is_kept_until_the_server_takes_it(server, tmp_path, monkeypatch):
+    """The buffer was looked up twice, when offered in Open and when SessionInfo said the server took
+    it: gone between the two (other sessions' downloads pushed it out of the cache's memory, and its
+    file had been deleted), the open ended with DATA_LOSS instead of using what was offered."""
+    from caveclod.client.cache import VertexBufferCache
+    target = f"127.0.0.1:{server.port}"
+    with Client(target, cache_dir=tmp_path) as client:
+        client.session("terrain", width=640, height=360).close()          # the buffer is now cached
+    real, lookups = VertexBufferCache.lookup, []
+
+    def gone_after_the_offer(self, key):
+        lookups.append(key)
+        return real(self, key) if len(lookups) == 1 else None
+    monkeypatch.setattr(VertexBufferCache, "lookup", gone_after_the_offer)
+    with Client(target, cache_dir=tmp_path) as client:
+        s = client.session("terrain", width=640, height=360, timeout=30)
+        try:
+            assert s.info.vertex_buffer_cached and len(lookups) == 1
+            s.send_pose(0, EYE, TARGET)
+            assert s.next_frame(timeout=20) is not None
+        finally:
+            s.close()

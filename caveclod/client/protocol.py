@@ -210,6 +210,7 @@ class SessionProtocol:
         self.failovers = 0               # broken streams that came back as a fresh session (replica gone, or expired)
         self.affinity_key = secrets.token_hex(16)
         self._known_hash = ""            # vertex_buffer_hash to offer in Open
+        self._offered = None             # (hash, (payload, crc)) the cache gave when it was offered
         self._chunks: bytearray | None = None
         self._sent: list[dict] = [{} for _ in range(cameras)]      # camera -> {pose_seq: send time}
         self._answered = [0] * cameras
@@ -236,8 +237,13 @@ class SessionProtocol:
                                                         self.morph_targets, content_hash)
         if self.vertex is not None and self.vertex.hash == vertex_buffer_hash:
             self._known_hash = vertex_buffer_hash
-        elif self.cache is not None and vertex_buffer_hash and self.cache.lookup(vertex_buffer_hash) is not None:
-            self._known_hash = vertex_buffer_hash
+        elif self.cache is not None and vertex_buffer_hash:
+            # The payload is kept from the offer to the SessionInfo: looked up again then, it
+            # could be gone (other sessions' downloads pushed it out of the cache's memory and
+            # its file had been deleted), and the server, told we hold it, sends none.
+            found = self.cache.lookup(vertex_buffer_hash)
+            if found is not None:
+                self._known_hash, self._offered = vertex_buffer_hash, (vertex_buffer_hash, found)
         return bool(self._known_hash)
 
     def open_message(self) -> pb.ClientMessage:
@@ -370,8 +376,11 @@ class SessionProtocol:
         key = self._buffer_key()
         if self.vertex is not None and self.vertex.hash == key:
             payload, crc = self.vertex.payload, zlib.crc32(self.vertex.payload)
+        elif self._offered is not None and self._offered[0] == key:
+            payload, crc = self._offered[1]
         else:
             payload, crc = (self.cache.lookup(key) if self.cache is not None else None) or (None, None)
+        self._offered = None
         if payload is None or crc != info.vertex_payload_crc32:
             if self.cache is not None:
                 self.cache.discard(key)
