@@ -258,3 +258,17 @@ def test_a_bug_while_opening_is_internal(server, monkeypatch):
     monkeypatch.setattr(server.sessions, "open", broken)
     code, details, _ = raw_stream(server.port, [open_message()])
     assert code == grpc.StatusCode.INTERNAL and "ZeroDivisionError" in details, (code, details)
+
+
+def test_a_mesh_file_name_that_is_not_utf8_is_refused_at_start(terrain_path, tmp_path):
+    """A Latin-1 name (gel\\xe4nde.cvc) was served, and then every ListMeshes failed with UNKNOWN
+    (protobuf cannot send the name), for every mesh, and so did every client's Open with a cache."""
+    import os
+    import shutil
+    from caveclod.errors import InputError
+    from caveclod.server.meshes import Catalogue
+    bad = os.path.join(os.fsencode(tmp_path), b"gel\xe4nde.cvc")
+    shutil.copy(terrain_path, bad)
+    with pytest.raises(InputError, match="not UTF-8.*rename the file"):
+        Catalogue([str(terrain_path), os.fsdecode(bad)])
+    assert Catalogue([str(terrain_path)]).names() == ["terrain"]

@@ -18,6 +18,7 @@ DATA_LOSS, and the server goes on serving its other meshes and sessions.
 
 from __future__ import annotations
 
+import os
 import threading
 import time
 from functools import cached_property
@@ -185,6 +186,13 @@ class Catalogue:
         checks = []
         for path in paths:
             name = Path(path).stem
+            try:
+                name.encode("utf-8")
+            except UnicodeEncodeError:
+                # A file name in another encoding (a Latin-1 archive unpacked here): protobuf
+                # could not send the name, and every ListMeshes failed, for every mesh.
+                raise InputError(f"the mesh file name {os.fsencode(path)!r} is not UTF-8, so no client could "
+                                 "name it; rename the file (meshes are served by file stem)") from None
             if name in self.meshes:
                 raise InputError(f"two meshes named {name!r} ({self.meshes[name].mesh.path} and {path}); "
                                  "rename one file: meshes are served by file stem")
