@@ -352,6 +352,7 @@ class SessionProtocol:
             self._chunks = bytearray()
             if self._download_bytes() == 0:
                 self._finish_vertex_buffer()
+        self._offered = None                   # used or not, the offer is answered: let its bytes go
         # Poses in flight when the stream broke are lost: send each camera's latest
         # again. A fresh session has none of them: send every camera's latest.
         for c, pose in enumerate(self._latest):
@@ -380,7 +381,6 @@ class SessionProtocol:
             payload, crc = self._offered[1]
         else:
             payload, crc = (self.cache.lookup(key) if self.cache is not None else None) or (None, None)
-        self._offered = None
         if payload is None or crc != info.vertex_payload_crc32:
             if self.cache is not None:
                 self.cache.discard(key)
