@@ -30,7 +30,7 @@ DEFAULT_MORPH_MS = 500.0     # geomorph duration of render, view and demo (bench
 EXIT_USAGE = 2
 
 
-NEGATIVE_VALUE_OPTIONS = ("--origin", "--nodata", "--z-scale", "--cell-size", "--seed")
+NEGATIVE_VALUE_OPTIONS = ("--origin", "--nodata", "--z-scale", "--cell-size", "--seed", "--tile-job")
 """Options whose value may start with a minus sign that argparse takes for an option of its own."""
 
 

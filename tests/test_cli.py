@@ -214,6 +214,7 @@ def test_numbers_and_names_said_in_one_line_not_a_traceback(tmp_path, capsys):
         (["build", str(tmp_path / ("b" * 296 + ".obj")), "-o", str(tmp_path / "x.cvc")], "too long"),
         (["build", "default", "--size", "64", "--tiles", "2", "--tiles-dir", str(tmp_path / "afile"),
           "--tile-job", "0/2"], "is a file, not a directory"),
+        (["build", "default", "--size", "8", "--tiles-dir", str(tmp_path / "t"), "--tile-job", "-1/2"], "I/N"),
         (["serve", "--port", "-1", "x.cvc"], "--port"),
         (["serve", "--port", "0", "--metrics-port", "70000", "x.cvc"], "--metrics-port"),
         (["serve", "--port", "0", "--drain-seconds", "nan", "x.cvc"], "finite"),

@@ -112,6 +112,73 @@ def test_tiles_of_another_input_or_damaged_are_refused(tmp_path):
         build_static_mesh(SOURCES["rough"](), tiles=4, store=TileStore(tmp_path))
 
 
+def _flip_a_byte_of(path, member: str) -> None:
+    """Flip one byte inside ``member`` of a block file (a stored zip: its bytes lie as written)."""
+    import zipfile
+    with zipfile.ZipFile(path) as z:
+        info = z.getinfo(member)
+    data = bytearray(path.read_bytes())
+    at = info.header_offset + 30 + len(info.filename.encode()) + len(info.extra) + info.compress_size // 2
+    data[at] ^= 0xFF
+    path.write_bytes(bytes(data))
+
+
+@pytest.mark.parametrize("member", ["meta.npy", "segments.npy", "F.npy"])
+def test_a_damaged_block_is_named_and_its_retried_job_makes_it_anew(tmp_path, member):
+    """One flipped byte in a block's header gave a 39-line traceback (zipfile's Bad CRC-32); in its rows,
+    "does not fit this input; run the tile jobs again", and the retried job kept the block (its header
+    was fine), so no retry mended it."""
+    make = SOURCES["rough"]
+    jobs(make, tmp_path, 2)
+    store = TileStore(tmp_path)
+    level, block = store.present()[0]
+    _flip_a_byte_of(store.file(block, level), member)
+    with pytest.raises(InputError, match=f"is damaged.*run (its tile job|tile job {block % 2}/2) again"):
+        build_static_mesh(make(), tiles=4, store=TileStore(tmp_path))
+    again = build_tile_job(make(), TileStore(tmp_path, job=(block % 2, 2)), tiles=4, workers=1)
+    assert again["blocks_written"] == 1
+    merged = build_static_mesh(make(), tiles=4, store=TileStore(tmp_path))
+    assert digest(merged) == digest(build_static_mesh(make(), tiles=4))
+
+
+def test_an_interrupted_write_leaves_no_temp_file_and_temp_names_are_unique(tmp_path, monkeypatch):
+    """Ctrl-C (or any error but the file system's) while a block was written left its .tmp file for
+    good; and the temp name was the pid alone, 1 in every container, so two pods of one index wrote
+    one file."""
+    from caveclod.builder import tilestore
+    arrays, real_write = [], np.lib.format.write_array
+
+    def interrupted(f, array, **kwargs):
+        arrays.append(1)
+        if len(arrays) == 3:                 # the temp file is there, half written
+            assert [n for n in os.listdir(tmp_path) if n.endswith(".tmp")]
+            raise KeyboardInterrupt
+        return real_write(f, array, **kwargs)
+    monkeypatch.setattr(np.lib.format, "write_array", interrupted)
+    with pytest.raises(KeyboardInterrupt):
+        build_tile_job(SOURCES["rough"](), TileStore(tmp_path, job=(0, 2)), tiles=4, workers=1)
+    assert not os.listdir(tmp_path)
+    monkeypatch.setattr(np.lib.format, "write_array", real_write)
+    temps, real_replace = [], os.replace
+    monkeypatch.setattr(tilestore.os, "replace", lambda a, b: temps.append(os.path.basename(a)) or real_replace(a, b))
+    store = TileStore(tmp_path, job=(0, 2))
+    store.key = "k"
+    for _ in range(2):                       # one block, written twice by one pid
+        store.write_block(0, 0, {"x": lambda: np.zeros(3)})
+    assert len(temps) == 2 and temps[0] != temps[1]
+
+
+def test_a_job_refuses_a_tiles_dir_it_cannot_write_before_the_work(tmp_path, monkeypatch):
+    """A read-only volume failed once every block was made, naming a temp file ("Read-only file
+    system") and saying nothing of what to do."""
+    real = os.access
+    monkeypatch.setattr(os, "access", lambda path, mode, **kw: False if str(path) == str(tmp_path) else
+                        real(path, mode, **kw))
+    with pytest.raises(InputError, match="--tiles-dir .* cannot be written here.*writable directory"):
+        TileStore(tmp_path, job=(0, 2))
+    TileStore(tmp_path)                          # the merge only reads
+
+
 def test_a_mesh_of_one_tile_leaves_it_all_to_the_merge(tmp_path):
     make = SOURCES["scan"]
     (report,) = jobs(make, tmp_path, 1, tiles=1)

@@ -52,6 +52,7 @@ import hashlib
 import json
 import os
 import re
+import secrets
 import zipfile
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -139,6 +140,18 @@ class TileStore:
             # Found before the blocks are made, not when the first is written (a FileExistsError then).
             raise InputError(f"--tiles-dir {self.path} is a file, not a directory: give a directory (it is made "
                              "if missing)")
+        if self.job is not None:
+            # A job writes: found here, not after its blocks' work (a read-only volume said only
+            # "Read-only file system", naming a temp file, once everything was made).
+            try:
+                self.path.mkdir(parents=True, exist_ok=True)
+                writable = os.access(self.path, os.W_OK | os.X_OK)
+                why = "it cannot be written here"
+            except OSError as exc:
+                writable, why = False, exc.strerror
+            if not writable:
+                raise InputError(f"--tiles-dir {self.path}: {why}; a tile job writes its blocks there: give a "
+                                 "writable directory (on a shared volume, mounted read-write)")
 
     def mine(self, block: int) -> bool:
         """Whether this process makes ``block``."""
@@ -154,8 +167,20 @@ class TileStore:
         return sorted((int(m.group(1)), int(m.group(2))) for m in map(_NAME.match, os.listdir(self.path)) if m)
 
     def finished(self, block: int, level: int) -> bool:
-        """Whether ``block``'s file is there, from this input (a retried job keeps it)."""
-        if not self.file(block, level).exists():
+        """Whether ``block``'s file is there, whole and from this input (a retried job keeps it).
+
+        Read whole to check its CRC-32s: a damaged block was kept by every
+        retry while the merge refused it, so retrying the job (what a
+        Kubernetes Job does) never mended it. A damaged one is made again.
+        """
+        path = self.file(block, level)
+        if not path.exists():
+            return False
+        try:
+            with zipfile.ZipFile(path) as z:
+                if z.testzip() is not None:
+                    return False
+        except (OSError, EOFError, zipfile.BadZipFile):
             return False
         self.meta(block, level)
         return True
@@ -168,10 +193,13 @@ class TileStore:
         with self._open(path) as z:
             try:
                 meta = json.loads(str(z["meta"]))
+                meta["segments"] = z["segments"] if "segments" in z.files else None
             except (KeyError, ValueError):
                 raise InputError(f"{path} is not a caveclod tile file; delete it or point --tiles-dir "
                                  "elsewhere") from None
-            meta["segments"] = z["segments"] if "segments" in z.files else None
+            except (OSError, EOFError, zipfile.BadZipFile) as exc:      # a damaged byte: a bad CRC-32
+                raise InputError(f"tile file {path} is damaged ({exc}); run its tile job again (it makes a "
+                                 "damaged block anew)") from None
         if meta.get("format") != FORMAT or meta.get("key") != self.key:
             raise InputError(f"tile file {path} was made from another input, other build options or another "
                              "caveclod version; run the tile jobs again with the same input, options and image as "
@@ -199,22 +227,36 @@ class TileStore:
         making the array) atomically: a job killed mid-write leaves no file a
         merge could take for whole. One array is made and written at a time
         (a quarter of a 33.5M-triangle terrain's block is 1.2 GB in all)."""
-        self.path.mkdir(parents=True, exist_ok=True)
         meta = {"format": FORMAT, "key": self.key, "block": int(block), "level": int(level),
                 "jobs": int(self.job[1]) if self.job else 1}
         path = self.file(block, level)
-        tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
+        # A name of its own: the pid alone is 1 in every container, and two pods of one index
+        # (a retry beside a job thought lost) wrote the same temp file.
+        tmp = path.with_name(f".{path.name}.{os.getpid()}-{secrets.token_hex(4)}.tmp")
         try:
+            self.path.mkdir(parents=True, exist_ok=True)
             with zipfile.ZipFile(tmp, "w", zipfile.ZIP_STORED, allowZip64=True) as z:   # what np.load reads
                 for name, make in {"meta": lambda: np.array(json.dumps(meta)), **rows}.items():
                     with z.open(f"{name}.npy", "w", force_zip64=True) as f:
                         np.lib.format.write_array(f, make(), allow_pickle=False)
             os.replace(tmp, path)
         except OSError as exc:
-            tmp.unlink(missing_ok=True)
+            _remove(tmp)
             raise InputError(f"cannot write tile file {path}: {exc.strerror}; check that --tiles-dir is a writable "
                              "directory with room (tiles take about 140 bytes per input triangle)") from None
+        except BaseException:                 # Ctrl-C, or a bug: no half file left beside the blocks
+            _remove(tmp)
+            raise
         return path
+
+
+def _remove(path: Path) -> None:
+    """Remove a temp file if it is there and can be: on a read-only file system the unlink fails
+    too, and its error hid the write's."""
+    try:
+        path.unlink(missing_ok=True)
+    except OSError:
+        pass
 
 
 SEGMENT = ("level", "tile", "start", "made", "passes")
@@ -308,7 +350,10 @@ def read_blocks(store: TileStore, st, grid, e: int) -> tuple[int, int, int]:
         try:
             with store.rows(b, level) as rows:
                 _scatter(st, rows, seg[mine], starts[mine], e)
-        except (ValueError, IndexError, KeyError, OSError, EOFError, zipfile.BadZipFile) as exc:
+        except (OSError, EOFError, zipfile.BadZipFile) as exc:        # a damaged byte: a bad CRC-32
+            raise InputError(f"tile file {store.file(b, level)} is damaged ({exc}); run tile job "
+                             f"{b % metas[b]['jobs']}/{metas[b]['jobs']} again (it makes a damaged block anew)") from None
+        except (ValueError, IndexError, KeyError) as exc:
             raise InputError(f"tile file {store.file(b, level)} does not fit this input ({exc}); delete the tiles "
                              "and run the tile jobs again") from None
         store.loaded.append(b)
