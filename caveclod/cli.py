@@ -452,7 +452,7 @@ def _whole_number(option: str, text: str) -> int:
 def _pack(args) -> int:
     from .staticmesh import load
     from .vertexpack import attach_packed
-    output = args.output or args.path
+    output = args.path if args.output is None else args.output     # -o '' names no file: refused, not in place
     _check_output(output)
     mesh = load(args.path)       # checked, as serve would
     mesh.store_derived()

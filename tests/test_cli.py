@@ -216,6 +216,13 @@ def test_numbers_and_names_said_in_one_line_not_a_traceback(tmp_path, capsys):
           "--tile-job", "0/2"], "is a file, not a directory"),
         (["build", "default", "--size", "8", "--tiles-dir", str(tmp_path / "t"), "--tile-job", "-1/2"], "I/N"),
         (["serve", "--port", "-1", "x.cvc"], "--port"),
+        (["render", "--target", "127.0.0.1:1", "--fps", "0", "--out", str(tmp_path / "r")], "--fps"),
+        (["render", "--target", "127.0.0.1:1", "--fps", "inf", "--out", str(tmp_path / "r")], "--fps"),
+        (["render", "--target", "127.0.0.1:1", "--morph-ms", "nan", "--out", str(tmp_path / "r")], "--morph-ms"),
+        (["render", "--target", "127.0.0.1:1", "--morph-ms", "inf", "--out", str(tmp_path / "r")], "--morph-ms"),
+        (["loadtest", "--target", "127.0.0.1:1", "--rate", "nan"], "finite"),
+        (["loadtest", "--target", "127.0.0.1:1", "--duration", "nan"], "finite"),
+        (["loadtest", "--target", "127.0.0.1:1", "--warmup", "nan"], "finite"),
         (["serve", "--port", "0", "--metrics-port", "70000", "x.cvc"], "--metrics-port"),
         (["serve", "--port", "0", "--drain-seconds", "nan", "x.cvc"], "finite"),
         (["serve", "--port", "0", "--drain-seconds", "inf", "x.cvc"], "finite"),
@@ -225,6 +232,15 @@ def test_numbers_and_names_said_in_one_line_not_a_traceback(tmp_path, capsys):
     ]
     for argv, words in cases:
         _one_line(capsys, cli_main(argv), words)
+
+
+def test_pack_with_an_empty_output_is_refused_not_done_in_place(tmp_path, small_cvc, capsys):
+    """``pack X.cvc -o ''`` rewrote X.cvc in place, where ``build -o ''`` is refused."""
+    path = tmp_path / "m.cvc"
+    path.write_bytes(small_cvc.read_bytes())
+    before = path.stat().st_mtime_ns
+    _one_line(capsys, cli_main(["pack", str(path), "-o", ""]), "names no file")
+    assert path.stat().st_mtime_ns == before
 
 
 def test_a_fifo_named_as_a_mesh_is_refused_not_waited_on(tmp_path):

@@ -186,3 +186,27 @@ def test_a_buffer_offered_from_the_cache_is_kept_until_the_server_takes_it(serve
             assert s.next_frame(timeout=20) is not None
         finally:
             s.close()
+
+
+def test_a_slot_count_past_the_wire_is_sent_as_the_most_it_carries():
+    """cache_vertices=2**32 was protobuf's "Value out of range: 4294967296", a traceback in render,
+    view and loadtest; the server clamps a count above the mesh's vertices to them anyway."""
+    from caveclod.client.protocol import MAX_CACHE_VERTICES, SessionProtocol
+    from caveclod.client.session import cache_mode
+    for n, sent in ((2 ** 32, MAX_CACHE_VERTICES), (2 ** 70, MAX_CACHE_VERTICES), (500, 500)):
+        p = SessionProtocol("m", 1, {}, cache_mode=cache_mode(n, None, None))
+        assert p.open_message().open.cache_vertices == sent
+
+
+def test_session_renderer_takes_every_pose_the_renderer_takes():
+    """The README: "a pose is a Pose, a Camera, or a View"; SessionRenderer indexed p[0] and refused
+    Cameras and Views (TypeError), and ``from caveclod.render import SessionRenderer`` was an ImportError."""
+    import types
+    import caveclod
+    from caveclod.paths import Pose
+    from caveclod.render import Camera, SessionRenderer
+    eye, target, up = (1.0, 2.0, 3.0), (0.0, 0.0, 0.0), (0.0, 0.0, 1.0)
+    poses = [Pose(eye, target, up), (eye, target, up), Camera(eye, target, up, 30.0),
+             caveclod.View(eye=eye, target=target, up=up, fov_y=30.0)]
+    cams = SessionRenderer.views(types.SimpleNamespace(fov_y=50.0), poses)
+    assert {(tuple(c.eye), tuple(c.target), tuple(c.up), c.fov_y) for c in cams} == {(eye, target, up, 50.0)}

@@ -34,6 +34,7 @@ from __future__ import annotations
 import asyncio
 import importlib.util
 import json
+import math
 import os
 import subprocess
 import sys
@@ -391,8 +392,10 @@ def main(args) -> int:
         if getattr(args, name) < 1:
             print(f"caveclod: error: --{name} must be at least 1", file=sys.stderr)
             return 2
-    if args.duration <= 0 or args.rate <= 0 or args.warmup < 0:
-        print("caveclod: error: --duration and --rate must be positive, --warmup at least 0", file=sys.stderr)
+    # Written so that NaN fails (it passed "<= 0": a traceback, or "duration_s": NaN in the JSON).
+    if not (0 < args.duration < math.inf and 0 < args.rate < math.inf and 0 <= args.warmup < math.inf):
+        print("caveclod: error: --duration and --rate must be positive, --warmup at least 0, all finite",
+              file=sys.stderr)
         return 2
     if args.cache_vertices is None and (args.cache_strategy is not None or args.cache_pq_fraction is not None):
         print("caveclod: error: --cache-strategy and --cache-pq-fraction need --cache-vertices N (slots per camera)",

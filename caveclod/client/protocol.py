@@ -146,6 +146,11 @@ class FrameUpdate:
     bad: list = field(default_factory=list)
 
 
+MAX_CACHE_VERTICES = 2 ** 32 - 1
+"""The most slots Open.cache_vertices (uint32) carries; a larger count is sent as this, and the
+server clamps it to the mesh's vertex count as it clamps any count above that."""
+
+
 class SessionProtocol:
     """One session's client state across its streams.
 
@@ -182,6 +187,10 @@ class SessionProtocol:
         slots = (cache_mode or {}).get("vertices")
         if slots is not None and (isinstance(slots, bool) or not isinstance(slots, (int, np.integer)) or slots < 1):
             raise ValueError(f"cache_vertices must be a whole number from 1 (slots per camera), got {slots!r}")
+        if slots is not None and slots > MAX_CACHE_VERTICES:
+            # The server clamps a count above the mesh's vertices to them; past the wire's uint32
+            # protobuf refused it ("Value out of range"), a traceback in render, view and loadtest.
+            cache_mode = {**cache_mode, "vertices": MAX_CACHE_VERTICES}
         if frame_encoding not in FRAME_ENCODINGS:
             raise ValueError(f"frame_encoding {frame_encoding!r}: use one of {', '.join(FRAME_ENCODINGS)}")
         if vertex_encoding not in VERTEX_ENCODINGS:

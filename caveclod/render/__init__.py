@@ -35,3 +35,12 @@ from .renderer import Renderer, Vertices
 
 __all__ = ["Renderer", "Vertices", "Camera", "UploadStats", "RenderError", "create_context", "quadrants",
            "save_png", "save_animation", "contact_sheet"]
+
+
+def __getattr__(name: str):
+    """``SessionRenderer`` on first use (the README's ``from caveclod.render import SessionRenderer``):
+    imported here it would bring the client (grpc) into every import of the renderer."""
+    if name == "SessionRenderer":
+        from .session import SessionRenderer
+        return SessionRenderer
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")

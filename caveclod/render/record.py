@@ -48,8 +48,9 @@ def parse_size(text: str) -> tuple[int, int]:
 def morph_ms(args) -> float:
     """``--morph-ms`` checked (and ``--morph-speed``): milliseconds, 0 (or absent) for no geomorphs."""
     morph = getattr(args, "morph_ms", 0.0) or 0.0
-    if morph < 0:
-        raise InputError(f"--morph-ms must be at least 0 (0: no geomorphs), got {morph:g}")
+    if not (morph >= 0 and math.isfinite(morph)):     # NaN turned morphs off, inf never ended them
+        raise InputError(f"--morph-ms must be a finite number of milliseconds, at least 0 (0: no geomorphs), "
+                         f"got {morph:g}")
     speed = getattr(args, "morph_speed", None)
     if speed is not None and not (speed > 0 and math.isfinite(speed)):
         raise InputError(f"--morph-speed must be a positive number of pixels a second, got {speed:g}")
@@ -185,6 +186,8 @@ def main(args) -> int:
         raise InputError(f"--cameras must be 1 to 4 (the quadrants of one image), got {args.cameras}")
     if args.frames < 1:
         raise InputError(f"--frames must be at least 1, got {args.frames}")
+    if not 0.01 <= args.fps <= 1000:     # 0 divided, inf and 1e-9 overflowed, NaN reached the server
+        raise InputError(f"--fps must be from 0.01 to 1000 frames a second, got {args.fps:g}")
     cache = cache_options(args)
     qw, qh = quadrants(*size, args.cameras)[0][2:]
     token = args.token or os.environ.get("CAVECLOD_TOKEN")

@@ -132,17 +132,20 @@ class SessionRenderer:
             self.renderer.apply(camera, m, count, tris, slots)
 
     def views(self, poses) -> list[Camera]:
-        """One :class:`Camera` per pose ``(eye, target, up)``, with the session's field of view."""
-        return [Camera(p[0], p[1], p[2], self.fov_y) for p in poses]
+        """One :class:`Camera` per pose (a Pose or ``(eye, target, up)``, a Camera or a View, as
+        :meth:`Camera.of` takes them), with the session's field of view: the one its server refines for."""
+        cams = [Camera.of(p, self.fov_y) for p in poses]
+        return [Camera(c.eye, c.target, c.up, self.fov_y) for c in cams]
 
     def render(self, poses, wireframe: bool = False, now: float | None = None) -> np.ndarray:
         """(height, width, 3) uint8 image of every camera at its pose (one per camera), the geomorphs
         at ``now`` (default: :meth:`clock`)."""
         self.advance(self.clock() if now is None else float(now))
+        cams = self.views(poses)
         if self.morphs is not None:            # the next frames' morphs are timed from these poses
-            for morphs, pose in zip(self.morphs, poses):
-                morphs.look_from(pose[0], self._kappa)
-        return self.renderer.render(self.views(poses), wireframe=wireframe)
+            for morphs, cam in zip(self.morphs, cams):
+                morphs.look_from(cam.eye, self._kappa)
+        return self.renderer.render(cams, wireframe=wireframe)
 
     def mismatches(self) -> list[tuple[int, int]]:
         """(camera, material) pairs whose GPU buffer, read back, differs from the client library's
