@@ -454,3 +454,28 @@ def test_png_animation_and_contact_sheet(tmp_path):
         contact_sheet([frames[0], frames[1][:5]])
     with pytest.raises(ValueError, match="animation"):
         save_animation(tmp_path / "walk.mp4", frames)
+
+
+def test_renderers_with_contexts_of_their_own_each_draw_in_their_own(gl):
+    """Each renderer made without ``ctx=`` has an EGL context, and GL calls go to the current one:
+    the last made. A second renderer made the first draw into the second's context (its image lost
+    the mesh, then was garbage once the second was released) and read back the second's buffers."""
+    verts, tris = sphere()
+    view = [Camera((0.0, -3.0, 1.0), (0.0, 0.0, 0.0))]
+
+    def make(half):
+        r = Renderer(96, 64, verts, ["grass"])
+        part = tris[: len(tris) // 2] if half else tris
+        r.apply(0, 0, len(part), part)
+        return r, part
+    first, part = make(True)
+    alone = first.render(view)
+    second, _ = make(False)                       # another mesh: the whole sphere
+    try:
+        assert np.array_equal(first.render(view), alone)
+        assert np.array_equal(first.index_buffer(0, 0)[: len(part)], part)
+        assert not np.array_equal(second.render(view), alone)
+    finally:
+        second.release()
+    assert np.array_equal(first.render(view), alone), "after the second's release"
+    first.release()

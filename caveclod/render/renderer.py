@@ -12,6 +12,7 @@ hold slot numbers.
 
 from __future__ import annotations
 
+import functools
 from typing import NamedTuple
 
 import moderngl
@@ -42,6 +43,27 @@ class Vertices(NamedTuple):
     normals: np.ndarray
     uvs: np.ndarray
     colors: np.ndarray | None = None
+
+
+def _in_own_context(method):
+    """Run ``method`` with the renderer's context current when the renderer made it.
+
+    Each renderer made without ``ctx=`` has an EGL context of its own, and GL
+    calls go to whichever context is current on the thread: the last one
+    made. A second renderer in one process made the first draw into the
+    second's context (its image lost the mesh) and read back the second's
+    buffers, so its own check found nothing wrong. The context is made
+    current and left so: moderngl's ``with ctx`` leaves EGL's last context
+    in an undefined state on exit (images drawn after it varied from run to
+    run). A context passed in (a window's, or one shared by several
+    renderers) is the caller's to make current.
+    """
+    @functools.wraps(method)
+    def wrapper(self, *args, **kwargs):
+        if self._owns_ctx:
+            self.ctx.__enter__()            # made current, and left so: EGL's exit does not restore the last
+        return method(self, *args, **kwargs)
+    return wrapper
 
 
 class Renderer:
@@ -109,6 +131,8 @@ class Renderer:
         self.stats = UploadStats()
         self._owns_ctx = ctx is None
         self.ctx = create_context() if ctx is None else ctx
+        if self._owns_ctx:
+            self.ctx.__enter__()                # current for what is made below (see _in_own_context)
         self._programs = {
             False: self.ctx.program(vertex_shader=shaders.VERTEX, fragment_shader=shaders.FRAGMENT),
             True: self.ctx.program(vertex_shader=shaders.VERTEX, geometry_shader=shaders.GEOMETRY,
@@ -141,6 +165,7 @@ class Renderer:
         self._fbo = self._framebuffer()
 
     # -- frames in ------------------------------------------------------------
+    @_in_own_context
     def apply(self, camera: int, material: int, count, tris, slots=None, first_slot=0) -> None:
         """Apply one ``SurfaceDelta``: resize the (camera, material) buffer to
         ``count`` triangles and write ``tris`` (k, 3) into ``slots`` (k,)
@@ -153,12 +178,14 @@ class Renderer:
         """
         self._buffer(camera, material).apply(count, tris, slots, first_slot)
 
+    @_in_own_context
     def reset(self, camera: int) -> None:
         """Empty every buffer of ``camera``: a keyframe's first part follows
         (in cache mode it brings every vertex the buffers use again)."""
         for buffer in self._camera_buffers(camera):
             buffer.clear()
 
+    @_in_own_context
     def write_vertices(self, camera: int, slots, positions, normals, uvs, colors=None, first_slot=0) -> None:
         """Cache mode: apply one ``VertexWrites``: write k vertices (positions
         (k, 3), normals (k, 3), uvs (k, 2)[, colors (k, 4) uint8]) into
@@ -176,6 +203,7 @@ class Renderer:
         arrays = (positions, normals, uvs) if colors is None else (positions, normals, uvs, colors)
         self._slots[camera].write(slots, arrays, first_slot)
 
+    @_in_own_context
     def write_positions(self, camera: int, vertices, positions) -> None:
         """Geomorphs: move ``vertices`` (k,) of ``camera`` to ``positions`` (k, 3) (the rows of
         :meth:`caveclod.client.geomorph.Geomorphs.moving`). Each run of consecutive vertices is one write."""
@@ -200,6 +228,7 @@ class Renderer:
         self.stats.vertex_writes += len(runs)
         self.stats.vertex_bytes += rows.nbytes
 
+    @_in_own_context
     def camera_positions(self, camera: int) -> np.ndarray:
         """Geomorphs: (d, 3) float32 the positions ``camera`` draws, read back from the GPU."""
         if not self.morph:
@@ -207,6 +236,7 @@ class Renderer:
         self._camera_buffers(camera)
         return np.frombuffer(self._positions[camera].read(), np.float32).reshape(-1, 3)
 
+    @_in_own_context
     def slot_vertices(self, camera: int) -> Vertices:
         """Cache mode: the camera's N slots read back from the GPU (unwritten slots are undefined)."""
         if self.cache_vertices is None:
@@ -214,10 +244,12 @@ class Renderer:
         self._camera_buffers(camera)
         return Vertices(*self._slots[camera].read())
 
+    @_in_own_context
     def index_buffer(self, camera: int, material: int) -> np.ndarray:
         """(count, 3) uint32 triangles of the (camera, material) buffer, read back from the GPU."""
         return self._buffer(camera, material).read()
 
+    @_in_own_context
     def counts(self, camera: int) -> list[int]:
         """Triangles drawn per material for ``camera``."""
         return [buffer.count for buffer in self._camera_buffers(camera)]
@@ -227,6 +259,7 @@ class Renderer:
         """``(x, y, w, h)`` of each camera's quadrant in the image (origin top left)."""
         return quadrants(self.width, self.height, self.cameras)
 
+    @_in_own_context
     def render(self, views, wireframe: bool = False) -> np.ndarray:
         """Draw every camera's view into its quadrant, offscreen, and read the image back.
 
@@ -243,6 +276,7 @@ class Renderer:
         raw = self._fbo.read(components=3, alignment=1)
         return np.frombuffer(raw, np.uint8).reshape(self.height, self.width, 3)[::-1].copy()
 
+    @_in_own_context
     def draw(self, views, wireframe: bool = False, target: moderngl.Framebuffer | None = None) -> None:
         """Draw as :meth:`render` does into ``target`` (a window's ``ctx.screen``,
         width x height pixels), or into the offscreen image when None; nothing is read back."""
@@ -267,6 +301,7 @@ class Renderer:
                     vao = buffer.vertex_array(program, self._contents[camera])
                     vao.render(moderngl.TRIANGLES, vertices=buffer.count * 3)
 
+    @_in_own_context
     def resize(self, width: int, height: int) -> None:
         """Change the image size (a window was resized); buffers and textures stay."""
         _check_size(width, height)
@@ -277,6 +312,12 @@ class Renderer:
     # -- lifetime -------------------------------------------------------------
     def release(self) -> None:
         """Free the GPU resources (and the context when the renderer made it)."""
+        self._release_resources()
+        if self._owns_ctx:
+            self.ctx.release()
+
+    @_in_own_context
+    def _release_resources(self) -> None:
         for buffers in self._buffers:
             for buffer in buffers:
                 buffer.release()
@@ -287,8 +328,6 @@ class Renderer:
         self._release_framebuffer()
         for resource in [*self._textures, *(buffer for buffer, *_ in self._vertex_content), *self._programs.values()]:
             resource.release()
-        if self._owns_ctx:
-            self.ctx.release()
 
     def __enter__(self) -> "Renderer":
         return self
