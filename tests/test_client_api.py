@@ -210,3 +210,35 @@ def test_session_renderer_takes_every_pose_the_renderer_takes():
              caveclod.View(eye=eye, target=target, up=up, fov_y=30.0)]
     cams = SessionRenderer.views(types.SimpleNamespace(fov_y=50.0), poses)
     assert {(tuple(c.eye), tuple(c.target), tuple(c.up), c.fov_y) for c in cams} == {(eye, target, up, 50.0)}
+
+
+def test_a_session_that_ended_closes_at_once(server, tmp_path):
+    """After next_frame raised the session's end, close() (the end of a `with` block) sent Close on
+    the finished stream and waited out its whole timeout, 5 s, for an end already taken."""
+    import time
+    with Client(f"127.0.0.1:{server.port}", cache_dir=tmp_path) as client:
+        s = client.session("terrain", width=640, height=360)
+        s.send_pose(0, (0.5, 0.5, 9.0), (0.5, 0.5, 0.0), (0.0, 0.0, 1.0))     # up along the view: refused
+        with pytest.raises(SessionEnded, match="parallel"):
+            for _ in range(100):                                              # bounded: 100 s at most
+                s.next_frame(timeout=1)
+        t0 = time.monotonic()
+        s.close(timeout=30)
+        assert time.monotonic() - t0 < 10, "close() waited for a stream end already taken"
+
+
+def test_keyframe_requests_and_ack_windows_are_checked_before_they_are_sent(server, tmp_path):
+    """request_keyframe(2) on two cameras was sent and ended the whole session (INVALID_ARGUMENT,
+    raised later by next_frame); -1 and ack_window=2**32 were protobuf's bare "Value out of range"."""
+    with Client(f"127.0.0.1:{server.port}", cache_dir=tmp_path) as client:
+        for bad in (-1, 1.5, True):
+            with pytest.raises(ValueError, match="ack_window"):
+                client.session("terrain", ack_window=bad)
+        with client.session("terrain", cameras=2, width=640, height=360, ack_window=2 ** 40) as s:
+            assert s.info.ack_window == 32
+            for bad in (2, -1, 1.0):
+                with pytest.raises(ValueError, match="camera"):
+                    s.request_keyframe(bad)
+            s.request_keyframe(1)
+            s.send_pose(0, EYE, TARGET)
+            assert s.next_frame(timeout=20) is not None

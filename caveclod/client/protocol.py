@@ -200,7 +200,10 @@ class SessionProtocol:
         self.frame_encoding, self.vertex_encoding, self.position_bits = frame_encoding, vertex_encoding, position_bits
         self.morph_targets = (bool(morph_targets) or frame_encoding == "linked") and vertex_encoding == "packed"
         self.mesh, self.n_cameras, self.options = mesh, cameras, dict(options)
-        self.cache, self.ack_window, self.client = cache, ack_window, client
+        if isinstance(ack_window, bool) or not isinstance(ack_window, (int, np.integer)) or ack_window < 0:
+            raise ValueError(f"ack_window must be a whole number from 0 (0: the server's default), got {ack_window!r}")
+        # The server clamps a request to 1..32; past the wire's uint32 protobuf refused it unnamed.
+        self.cache, self.ack_window, self.client = cache, min(int(ack_window), 2 ** 32 - 1), client
         self.cache_mode = dict(cache_mode) if cache_mode is not None else None
         self.slots: list[SlotBuffer] | None = None     # cache mode: each camera's slots
         self.info: pb.SessionInfo | None = None
@@ -291,6 +294,11 @@ class SessionProtocol:
 
     def keyframe_message(self, camera: int | None, reason: int, detail: str = "") -> pb.ClientMessage:
         """A KeyframeRequest for ``camera`` (None: all); remembered so it is not repeated."""
+        if camera is not None and (isinstance(camera, bool) or not isinstance(camera, (int, np.integer))
+                                   or not 0 <= camera < self.n_cameras):
+            # Sent, a camera out of range ended the whole session (INVALID_ARGUMENT, raised later by
+            # next_frame); -1 was protobuf's bare "Value out of range".
+            raise ValueError(f"camera {camera!r} is not one of this session's 0..{self.n_cameras - 1}")
         req = pb.KeyframeRequest(reason=reason, frame_seq=self.last_applied, detail=detail[:200])
         if camera is None:
             self._asked.update(range(self.n_cameras))

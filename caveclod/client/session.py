@@ -447,6 +447,13 @@ class Session(SessionState):
         """Send Close and wait (up to ``timeout``) for the server to end the stream."""
         if self._closed or self._stream is None:
             return
+        if self._ended is not None:
+            # Over already (its end was raised to the caller): no stream end is left to wait for,
+            # and closing such a session waited out the whole timeout (5 s a `with` block).
+            self._closed = True
+            self._stream.requests.put(None)
+            self._stream.call.cancel()
+            return
         self._closed = True
         self._stream.send(self.protocol.close_message(reason))
         self._stream.requests.put(None)
