@@ -52,6 +52,12 @@ def test_page_static_files_and_meshes(make_server):
             assert [m.name for m in listing.meshes] == ["terrain"]
             async with http.get(_url(server, "/v1/session", "http")) as r:     # not a WebSocket
                 assert r.status == 400 and "WebSocket" in await r.text()
+            # Refusals are raised, and skipped the headers every answer is said to carry.
+            for method, path, status in (("GET", "/static/nothing.js", 404), ("GET", "/nothing", 404),
+                                         ("GET", "/v1/session", 400), ("OPTIONS", "/", 405), ("POST", "/", 405)):
+                async with http.request(method, _url(server, path, "http")) as r:
+                    assert r.status == status and "default-src 'self'" in r.headers.get(
+                        "Content-Security-Policy", "") and r.headers.get("X-Content-Type-Options") == "nosniff", path
     _run(go())
 
 
@@ -134,6 +140,15 @@ def test_tokens_by_query_or_subprotocol_never_logged(make_server, tmp_path, capl
             async with http.get(_url(server, "/v1/meshes" + query, "http")) as r:
                 return r.status
     assert _run(listing("")) == 401 and _run(listing("?token=s3cret-token")) == 200
+
+    async def latin1(header: bytes) -> int:         # a browser's fetch sends "ä" as one Latin-1 byte
+        reader, writer = await asyncio.open_connection("127.0.0.1", server.web_port)
+        writer.write(b"GET /v1/meshes HTTP/1.1\r\nHost: x\r\nAuthorization: Bearer " + header + b"\r\n\r\n")
+        await writer.drain()
+        status = int((await reader.readline()).split()[1])
+        writer.close()
+        return status
+    assert _run(latin1(b"p\xe4ss")) == 401, "a token not UTF-8 was a 500 (UnicodeEncodeError)"
     from caveclod.server.logs import JsonFormatter
     logged = "\n".join(JsonFormatter().format(r) for r in caplog.records)
     assert "s3cret-token" not in logged and "wrong" not in logged

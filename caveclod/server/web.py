@@ -183,8 +183,10 @@ def refusal(tokens, request: web.Request) -> str | None:
     if token is None:
         return ("the server requires a token; add ?token=T to the page's address (or offer the "
                 f"WebSocket subprotocol '{TOKEN_SUBPROTOCOL}T')")
-    # compare_digest against every token: no timing hint of a near miss
-    if any([hmac.compare_digest(token.encode(), t.encode()) for t in tokens]):
+    # compare_digest against every token: no timing hint of a near miss. The header's bytes as sent:
+    # one not UTF-8 (a browser sends Latin-1 for "ä") arrives surrogate-escaped, and encode() raised (500).
+    offered = token.encode("utf-8", "surrogateescape")
+    if any([hmac.compare_digest(offered, t.encode()) for t in tokens]):
         return None
     return "the token is not accepted; ask the server's operator for a valid one (?token=T)"
 
@@ -302,9 +304,18 @@ class WebFront:
 
 @web.middleware
 async def _headers(request: web.Request, handler):
-    """Every answer says where the page may load from (its own server only), and is not framed."""
-    response = await handler(request)
+    """Every answer says where the page may load from (its own server only), and is not framed:
+    refusals too (404, 401, 405 are raised, and skipped the headers when only what returned got them)."""
+    try:
+        response = await handler(request)
+    except web.HTTPException as exc:
+        _secure(exc)
+        raise
+    _secure(response)
+    return response
+
+
+def _secure(response) -> None:
     if not response.prepared:             # a WebSocket's headers went with its upgrade
         response.headers.setdefault("Content-Security-Policy", CSP)
         response.headers.setdefault("X-Content-Type-Options", "nosniff")
-    return response
