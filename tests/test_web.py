@@ -308,3 +308,26 @@ def test_a_stopped_server_with_a_web_port_lets_go_of_its_meshes(terrain_path):
             thread.join(timeout=30)
     gc.collect()
     assert mesh() is None
+
+
+def test_a_page_that_goes_away_ends_its_session_even_with_frames_to_write():
+    """A close with 1001 (a tab closed) ends the session with the end of its requests, but a frame
+    written once the close had arrived raised (the socket was closed), and the session took that
+    for a broken connection: kept resumable for --resume-ttl, it held its slot and the next tab
+    was refused (5 of 5 tabs closed while frames flowed, in a sweep)."""
+    from types import SimpleNamespace
+    from caveclod.server.web import GOING_AWAY, WebSocketCall
+    sent = []
+
+    async def send_bytes(data):
+        sent.append(data)
+    for close_code, raises in ((GOING_AWAY, False), (1006, True), (1000, True)):
+        ws = SimpleNamespace(closed=True, close_code=close_code, send_bytes=send_bytes)
+        call = WebSocketCall(ws, "peer", None)
+        assert call.done() is raises, close_code
+        if raises:
+            with pytest.raises(ConnectionResetError):
+                _run(call.write(b"frame"))
+        else:
+            _run(call.write(b"frame"))                     # dropped: nobody reads it, nothing breaks
+    assert sent == []

@@ -98,7 +98,14 @@ class WebSocketCall:
         return self._peer
 
     def done(self) -> bool:
-        return self._done or self.ws.closed
+        return self._done or (self.ws.closed and not self._going_away())
+
+    def _going_away(self) -> bool:
+        """The page unloaded (:data:`GOING_AWAY`): its goodbye is the end of :meth:`requests`, a
+        half-close. Frames written meanwhile are dropped instead of breaking the stream: written
+        to the closed socket they raised, the session took that for a broken connection and kept
+        the page's slot for --resume-ttl (5 of 5 tabs closed while frames flowed)."""
+        return self.ws.close_code == GOING_AWAY
 
     def add_done_callback(self, callback) -> None:
         if self._done:
@@ -114,6 +121,8 @@ class WebSocketCall:
             self._callbacks.clear()
 
     async def write(self, data: bytes) -> None:
+        if not self._done and self._going_away():
+            return                            # nobody to read it: the session ends with the goodbye
         if self.done():
             raise ConnectionResetError("the WebSocket is closed")
         await self.ws.send_bytes(data)
