@@ -242,3 +242,18 @@ def test_keyframe_requests_and_ack_windows_are_checked_before_they_are_sent(serv
             s.request_keyframe(1)
             s.send_pose(0, EYE, TARGET)
             assert s.next_frame(timeout=20) is not None
+
+
+def test_an_async_session_of_a_closed_client_says_so(server, tmp_path):
+    """After AsyncClient.close(), next_frame raised a bare asyncio.CancelledError, which asyncio.run
+    and TaskGroups take for the caller's own cancellation; the blocking client says CANCELLED."""
+    async def fly():
+        client = AsyncClient(f"127.0.0.1:{server.port}", cache_dir=tmp_path)
+        s = await client.session("terrain", width=640, height=360)
+        s.send_pose(0, EYE, TARGET)
+        assert await s.next_frame(timeout=20) is not None
+        await client.close()
+        with pytest.raises(SessionEnded, match="client was closed"):
+            for _ in range(50):                                  # bounded: 50 s at most
+                await s.next_frame(timeout=1)
+    asyncio.run(asyncio.wait_for(fly(), 120))

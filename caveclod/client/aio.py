@@ -45,6 +45,7 @@ class AsyncClient:
         self.stub = pb_grpc.LodStub(self.channel)
         self.metadata = metadata(token)
         self.cache = None if cache_dir is False else VertexBufferCache(cache_dir)
+        self.closed = False
 
     async def list_meshes(self, timeout: float = 10.0) -> list[pb.MeshInfo]:
         """The meshes the server serves (MeshInfo messages, sorted by name)."""
@@ -72,6 +73,7 @@ class AsyncClient:
         return session
 
     async def close(self) -> None:
+        self.closed = True                    # its sessions' reads end cancelled: they say why
         await self.channel.close()
 
     async def __aenter__(self) -> "AsyncClient":
@@ -152,6 +154,13 @@ class AsyncSession(SessionState):
     async def _receive(self, resume: bool = True) -> FrameUpdate | None:
         try:
             msg = await self._stream.call.read()
+        except asyncio.CancelledError:
+            if not self.client.closed:
+                raise                         # the caller's task was cancelled: theirs to handle
+            # grpc.aio cancels the reads of a closed channel: a bare CancelledError looked like the
+            # caller's own cancellation to asyncio.run and TaskGroups.
+            raise self._end(SessionEnded(grpc.StatusCode.CANCELLED, "the client was closed (AsyncClient.close()); "
+                                         "open a new client and session")) from None
         except grpc.RpcError as exc:
             code, details = exc.code(), exc.details()
             if resume and retriable(code, details) and self.protocol.token and not self._closed:
