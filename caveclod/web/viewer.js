@@ -53,8 +53,12 @@ function token() {
 /** The mesh to open: ?mesh=, or the first the server serves. */
 async function chooseMesh() {
   if (params.get("mesh")) return params.get("mesh");
-  const headers = token() ? { Authorization: `Bearer ${token()}` } : {};
-  const answer = await fetch("/v1/meshes", { headers });
+  // A header carries visible ASCII only: fetch refuses a token beyond Latin-1 and sends Latin-1
+  // as one byte a character, not the UTF-8 the server compares; such a token goes as ?token=.
+  const plain = /^[\x21-\x7e]+$/.test(token());
+  const headers = token() && plain ? { Authorization: `Bearer ${token()}` } : {};
+  const query = token() && !plain ? `?token=${encodeURIComponent(token())}` : "";
+  const answer = await fetch("/v1/meshes" + query, { headers });
   if (!answer.ok) throw new Error(await answer.text());
   const listing = pb.ListMeshesResponse.decode(new Uint8Array(await answer.arrayBuffer()));
   if (!listing.meshes.length) throw new Error("the server serves no mesh");
