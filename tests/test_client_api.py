@@ -257,3 +257,40 @@ def test_an_async_session_of_a_closed_client_says_so(server, tmp_path):
             for _ in range(50):                                  # bounded: 50 s at most
                 await s.next_frame(timeout=1)
     asyncio.run(asyncio.wait_for(fly(), 120))
+
+
+def test_a_resume_try_that_times_out_is_tried_again(monkeypatch):
+    """A server paused (SIGSTOP) past a resume try's 10 s still holds the session, but a try that
+    timed out (DEADLINE_EXCEEDED) ended the session at once, after one try of twelve."""
+    from types import SimpleNamespace
+
+    import grpc
+
+    from caveclod.client import aio as A
+    from caveclod.client import session as S
+    monkeypatch.setattr(S, "backoff", lambda attempt: 0.0)
+    monkeypatch.setattr(A, "backoff", lambda attempt: 0.0)
+    late = S.SessionEnded(grpc.StatusCode.DEADLINE_EXCEEDED, "no SessionInfo and vertex buffer within 10.0 s")
+
+    def stand_in(tries):
+        def _open(timeout):
+            tries.append(timeout)
+            if len(tries) == 1:
+                raise late
+        return SimpleNamespace(retries=3, _stream=SimpleNamespace(end=lambda: None), _open=_open,
+                               _end=lambda exc, final=True: exc)
+    tries = []
+    S.Session._resume(stand_in(tries), None)
+    assert len(tries) == 2
+
+    async def resume():
+        tries = []
+        this = stand_in(tries)
+        opened = this._open
+
+        async def _open(timeout):
+            opened(timeout)
+        this._open = _open
+        await A.AsyncSession._resume(this, None)
+        return tries
+    assert len(asyncio.run(resume())) == 2

@@ -145,7 +145,9 @@ class AsyncSession(SessionState):
                 await self._open(timeout=10.0)
                 return
             except SessionEnded as exc:
-                if not retriable(exc.code, exc.details):
+                # A try that timed out is tried again: a server paused (SIGSTOP, a long GC, a
+                # VM migrating) still holds the session, which ended at the first try before.
+                if not retriable(exc.code, exc.details) and exc.code != grpc.StatusCode.DEADLINE_EXCEEDED:
                     raise self._end(exc) from None
                 error = exc
         raise self._end(SessionEnded(grpc.StatusCode.UNAVAILABLE,

@@ -397,7 +397,9 @@ class Session(SessionState):
                 self._open(timeout=10.0)
                 return
             except SessionEnded as exc:
-                if not retriable(exc.code, exc.details):
+                # A try that timed out is tried again: a server paused (SIGSTOP, a long GC, a
+                # VM migrating) still holds the session, which ended at the first try before.
+                if not retriable(exc.code, exc.details) and exc.code != grpc.StatusCode.DEADLINE_EXCEEDED:
                     raise self._end(exc) from None
                 error = exc
         raise self._end(SessionEnded(grpc.StatusCode.UNAVAILABLE,
