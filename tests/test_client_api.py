@@ -294,3 +294,22 @@ def test_a_resume_try_that_times_out_is_tried_again(monkeypatch):
         await A.AsyncSession._resume(this, None)
         return tries
     assert len(asyncio.run(resume())) == 2
+
+
+def test_a_session_dropped_without_close_frees_its_slot(make_server, tmp_path):
+    """The reader thread held the call, so a Session and Client dropped without close() kept their
+    stream open for the life of the process, and the server its slot (RESOURCE_EXHAUSTED after)."""
+    import gc
+    server = make_server(max_sessions=1, resume_ttl=1)
+
+    def forget():
+        client = Client(f"127.0.0.1:{server.port}", cache_dir=tmp_path)
+        s = client.session("terrain", width=640, height=360)
+        s.send_pose(0, EYE, TARGET)
+        assert s.next_frame(timeout=20) is not None
+    forget()
+    gc.collect()
+    from service import wait_until
+    assert wait_until(lambda: not server.sessions.sessions, timeout=20), "the dropped session kept its slot"
+    with Client(f"127.0.0.1:{server.port}", cache_dir=tmp_path) as client:
+        client.session("terrain", width=640, height=360).close()

@@ -24,6 +24,7 @@ import queue
 import random
 import threading
 import time
+import weakref
 from dataclasses import dataclass
 
 import grpc
@@ -365,6 +366,7 @@ class Session(SessionState):
         self.client, self.protocol, self.retries = client, protocol, retries
         self._stream: _Stream | None = None
         self._closed = False
+        self._finalizer: weakref.finalize | None = None
 
     # -- opening and resuming ----------------------------------------------------------
     def _open(self, timeout: float) -> None:
@@ -380,6 +382,13 @@ class Session(SessionState):
         deadline = time.monotonic() + timeout
         self._stream = _Stream(self.client.stub, self.protocol.open_message(),
                                self.protocol.metadata(self.client.metadata))
+        # A session dropped without close() ends its stream when it is collected: the reader
+        # thread holds the call, which stayed open for the life of the process, and the server
+        # kept the session (and one of its --max-sessions slots) attached.
+        if self._finalizer is not None:
+            self._finalizer.detach()
+        self._finalizer = weakref.finalize(self, _Stream.end, self._stream)
+        self._finalizer.atexit = False        # at exit the process ends the stream itself
         while not self.protocol.ready:
             remaining = deadline - time.monotonic()
             if remaining <= 0:
