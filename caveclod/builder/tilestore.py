@@ -48,6 +48,7 @@ version is refused by name, with what to do.
 
 from __future__ import annotations
 
+import contextlib
 import hashlib
 import json
 import os
@@ -240,23 +241,17 @@ class TileStore:
                     with z.open(f"{name}.npy", "w", force_zip64=True) as f:
                         np.lib.format.write_array(f, make(), allow_pickle=False)
             os.replace(tmp, path)
-        except OSError as exc:
-            _remove(tmp)
-            raise InputError(f"cannot write tile file {path}: {exc.strerror}; check that --tiles-dir is a writable "
-                             "directory with room (tiles take about 140 bytes per input triangle)") from None
-        except BaseException:                 # Ctrl-C, or a bug: no half file left beside the blocks
-            _remove(tmp)
+        except BaseException as exc:          # Ctrl-C and bugs too: no half file left beside the blocks
+            # (as StaticMesh.save does; on a read-only file system the unlink fails too, and its
+            # error hid the write's)
+            with contextlib.suppress(OSError):
+                tmp.unlink(missing_ok=True)
+            if isinstance(exc, OSError):
+                raise InputError(f"cannot write tile file {path}: {exc.strerror}; check that --tiles-dir is a "
+                                 "writable directory with room (tiles take about 140 bytes per input triangle)") \
+                    from None
             raise
         return path
-
-
-def _remove(path: Path) -> None:
-    """Remove a temp file if it is there and can be: on a read-only file system the unlink fails
-    too, and its error hid the write's."""
-    try:
-        path.unlink(missing_ok=True)
-    except OSError:
-        pass
 
 
 SEGMENT = ("level", "tile", "start", "made", "passes")
@@ -351,8 +346,9 @@ def read_blocks(store: TileStore, st, grid, e: int) -> tuple[int, int, int]:
             with store.rows(b, level) as rows:
                 _scatter(st, rows, seg[mine], starts[mine], e)
         except (OSError, EOFError, zipfile.BadZipFile) as exc:        # a damaged byte: a bad CRC-32
-            raise InputError(f"tile file {store.file(b, level)} is damaged ({exc}); run tile job "
-                             f"{b % metas[b]['jobs']}/{metas[b]['jobs']} again (it makes a damaged block anew)") from None
+            jobs = metas[b]["jobs"]
+            raise InputError(f"tile file {store.file(b, level)} is damaged ({exc}); run tile job {b % jobs}/{jobs} "
+                             "again (it makes a damaged block anew)") from None
         except (ValueError, IndexError, KeyError) as exc:
             raise InputError(f"tile file {store.file(b, level)} does not fit this input ({exc}); delete the tiles "
                              "and run the tile jobs again") from None

@@ -28,7 +28,7 @@ from ..v1 import caveclod_pb2_grpc as pb_grpc
 from .cache import VertexBufferCache
 from .protocol import FrameUpdate, SessionProtocol
 from .session import (CHANNEL_OPTIONS, SessionEnded, SessionState, _checked_timeout, backoff, cache_mode, credentials,
-                      metadata, refine_options, retriable)
+                      metadata, refine_options, retriable, try_resume_again)
 
 
 class AsyncClient:
@@ -145,9 +145,7 @@ class AsyncSession(SessionState):
                 await self._open(timeout=10.0)
                 return
             except SessionEnded as exc:
-                # A try that timed out is tried again: a server paused (SIGSTOP, a long GC, a
-                # VM migrating) still holds the session, which ended at the first try before.
-                if not retriable(exc.code, exc.details) and exc.code != grpc.StatusCode.DEADLINE_EXCEEDED:
+                if not try_resume_again(exc):
                     raise self._end(exc) from None
                 error = exc
         raise self._end(SessionEnded(grpc.StatusCode.UNAVAILABLE,

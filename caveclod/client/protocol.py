@@ -146,9 +146,19 @@ class FrameUpdate:
     bad: list = field(default_factory=list)
 
 
-MAX_CACHE_VERTICES = 2 ** 32 - 1
-"""The most slots Open.cache_vertices (uint32) carries; a larger count is sent as this, and the
-server clamps it to the mesh's vertex count as it clamps any count above that."""
+UINT32_MAX = 2 ** 32 - 1
+"""The largest count a uint32 field of Open carries: a larger one raised protobuf's bare "Value out
+of range" (a traceback in render, view and loadtest)."""
+
+MAX_CACHE_VERTICES = UINT32_MAX
+"""The most slots Open.cache_vertices carries; a larger count is sent as this, and the server clamps
+it to the mesh's vertex count as it clamps any count above that."""
+
+
+def _whole(value) -> bool:
+    """Whether ``value`` is a whole number as the protocol's counts and camera numbers take it: an
+    int or numpy integer, not a bool (True would pass as camera 1)."""
+    return isinstance(value, (int, np.integer)) and not isinstance(value, bool)
 
 
 class SessionProtocol:
@@ -182,14 +192,12 @@ class SessionProtocol:
                  frame_encoding: str = "ops", vertex_encoding: str = "packed", position_bits: int | None = None,
                  morph_targets: bool = False):
         # Checked here, named: protobuf's own refusal of -1 said "Value out of range: -1" only.
-        if isinstance(cameras, bool) or not isinstance(cameras, (int, np.integer)) or cameras < 1:
+        if not _whole(cameras) or cameras < 1:
             raise ValueError(f"cameras must be a whole number from 1, got {cameras!r}")
         slots = (cache_mode or {}).get("vertices")
-        if slots is not None and (isinstance(slots, bool) or not isinstance(slots, (int, np.integer)) or slots < 1):
+        if slots is not None and (not _whole(slots) or slots < 1):
             raise ValueError(f"cache_vertices must be a whole number from 1 (slots per camera), got {slots!r}")
         if slots is not None and slots > MAX_CACHE_VERTICES:
-            # The server clamps a count above the mesh's vertices to them; past the wire's uint32
-            # protobuf refused it ("Value out of range"), a traceback in render, view and loadtest.
             cache_mode = {**cache_mode, "vertices": MAX_CACHE_VERTICES}
         if frame_encoding not in FRAME_ENCODINGS:
             raise ValueError(f"frame_encoding {frame_encoding!r}: use one of {', '.join(FRAME_ENCODINGS)}")
@@ -200,10 +208,10 @@ class SessionProtocol:
         self.frame_encoding, self.vertex_encoding, self.position_bits = frame_encoding, vertex_encoding, position_bits
         self.morph_targets = (bool(morph_targets) or frame_encoding == "linked") and vertex_encoding == "packed"
         self.mesh, self.n_cameras, self.options = mesh, cameras, dict(options)
-        if isinstance(ack_window, bool) or not isinstance(ack_window, (int, np.integer)) or ack_window < 0:
+        if not _whole(ack_window) or ack_window < 0:
             raise ValueError(f"ack_window must be a whole number from 0 (0: the server's default), got {ack_window!r}")
-        # The server clamps a request to 1..32; past the wire's uint32 protobuf refused it unnamed.
-        self.cache, self.ack_window, self.client = cache, min(int(ack_window), 2 ** 32 - 1), client
+        # The server clamps a request to 1..32; past UINT32_MAX the wire cannot carry it.
+        self.cache, self.ack_window, self.client = cache, min(int(ack_window), UINT32_MAX), client
         self.cache_mode = dict(cache_mode) if cache_mode is not None else None
         self.slots: list[SlotBuffer] | None = None     # cache mode: each camera's slots
         self.info: pb.SessionInfo | None = None
@@ -278,7 +286,7 @@ class SessionProtocol:
         # Everything checked before anything changes: a pose refused here was kept as the camera's
         # latest and resent on a resume, where its error came out of next_frame and the session
         # did not recover (and a refused pose used up a pose_seq).
-        if isinstance(camera, bool) or not isinstance(camera, (int, np.integer)):
+        if not _whole(camera):
             raise TypeError(f"camera must be an int (0..{self.n_cameras - 1}), got {camera!r}")
         if not 0 <= camera < self.n_cameras:
             raise ValueError(f"camera {camera} out of range 0..{self.n_cameras - 1}")
@@ -294,8 +302,7 @@ class SessionProtocol:
 
     def keyframe_message(self, camera: int | None, reason: int, detail: str = "") -> pb.ClientMessage:
         """A KeyframeRequest for ``camera`` (None: all); remembered so it is not repeated."""
-        if camera is not None and (isinstance(camera, bool) or not isinstance(camera, (int, np.integer))
-                                   or not 0 <= camera < self.n_cameras):
+        if camera is not None and (not _whole(camera) or not 0 <= camera < self.n_cameras):
             # Sent, a camera out of range ended the whole session (INVALID_ARGUMENT, raised later by
             # next_frame); -1 was protobuf's bare "Value out of range".
             raise ValueError(f"camera {camera!r} is not one of this session's 0..{self.n_cameras - 1}")

@@ -74,6 +74,13 @@ def retriable(code: grpc.StatusCode | None, details: str | None) -> bool:
     return code == grpc.StatusCode.INTERNAL and ("RST_STREAM" in (details or "") or details == LOCAL_WRITE_RACE)
 
 
+def try_resume_again(end: "SessionEnded") -> bool:
+    """Whether a resume try that ended with ``end`` is followed by the next try: what
+    :func:`retriable` allows, and a try that timed out (a server paused by SIGSTOP, a long GC or
+    a migrating VM still holds the session, which ended at the first such try before)."""
+    return retriable(end.code, end.details) or end.code == grpc.StatusCode.DEADLINE_EXCEEDED
+
+
 def _checked_timeout(timeout: float | None) -> float | None:
     """A next_frame timeout: None, or seconds; infinite or beyond what the platform can wait is
     None (1e12 raised OverflowError, inf too); NaN is refused (it waited as None, silently)."""
@@ -406,9 +413,7 @@ class Session(SessionState):
                 self._open(timeout=10.0)
                 return
             except SessionEnded as exc:
-                # A try that timed out is tried again: a server paused (SIGSTOP, a long GC, a
-                # VM migrating) still holds the session, which ended at the first try before.
-                if not retriable(exc.code, exc.details) and exc.code != grpc.StatusCode.DEADLINE_EXCEEDED:
+                if not try_resume_again(exc):
                     raise self._end(exc) from None
                 error = exc
         raise self._end(SessionEnded(grpc.StatusCode.UNAVAILABLE,
@@ -462,8 +467,7 @@ class Session(SessionState):
             # Over already (its end was raised to the caller): no stream end is left to wait for,
             # and closing such a session waited out the whole timeout (5 s a `with` block).
             self._closed = True
-            self._stream.requests.put(None)
-            self._stream.call.cancel()
+            self._stream.end()
             return
         self._closed = True
         self._stream.send(self.protocol.close_message(reason))
